@@ -1,0 +1,22 @@
+//! Proprioceptive tactile sensing (PTS) for a two-phalanx linkage-driven finger.
+//!
+//! The kinetostatic model of Belzile & Birglen with the corrections of `MODEL.md`:
+//! four-bar closure, transmission x2 and dx2/dθ2, the stiffness at the actuator (Eq. 2
+//! closed forms), free motion, the inversion of a measured stiffness into a contact
+//! location, and the paper's two-point estimator.
+//!
+//! One API, several numeric back ends: [`Model<f64>`] is the reference, [`Model<f32>`]
+//! and the fixed-point types of [`fixed`] run on the target. No allocation, no panics:
+//! every failure is a [`PtsError`].
+#![no_std]
+#![forbid(unsafe_code)]
+
+mod error;
+mod finger;
+pub mod model;
+pub mod real;
+
+pub use error::PtsError;
+pub use finger::Finger;
+pub use model::{Closure, Config, Contact, Estimate, Model, Phalanx};
+pub use real::Real;

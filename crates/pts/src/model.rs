@@ -1,0 +1,497 @@
+//! The kinetostatic model of the finger, generic over the numeric back end.
+//!
+//! Conventions and corrections: `../shared/design/MODEL.md`. Flexion positive, SI units,
+//! θ1 absolute, θ2 relative, θa the absolute angle of the input crank O1Oc.
+
+use crate::{Finger, PtsError, Real};
+
+/// |x2| below this is treated as the toggle (the actuator loses control of θ2).
+pub const TOGGLE_X2: f64 = 1e-2;
+/// Smallest actuator displacement (rad) accepted for a stiffness measurement.
+pub const MIN_DTHETA_A: f64 = 1e-6;
+/// Largest |angle| (rad) accepted as input.
+pub const MAX_ANGLE: f64 = 4.0 * core::f64::consts::PI;
+/// Largest |torque| (N·m) accepted as input.
+pub const MAX_TORQUE: f64 = 1e3;
+/// Largest stiffness (N·m/rad) accepted as input.
+pub const MAX_STIFFNESS: f64 = 1e4;
+/// Newton iteration budget for the free-motion solves.
+pub const MAX_NEWTON: usize = 40;
+/// Relative band below the free-motion stiffness still read as "no contact"
+/// (measurement noise); below it the stiffness is an error.
+pub const FREE_BAND: f64 = 0.05;
+
+/// The four-bar closure at one θ2: the input-crank angle γ and the transmission.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Closure<R> {
+    /// λ = π + θ2 − φ2 (rad).
+    pub lambda: R,
+    /// γ on the physical assembly branch (rad), angle of O1Oc in the O2Ob frame.
+    pub gamma: R,
+    /// Transmission factor x2 = ∂θa/∂θ2 (dimensionless).
+    pub x2: R,
+    /// dx2/dθ2 (1/rad).
+    pub dx2: R,
+}
+
+/// A configuration of the finger with the torque that holds it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Config<R> {
+    /// Absolute proximal angle θ1 (rad).
+    pub theta1: R,
+    /// Relative distal angle θ2 (rad).
+    pub theta2: R,
+    /// Actuator angle θa (rad), absolute model angle.
+    pub theta_a: R,
+    /// Actuator torque T_a (N·m).
+    pub ta: R,
+    /// Transmission x2 at θ2.
+    pub x2: R,
+    /// dx2/dθ2 at θ2 (1/rad).
+    pub dx2: R,
+}
+
+/// Which phalanx a stiffness points to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Phalanx {
+    /// No contact: the stiffness is the free-motion one.
+    None,
+    /// A contact on the proximal phalanx (detectable, not locatable).
+    Proximal,
+    /// A contact on the distal phalanx, located by k2.
+    Distal,
+}
+
+impl Phalanx {
+    /// Lower-case name for logs and JSON.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            Phalanx::None => "none",
+            Phalanx::Proximal => "proximal",
+            Phalanx::Distal => "distal",
+        }
+    }
+}
+
+/// The result of inverting a stiffness at a contact configuration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Contact<R> {
+    /// Classification.
+    pub phalanx: Phalanx,
+    /// Distal contact location from O2 (m); `Some` only for [`Phalanx::Distal`].
+    pub k2: Option<R>,
+    /// Free-motion stiffness at the configuration (N·m/rad).
+    pub kc_free: R,
+    /// Stiffness of a proximal contact (= distal contact at O2) (N·m/rad).
+    pub kc_proximal: R,
+    /// Stiffness of a contact at the distal tip (N·m/rad).
+    pub kc_tip: R,
+}
+
+/// The paper's two-point estimate (Eq. 1 and inversion at the contact configuration).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Estimate<R> {
+    /// K̂c = ΔT_a/Δθa (N·m/rad).
+    pub kc_hat: R,
+    /// Torque step ΔT_a (N·m).
+    pub dta: R,
+    /// Actuator displacement Δθa (rad).
+    pub dtheta_a: R,
+    /// Configuration at contact, rebuilt from θa,c (torque T_a,c as measured).
+    pub contact_config: Config<R>,
+    /// Classification and location.
+    pub contact: Contact<R>,
+}
+
+/// The model of one finger on one numeric back end. Build once, call many times.
+#[derive(Clone, Copy, Debug)]
+pub struct Model<R> {
+    /// The description this model was built from.
+    pub finger: Finger,
+    l1: R,
+    l2: R,
+    phi2_minus_pi: R,
+    theta01: R,
+    theta02: R,
+    k1: R,
+    k2: R,
+    z1: R,
+    z2: R,
+    z3: R,
+}
+
+fn check<R: Real>(x: R, limit: f64) -> Result<R, PtsError> {
+    if !x.is_finite() {
+        return Err(PtsError::NonFinite);
+    }
+    if x.abs() > R::from_f64(limit) {
+        return Err(PtsError::OutOfRange);
+    }
+    Ok(x)
+}
+
+fn ok_value<R: Real>(x: R) -> Result<R, PtsError> {
+    if !x.is_finite() {
+        Err(PtsError::NonFinite)
+    } else if x.is_saturated() {
+        Err(PtsError::Overflow)
+    } else {
+        Ok(x)
+    }
+}
+
+impl<R: Real> Model<R> {
+    /// Builds the model; fails on a non-physical finger or one the back end cannot represent.
+    pub fn new(finger: &Finger) -> Result<Self, PtsError> {
+        finger.validate()?;
+        let f = finger;
+        let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
+        let z1 = (f.l1 * f.l1 + f.c * f.c + f.a * f.a - f.b * f.b) / (2.0 * f.a * f.l1);
+        Ok(Self {
+            finger: *finger,
+            l1: conv(f.l1)?,
+            l2: conv(f.l2)?,
+            phi2_minus_pi: conv(f.phi2 - core::f64::consts::PI)?,
+            theta01: conv(f.theta01)?,
+            theta02: conv(f.theta02)?,
+            k1: conv(f.k1)?,
+            k2: conv(f.k2)?,
+            z1: conv(z1)?,
+            z2: conv(f.c / f.l1)?,
+            z3: conv(f.c / f.a)?,
+        })
+    }
+
+    /// The paper's prototype on this back end.
+    pub fn paper() -> Result<Self, PtsError> {
+        Self::new(&Finger::PAPER)
+    }
+
+    /// Distal phalanx length l2 (m), in the back end's type.
+    pub fn l2(&self) -> R {
+        self.l2
+    }
+
+    /// Four-bar closure at θ2 (rad) on the physical branch, with x2 and dx2/dθ2 (analytic).
+    ///
+    /// γ = atan2(Q, P) − acos(R/√(P²+Q²)): no tan(γ/2) pole.
+    pub fn closure(&self, theta2: R) -> Result<Closure<R>, PtsError> {
+        let theta2 = check(theta2, MAX_ANGLE)?;
+        let lambda = theta2 - self.phi2_minus_pi;
+        let (sl, cl) = (lambda.sin(), lambda.cos());
+        let p = cl - self.z2;
+        let q = sl;
+        let r = self.z3 * cl - self.z1;
+        let rho = (p * p + q * q).sqrt();
+        if !(rho > R::from_f64(1e-6)) {
+            return Err(PtsError::NotAssemblable);
+        }
+        let ratio = r / rho;
+        if ratio.abs() > R::one() {
+            return Err(PtsError::NotAssemblable);
+        }
+        let gamma = q.atan2(p) - ratio.acos();
+        let lg = lambda - gamma;
+        let (slg, clg) = (lg.sin(), lg.cos());
+        let (sg, cg) = (gamma.sin(), gamma.cos());
+        // Implicit derivative of P cos γ + Q sin γ − R = 0 with respect to λ.
+        let n = slg - self.z3 * sl;
+        let m = slg + self.z2 * sg;
+        if m.abs() < R::from_f64(1e-4) {
+            return Err(PtsError::Singular);
+        }
+        let gp = n / m;
+        let x2 = R::one() - gp;
+        if x2.abs() < R::from_f64(TOGGLE_X2) {
+            return Err(PtsError::Toggle);
+        }
+        let np = clg * x2 - self.z3 * cl;
+        let mp = clg * x2 + self.z2 * cg * gp;
+        let gpp = (np - gp * mp) / m;
+        Ok(Closure {
+            lambda,
+            gamma: ok_value(gamma)?,
+            x2: ok_value(x2)?,
+            dx2: ok_value(-gpp)?,
+        })
+    }
+
+    /// Actuator angle θa = θ1 + θ2 − φ2 − γ (rad) (corrected Eq. 18).
+    pub fn theta_a(&self, theta1: R, theta2: R) -> Result<R, PtsError> {
+        let theta1 = check(theta1, MAX_ANGLE)?;
+        let cl = self.closure(theta2)?;
+        ok_value(self.theta_a_from(theta1, theta2, &cl))
+    }
+
+    fn theta_a_from(&self, theta1: R, theta2: R, cl: &Closure<R>) -> R {
+        // θ1 + θ2 − φ2 − γ = θ1 + λ − π − γ
+        theta1 + theta2 - (self.phi2_minus_pi + R::from_f64(core::f64::consts::PI)) - cl.gamma
+    }
+
+    /// K2′ = K2 − T_a dx2/dθ2 (N·m/rad): the distal spring stiffened by the G term.
+    fn k2_prime(&self, ta: R, cl: &Closure<R>) -> R {
+        self.k2 - ta * cl.dx2
+    }
+
+    /// Stiffness (N·m/rad) at the actuator for a proximal contact: K2′/x2², independent of k1.
+    pub fn kc_proximal(&self, theta2: R, ta: R) -> Result<R, PtsError> {
+        let ta = check(ta, MAX_TORQUE)?;
+        let cl = self.closure(theta2)?;
+        ok_value(self.k2_prime(ta, &cl) / (cl.x2 * cl.x2))
+    }
+
+    /// Stiffness (N·m/rad) for a distal contact at k2 (m from O2):
+    /// (K1 s² + K2′)/(s − x2)², s = k2/(l1 cos θ2 + k2).
+    pub fn kc_distal(&self, theta2: R, ta: R, k2: R) -> Result<R, PtsError> {
+        let ta = check(ta, MAX_TORQUE)?;
+        let k2 = check(k2, 1e3)?;
+        if !(k2 > R::zero()) || k2 > self.l2 {
+            return Err(PtsError::ContactOutsidePhalanx);
+        }
+        let cl = self.closure(theta2)?;
+        let den = self.l1 * theta2.cos() + k2;
+        if den.abs() < R::from_f64(1e-9) {
+            return Err(PtsError::Singular);
+        }
+        let s = k2 / den;
+        let d = s - cl.x2;
+        if d.abs() < R::from_f64(1e-6) {
+            // The locking point: infinite stiffness.
+            return Err(PtsError::NotMonotone);
+        }
+        ok_value((self.k1 * s * s + self.k2_prime(ta, &cl)) / (d * d))
+    }
+
+    /// Free-motion stiffness (N·m/rad): 1/(1/K1 + x2²/K2′); zero when K1 = 0.
+    pub fn kc_free(&self, theta2: R, ta: R) -> Result<R, PtsError> {
+        let ta = check(ta, MAX_TORQUE)?;
+        let cl = self.closure(theta2)?;
+        Ok(self.kc_free_from(ta, &cl))
+    }
+
+    fn kc_free_from(&self, ta: R, cl: &Closure<R>) -> R {
+        // K1 K2′ / (K2′ + K1 x2²): the series form without dividing by K1.
+        let k2p = self.k2_prime(ta, cl);
+        let den = k2p + self.k1 * cl.x2 * cl.x2;
+        if den.abs() < R::from_f64(1e-12) {
+            return R::zero();
+        }
+        self.k1 * k2p / den
+    }
+
+    /// Free-motion configuration holding torque T_a (N·m). Needs K1 > 0 unless T_a = 0.
+    pub fn free_from_torque(&self, ta: R) -> Result<Config<R>, PtsError> {
+        let ta = check(ta, MAX_TORQUE)?;
+        let theta1 = if self.k1 > R::zero() {
+            self.theta01 + ta / self.k1
+        } else if ta == R::zero() {
+            return self.free_from_theta_a_k1_zero(None);
+        } else {
+            // With K1 = 0 only T_a = 0 is an equilibrium of free motion.
+            return Err(PtsError::OutOfRange);
+        };
+        let theta1 = check(theta1, MAX_ANGLE)?;
+        // Solve g(θ2) = K2(θ2 − θ02) − T_a x2(θ2) = 0; g′ = K2′.
+        let mut theta2 = self.theta02;
+        for _ in 0..MAX_NEWTON {
+            let cl = self.closure(theta2)?;
+            let g = self.k2 * (theta2 - self.theta02) - ta * cl.x2;
+            let dg = self.k2_prime(ta, &cl);
+            if !(dg > R::from_f64(1e-9)) {
+                return Err(PtsError::NoConvergence);
+            }
+            let step = clamp_step(g / dg);
+            theta2 = theta2 - step;
+            if step.abs() <= R::from_f64(R::TOL) {
+                let cl = self.closure(theta2)?;
+                let theta_a = self.theta_a_from(theta1, theta2, &cl);
+                return Ok(Config {
+                    theta1,
+                    theta2,
+                    theta_a: ok_value(theta_a)?,
+                    ta,
+                    x2: cl.x2,
+                    dx2: cl.dx2,
+                });
+            }
+        }
+        Err(PtsError::NoConvergence)
+    }
+
+    /// Free-motion configuration at a measured actuator angle θa (rad).
+    ///
+    /// Solves g(θ2) = K2(θ2 − θ02) − K1(θ1(θ2) − θ01) x2 = 0 with θ1 = θa − θ2 + φ2 + γ;
+    /// g′ = K2′ + K1 x2² > 0 on the working range. With K1 = 0 the answer is θ2 = θ02, T_a = 0.
+    pub fn free_from_theta_a(&self, theta_a: R) -> Result<Config<R>, PtsError> {
+        let theta_a = check(theta_a, MAX_ANGLE)?;
+        if !(self.k1 > R::zero()) {
+            return self.free_from_theta_a_k1_zero(Some(theta_a));
+        }
+        let offset = self.phi2_minus_pi + R::from_f64(core::f64::consts::PI);
+        let mut theta2 = self.theta02;
+        for _ in 0..MAX_NEWTON {
+            let cl = self.closure(theta2)?;
+            let theta1 = theta_a - theta2 + offset + cl.gamma;
+            let ta = self.k1 * (theta1 - self.theta01);
+            let g = self.k2 * (theta2 - self.theta02) - ta * cl.x2;
+            let dg = self.k2_prime(ta, &cl) + self.k1 * cl.x2 * cl.x2;
+            if !(dg > R::from_f64(1e-9)) {
+                return Err(PtsError::NoConvergence);
+            }
+            let step = clamp_step(g / dg);
+            theta2 = theta2 - step;
+            if step.abs() <= R::from_f64(R::TOL) {
+                let cl = self.closure(theta2)?;
+                let theta1 = theta_a - theta2 + offset + cl.gamma;
+                let ta = self.k1 * (theta1 - self.theta01);
+                return Ok(Config {
+                    theta1: ok_value(theta1)?,
+                    theta2,
+                    theta_a,
+                    ta: ok_value(ta)?,
+                    x2: cl.x2,
+                    dx2: cl.dx2,
+                });
+            }
+        }
+        Err(PtsError::NoConvergence)
+    }
+
+    fn free_from_theta_a_k1_zero(&self, theta_a: Option<R>) -> Result<Config<R>, PtsError> {
+        // K1 = 0: the finger turns as one body at T_a = 0, θ2 = θ02.
+        let theta2 = self.theta02;
+        let cl = self.closure(theta2)?;
+        let offset = self.phi2_minus_pi + R::from_f64(core::f64::consts::PI);
+        let (theta1, theta_a) = match theta_a {
+            Some(ta_angle) => (ta_angle - theta2 + offset + cl.gamma, ta_angle),
+            None => (self.theta01, self.theta_a_from(self.theta01, theta2, &cl)),
+        };
+        Ok(Config {
+            theta1: ok_value(theta1)?,
+            theta2,
+            theta_a: ok_value(theta_a)?,
+            ta: R::zero(),
+            x2: cl.x2,
+            dx2: cl.dx2,
+        })
+    }
+
+    /// Checks that K_c(k2) is strictly increasing on (0, l2] at this configuration
+    /// (MODEL.md, "Monotonicity"), so the inversion is unique.
+    pub fn check_monotone(&self, cfg: &Config<R>) -> Result<(), PtsError> {
+        let c2 = cfg.theta2.cos();
+        if !(c2 > R::zero()) || !(cfg.x2 < R::one()) || !(cfg.x2 > R::zero()) {
+            return Err(PtsError::NotMonotone);
+        }
+        let l1c = self.l1 * c2;
+        // Locking point k2* = x2 l1 cos θ2/(1 − x2) must lie beyond the tip.
+        if !(cfg.x2 * l1c > self.l2 * (R::one() - cfg.x2)) {
+            return Err(PtsError::NotMonotone);
+        }
+        let k2p = self.k2 - cfg.ta * cfg.dx2;
+        let s_tip = self.l2 / (l1c + self.l2);
+        if !(k2p > R::zero()) || !(self.k1 * s_tip * cfg.x2 + k2p > R::zero()) {
+            return Err(PtsError::NotMonotone);
+        }
+        Ok(())
+    }
+
+    /// Classifies a measured stiffness K_c (N·m/rad) at the contact configuration and,
+    /// for a distal contact, inverts the closed form for k2 (m) as a quadratic in s.
+    pub fn invert(&self, cfg: &Config<R>, kc: R) -> Result<Contact<R>, PtsError> {
+        let kc = check(kc, MAX_STIFFNESS)?;
+        let cl = Closure {
+            lambda: R::zero(),
+            gamma: R::zero(),
+            x2: cfg.x2,
+            dx2: cfg.dx2,
+        };
+        self.check_monotone(cfg)?;
+        let k2p = self.k2_prime(cfg.ta, &cl);
+        let x2 = cfg.x2;
+        let kc_free = self.kc_free_from(cfg.ta, &cl);
+        let kc_prox = ok_value(k2p / (x2 * x2))?;
+        let l1c = self.l1 * cfg.theta2.cos();
+        let s_tip = self.l2 / (l1c + self.l2);
+        let d_tip = s_tip - x2;
+        let kc_tip = ok_value((self.k1 * s_tip * s_tip + k2p) / (d_tip * d_tip))?;
+        let mut contact = Contact {
+            phalanx: Phalanx::None,
+            k2: None,
+            kc_free,
+            kc_proximal: kc_prox,
+            kc_tip,
+        };
+        if kc < kc_free * R::from_f64(1.0 - FREE_BAND) {
+            return Err(PtsError::StiffnessBelowFree);
+        }
+        // Between free motion and a proximal contact, read the nearer one (geometric midpoint).
+        if kc * kc < kc_free * kc_prox {
+            return Ok(contact);
+        }
+        if kc <= kc_prox {
+            contact.phalanx = Phalanx::Proximal;
+            return Ok(contact);
+        }
+        if kc > kc_tip {
+            return Err(PtsError::BeyondTip);
+        }
+        // (Kc − K1) s² − 2 Kc x2 s + Kc x2² − K2′ = 0; the root below x2, in the form
+        // that neither cancels nor divides by Kc − K1.
+        let disc = kc * (k2p + self.k1 * x2 * x2) - self.k1 * k2p;
+        if disc < R::zero() {
+            return Err(PtsError::NotMonotone);
+        }
+        let s = (kc * x2 * x2 - k2p) / (kc * x2 + disc.sqrt());
+        let s = ok_value(s)?.max(R::zero()).min(s_tip);
+        let k2 = s * l1c / (R::one() - s);
+        contact.phalanx = Phalanx::Distal;
+        contact.k2 = Some(ok_value(k2)?.min(self.l2));
+        Ok(contact)
+    }
+
+    /// The paper's two-point estimate: K̂c = ΔT_a/Δθa from the contact instant
+    /// (θa,c, T_a,c) and the end of the step (θa, T_a), inverted at the contact configuration.
+    pub fn estimate_two_point(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+    ) -> Result<Estimate<R>, PtsError> {
+        let theta_a_c = check(theta_a_c, MAX_ANGLE)?;
+        let theta_a = check(theta_a, MAX_ANGLE)?;
+        let ta_c = check(ta_c, MAX_TORQUE)?;
+        let ta = check(ta, MAX_TORQUE)?;
+        let dta = ta - ta_c;
+        if !(dta > R::zero()) {
+            return Err(PtsError::DeltaTorqueNotPositive);
+        }
+        let dtheta_a = theta_a - theta_a_c;
+        if !(dtheta_a > R::from_f64(MIN_DTHETA_A)) {
+            return Err(PtsError::DeltaThetaTooSmall);
+        }
+        let kc_hat = dta / dtheta_a;
+        if kc_hat > R::from_f64(MAX_STIFFNESS) {
+            return Err(PtsError::BeyondTip);
+        }
+        let mut cfg = self.free_from_theta_a(theta_a_c)?;
+        // The G term carries the torque actually applied at contact.
+        cfg.ta = ta_c;
+        let contact = self.invert(&cfg, kc_hat)?;
+        Ok(Estimate {
+            kc_hat,
+            dta,
+            dtheta_a,
+            contact_config: cfg,
+            contact,
+        })
+    }
+}
+
+fn clamp_step<R: Real>(step: R) -> R {
+    // Newton steps larger than 0.5 rad leave the basin; limit them.
+    let lim = R::from_f64(0.5);
+    step.max(-lim).min(lim)
+}
