@@ -10,7 +10,11 @@
 //! every failure is a [`PtsError`].
 #![no_std]
 #![forbid(unsafe_code)]
+// `!(a > b)` is deliberate throughout: it is true for NaN, so a NaN fails every range check.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+#[cfg(feature = "std")]
+pub mod config;
 mod error;
 mod finger;
 pub mod model;
