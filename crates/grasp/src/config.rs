@@ -1,0 +1,421 @@
+//! Configuration in SI units (`f64`, evaluated once in [`Controller::new`](crate::Controller::new))
+//! and its integer form [`Params`], the only thing the per-tick path reads.
+//!
+//! This is the one place in the crate where the drive constants live ([`DriveConfig::DEFAULT`]);
+//! they mirror the plant's defaults (`plant::Drive`), and the host tests check that they agree.
+
+use crate::DUTY_MAX;
+
+/// The drive: motor, gearhead + transmission to the base link, encoder and current sensor.
+/// SI units. Mirrors the simulated plant's drive constants.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DriveConfig {
+    /// Control period (s); `tick()` is called once per period.
+    pub dt_s: f64,
+    /// Motor revolutions per revolution of the input crank (gearhead × pulleys), dimensionless.
+    pub gear_ratio: f64,
+    /// Transmission efficiency from motor to base link, (0, 1].
+    pub efficiency: f64,
+    /// Motor torque constant (N·m/A).
+    pub kt_nm_per_a: f64,
+    /// Motor terminal resistance (Ω).
+    pub resistance_ohm: f64,
+    /// H-bridge supply voltage at full duty (V).
+    pub bus_v: f64,
+    /// Encoder counts per motor revolution, quadrature ×4 (counts/rev).
+    pub encoder_counts_per_rev: f64,
+    /// Current-sense gain: motor current per ADC code (A/code); positive = flexion current.
+    pub amps_per_code: f64,
+    /// Nominal ADC code at zero current (mid-scale for a bidirectional amplifier).
+    pub adc_zero_code: f64,
+    /// Absolute model angle θa at the rest pose, where the encoder reading is taken as zero (rad).
+    pub theta_a_rest_rad: f64,
+}
+
+impl DriveConfig {
+    /// The drive of the simulated prototype (same numbers as the plant's default drive).
+    pub const DEFAULT: DriveConfig = DriveConfig {
+        dt_s: 1.0e-3,
+        gear_ratio: 256.0,
+        efficiency: 0.7,
+        kt_nm_per_a: 3.95e-3,
+        resistance_ohm: 10.2,
+        bus_v: 6.0,
+        encoder_counts_per_rev: 64.0,
+        amps_per_code: 2.5e-4,
+        adc_zero_code: 2048.0,
+        theta_a_rest_rad: -0.850_360_8,
+    };
+
+    /// Actuator torque per ampere of motor current: kt × ratio × efficiency (N·m/A).
+    pub fn torque_per_amp(&self) -> f64 {
+        self.kt_nm_per_a * self.gear_ratio * self.efficiency
+    }
+
+    /// Actuator angle per encoder count (rad/count).
+    pub fn rad_per_count(&self) -> f64 {
+        2.0 * core::f64::consts::PI / (self.encoder_counts_per_rev * self.gear_ratio)
+    }
+}
+
+impl Default for DriveConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// How the torque is raised by ΔT_a after contact.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StepShape {
+    /// The reference jumps by ΔT_a in one tick.
+    Step,
+    /// The reference rises at this rate (N·m/s) until ΔT_a is reached (quasi-static).
+    Ramp(f64),
+}
+
+/// What to do once the estimate is delivered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AfterEstimate {
+    /// Keep the torque T_a,c + ΔT_a (grasp holds the object).
+    Hold,
+    /// Ramp the torque down to zero, then switch the bridge off.
+    Release,
+}
+
+/// Everything the controller is told, SI units. Converted once by [`ControllerConfig::params`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ControllerConfig {
+    /// The drive constants.
+    pub drive: DriveConfig,
+    /// Ticks with the bridge off used to calibrate the current offset (ticks, 16‥4096).
+    pub calib_ticks: u32,
+    /// Largest accepted |ADC offset − nominal zero code| (codes); more is a sensor fault.
+    pub calib_max_offset_codes: u16,
+    /// Approach: rate at which the torque reference rises from zero (N·m/s).
+    pub approach_rate_nm_per_s: f64,
+    /// Approach: torque at which the approach gives up (no contact) (N·m).
+    pub approach_max_nm: f64,
+    /// Decimation: ticks averaged into one sample of the history / path (ticks).
+    pub sample_ticks: u32,
+    /// Contact detection window, in samples.
+    pub detect_window: u32,
+    /// Contact detection: consecutive stiff windows needed (samples).
+    pub detect_confirm: u32,
+    /// Contact detection threshold on ΔT_ref/Δθa over the window (N·m/rad). Between the
+    /// free-motion stiffness (≈ 0.5‥0.7) and the proximal-contact stiffness (≈ 2.6).
+    pub detect_stiffness_nm_per_rad: f64,
+    /// The torque increase ΔT_a after contact (N·m).
+    pub delta_ta_nm: f64,
+    /// Shape of the increase.
+    pub step_shape: StepShape,
+    /// Settle: samples over which θa must stay within `settle_band_rad`.
+    pub settle_window: u32,
+    /// Settle: largest θa spread over the window (rad).
+    pub settle_band_rad: f64,
+    /// Settle: minimum time after the reference reached its target (s).
+    pub settle_min_s: f64,
+    /// Settle must happen within this time after contact (s), otherwise a stall fault.
+    pub settle_timeout_s: f64,
+    /// The estimate must be delivered within this time after the request (s).
+    pub estimate_timeout_s: f64,
+    /// Largest stiffness of one contact (N·m/rad): above it over a window during the step,
+    /// the finger has touched a second time (it is locked).
+    pub second_contact_stiffness_nm_per_rad: f64,
+    /// Loss of contact: θa moving beyond (T − T_c)/K_detect + this margin (rad).
+    pub loss_margin_rad: f64,
+    /// Over-current limit on |motor current| (A).
+    pub overcurrent_a: f64,
+    /// Over-current must persist this many ticks.
+    pub overcurrent_ticks: u32,
+    /// Stall: duty saturated for this many ticks.
+    pub stall_ticks: u32,
+    /// Largest physically possible encoder change per tick (counts); more is a sensor fault.
+    pub encoder_max_counts_per_tick: u16,
+    /// Current loop proportional gain, relative to the static plant inverse (dimensionless).
+    pub kp_rel: f64,
+    /// Current loop integral gain per tick, relative to the static plant inverse (dimensionless).
+    pub ki_rel: f64,
+    /// After the estimate: hold or release.
+    pub after_estimate: AfterEstimate,
+    /// Release: ramp-down rate (N·m/s).
+    pub release_rate_nm_per_s: f64,
+}
+
+impl ControllerConfig {
+    /// Defaults tuned against the simulated plant (see the host tests).
+    pub const DEFAULT: ControllerConfig = ControllerConfig {
+        drive: DriveConfig::DEFAULT,
+        calib_ticks: 256,
+        calib_max_offset_codes: 200,
+        approach_rate_nm_per_s: 0.25,
+        approach_max_nm: 1.5,
+        sample_ticks: 4,
+        detect_window: 5,
+        detect_confirm: 2,
+        detect_stiffness_nm_per_rad: 1.5,
+        delta_ta_nm: 0.2,
+        step_shape: StepShape::Ramp(1.0),
+        settle_window: 25,
+        settle_band_rad: 1.0e-3,
+        settle_min_s: 0.05,
+        settle_timeout_s: 3.0,
+        estimate_timeout_s: 1.0,
+        second_contact_stiffness_nm_per_rad: 80.0,
+        loss_margin_rad: 0.02,
+        overcurrent_a: 0.6,
+        overcurrent_ticks: 5,
+        stall_ticks: 500,
+        encoder_max_counts_per_tick: 200,
+        kp_rel: 0.2,
+        ki_rel: 0.3,
+        after_estimate: AfterEstimate::Hold,
+        release_rate_nm_per_s: 1.0,
+    };
+
+    /// The default configuration with another ΔT_a (N·m).
+    pub fn with_delta_ta(mut self, delta_ta_nm: f64) -> Self {
+        self.delta_ta_nm = delta_ta_nm;
+        self
+    }
+
+    /// Checks the configuration and converts it to the integer parameters of the tick path.
+    pub fn params(&self) -> Result<Params, ConfigError> {
+        let d = &self.drive;
+        let finite = [
+            d.dt_s,
+            d.gear_ratio,
+            d.efficiency,
+            d.kt_nm_per_a,
+            d.resistance_ohm,
+            d.bus_v,
+            d.encoder_counts_per_rev,
+            d.amps_per_code,
+            d.adc_zero_code,
+            d.theta_a_rest_rad,
+            self.approach_rate_nm_per_s,
+            self.approach_max_nm,
+            self.detect_stiffness_nm_per_rad,
+            self.delta_ta_nm,
+            self.settle_band_rad,
+            self.settle_min_s,
+            self.settle_timeout_s,
+            self.estimate_timeout_s,
+            self.second_contact_stiffness_nm_per_rad,
+            self.loss_margin_rad,
+            self.overcurrent_a,
+            self.kp_rel,
+            self.ki_rel,
+            self.release_rate_nm_per_s,
+        ];
+        if finite.iter().any(|v| !v.is_finite()) {
+            return Err(ConfigError::NonFinite);
+        }
+        let positive = [
+            d.dt_s,
+            d.gear_ratio,
+            d.efficiency,
+            d.kt_nm_per_a,
+            d.resistance_ohm,
+            d.bus_v,
+            d.encoder_counts_per_rev,
+            self.approach_rate_nm_per_s,
+            self.approach_max_nm,
+            self.detect_stiffness_nm_per_rad,
+            self.delta_ta_nm,
+            self.settle_band_rad,
+            self.settle_timeout_s,
+            self.estimate_timeout_s,
+            self.second_contact_stiffness_nm_per_rad,
+            self.overcurrent_a,
+            self.release_rate_nm_per_s,
+        ];
+        if positive.iter().any(|&v| v <= 0.0)
+            || d.efficiency > 1.0
+            || d.amps_per_code == 0.0
+            || !(0.0..4096.0).contains(&d.adc_zero_code)
+            || self.kp_rel < 0.0
+            || !(self.ki_rel > 0.0 && self.ki_rel <= 1.0)
+            || self.settle_min_s < 0.0
+            || self.loss_margin_rad < 0.0
+        {
+            return Err(ConfigError::OutOfRange);
+        }
+        if !(16..=4096).contains(&self.calib_ticks)
+            || !(1..=64).contains(&self.sample_ticks)
+            || !(2..=(HISTORY as u32 / 2)).contains(&self.detect_window)
+            || !(1..=16).contains(&self.detect_confirm)
+            || !(2..=(HISTORY as u32)).contains(&self.settle_window)
+            || self.overcurrent_ticks == 0
+            || self.stall_ticks == 0
+            || self.encoder_max_counts_per_tick == 0
+        {
+            return Err(ConfigError::OutOfRange);
+        }
+        let secs = |s: f64| to_u32(s / d.dt_s);
+        let unm = |nm: f64| to_i32(nm * 1e6);
+        // Static inverse of the drive: duty (DUTY_MAX units) per µN·m of actuator torque,
+        // at standstill: V = R I, I = T/(kt N η).
+        let duty_per_unm =
+            d.resistance_ohm / (d.torque_per_amp() * d.bus_v) * 1e-6 * DUTY_MAX as f64;
+        let q16 = |x: f64| to_i64(x * 65536.0);
+        let ramp = |nm_per_s: f64| to_i64(nm_per_s * 1e6 * d.dt_s * 65536.0);
+        let step_ramp_q16 = match self.step_shape {
+            StepShape::Step => 0,
+            StepShape::Ramp(r) if r.is_finite() && r > 0.0 => ramp(r),
+            StepShape::Ramp(_) => return Err(ConfigError::OutOfRange),
+        };
+        let p = Params {
+            calib_ticks: self.calib_ticks,
+            adc_zero_code: to_i32(d.adc_zero_code),
+            calib_max_offset_codes: i32::from(self.calib_max_offset_codes),
+            // θa_µrad = rest + counts × urad_per_count (Q16).
+            urad_per_count_q16: q16(d.rad_per_count() * 1e6),
+            theta_a_rest_urad: to_i32(d.theta_a_rest_rad * 1e6),
+            // T_µN·m = (code·256 − offset_q8) × unm_per_code (Q16) >> 8.
+            unm_per_code_q16: q16(d.amps_per_code * d.torque_per_amp() * 1e6),
+            ua_per_code_q16: q16(d.amps_per_code * 1e6),
+            approach_ramp_q16: ramp(self.approach_rate_nm_per_s),
+            approach_max_unm: unm(self.approach_max_nm),
+            sample_ticks: self.sample_ticks,
+            detect_window: self.detect_window as usize,
+            detect_confirm: self.detect_confirm,
+            detect_k_unm_per_rad: to_i64(self.detect_stiffness_nm_per_rad * 1e6),
+            delta_ta_unm: unm(self.delta_ta_nm),
+            step_ramp_q16,
+            settle_window: self.settle_window as usize,
+            settle_band_urad: to_i32(self.settle_band_rad * 1e6),
+            settle_min_ticks: secs(self.settle_min_s),
+            settle_timeout_ticks: secs(self.settle_timeout_s),
+            estimate_timeout_ticks: secs(self.estimate_timeout_s),
+            second_k_unm_per_rad: to_i64(self.second_contact_stiffness_nm_per_rad * 1e6),
+            loss_margin_urad: to_i32(self.loss_margin_rad * 1e6),
+            overcurrent_ua: to_i64(self.overcurrent_a * 1e6),
+            overcurrent_ticks: self.overcurrent_ticks,
+            stall_ticks: self.stall_ticks,
+            encoder_max_step: i32::from(self.encoder_max_counts_per_tick),
+            ff_duty_per_unm_q16: q16(duty_per_unm),
+            kp_duty_per_unm_q16: q16(duty_per_unm * self.kp_rel),
+            ki_duty_per_unm_q16: q16(duty_per_unm * self.ki_rel),
+            after_estimate: self.after_estimate,
+            release_ramp_q16: ramp(self.release_rate_nm_per_s),
+        };
+        if p.urad_per_count_q16 == 0
+            || p.unm_per_code_q16 == 0
+            || p.ff_duty_per_unm_q16 == 0
+            || p.approach_ramp_q16 == 0
+            || p.release_ramp_q16 == 0
+        {
+            return Err(ConfigError::OutOfRange);
+        }
+        Ok(p)
+    }
+}
+
+impl Default for ControllerConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Why a configuration was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ConfigError {
+    /// A value was NaN or infinite.
+    NonFinite,
+    /// A value was outside its documented range (or rounds to zero in integer form).
+    OutOfRange,
+}
+
+/// Samples kept in the pre-contact history ring (decimated samples).
+pub const HISTORY: usize = 64;
+
+/// The integer form of [`ControllerConfig`]: what the tick path reads. Q16 = ×2¹⁶.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Params {
+    /// Calibration length (ticks).
+    pub calib_ticks: u32,
+    /// Nominal zero-current ADC code.
+    pub adc_zero_code: i32,
+    /// Largest accepted offset deviation (codes).
+    pub calib_max_offset_codes: i32,
+    /// µrad of θa per encoder count, Q16.
+    pub urad_per_count_q16: i64,
+    /// θa at the rest pose (µrad).
+    pub theta_a_rest_urad: i32,
+    /// µN·m of T_a per ADC code, Q16.
+    pub unm_per_code_q16: i64,
+    /// µA per ADC code, Q16.
+    pub ua_per_code_q16: i64,
+    /// Approach torque ramp, µN·m per tick, Q16.
+    pub approach_ramp_q16: i64,
+    /// Approach torque ceiling (µN·m).
+    pub approach_max_unm: i32,
+    /// Ticks per sample.
+    pub sample_ticks: u32,
+    /// Detection window (samples).
+    pub detect_window: usize,
+    /// Consecutive stiff windows (samples).
+    pub detect_confirm: u32,
+    /// Detection stiffness (µN·m/rad).
+    pub detect_k_unm_per_rad: i64,
+    /// ΔT_a (µN·m).
+    pub delta_ta_unm: i32,
+    /// Step ramp, µN·m per tick, Q16; 0 = a step.
+    pub step_ramp_q16: i64,
+    /// Settle window (samples).
+    pub settle_window: usize,
+    /// Settle band (µrad).
+    pub settle_band_urad: i32,
+    /// Minimum settle time (ticks).
+    pub settle_min_ticks: u32,
+    /// Settle timeout after contact (ticks).
+    pub settle_timeout_ticks: u32,
+    /// Estimate delivery timeout (ticks).
+    pub estimate_timeout_ticks: u32,
+    /// Second-contact stiffness (µN·m/rad).
+    pub second_k_unm_per_rad: i64,
+    /// Loss-of-contact margin (µrad).
+    pub loss_margin_urad: i32,
+    /// Over-current limit (µA).
+    pub overcurrent_ua: i64,
+    /// Over-current persistence (ticks).
+    pub overcurrent_ticks: u32,
+    /// Stall persistence (ticks).
+    pub stall_ticks: u32,
+    /// Largest encoder step per tick (counts).
+    pub encoder_max_step: i32,
+    /// Feed-forward duty per µN·m, Q16.
+    pub ff_duty_per_unm_q16: i64,
+    /// Proportional duty per µN·m of error, Q16.
+    pub kp_duty_per_unm_q16: i64,
+    /// Integral duty per µN·m of error per tick, Q16.
+    pub ki_duty_per_unm_q16: i64,
+    /// Hold or release after the estimate.
+    pub after_estimate: AfterEstimate,
+    /// Release ramp, µN·m per tick, Q16.
+    pub release_ramp_q16: i64,
+}
+
+fn to_i64(x: f64) -> i64 {
+    // `as` saturates and maps NaN to 0: no panic; ranges are checked by the callers.
+    libm_round(x) as i64
+}
+
+fn to_i32(x: f64) -> i32 {
+    libm_round(x) as i32
+}
+
+fn to_u32(x: f64) -> u32 {
+    libm_round(x) as u32
+}
+
+fn libm_round(x: f64) -> f64 {
+    // Round half away from zero without std.
+    if x >= 0.0 {
+        (x + 0.5) as i64 as f64
+    } else {
+        (x - 0.5) as i64 as f64
+    }
+}

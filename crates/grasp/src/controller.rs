@@ -1,0 +1,865 @@
+//! The grasp state machine: one step per control tick, integer arithmetic only.
+//!
+//! Calibrate (bridge off, current offset) → Approach (torque reference ramps up, the finger
+//! closes quasi-statically) → contact detected (the stiffness ΔT_ref/Δθa over a window rises
+//! above a threshold) → Step (reference raised by ΔT_a, step or ramp) → Settling (θa still)
+//! → Estimating (an [`EstimateRequest`] waits for [`run_estimate`](crate::run_estimate)) →
+//! Holding or Releasing → Done. Any fault → [`State::Fault`] with the bridge off.
+#![deny(clippy::float_arithmetic)]
+
+use heapless::{Deque, Vec};
+use pts::PtsError;
+
+use crate::config::{AfterEstimate, ConfigError, ControllerConfig, Params, HISTORY};
+use crate::estimate::{EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
+use crate::sensors::{sat_i32, CurrentSense, Encoder};
+use crate::torque_loop::TorqueLoop;
+use crate::{Hardware, DUTY_MAX};
+
+/// Events queued for logging (oldest dropped first is NOT done: new events are dropped
+/// and counted when the queue is full, so the first fault is never lost).
+pub const EVENT_CAPACITY: usize = 16;
+
+/// Why the controller went to the safe state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FaultReason {
+    /// The encoder jumped by more counts in one tick than the drive can move.
+    EncoderJump {
+        /// The jump (counts).
+        step_counts: i32,
+    },
+    /// The ADC gave a code outside 0‥4095.
+    AdcCode {
+        /// The code.
+        code: u16,
+    },
+    /// The zero-current offset measured with the bridge off is implausible (sensor fault).
+    AdcOffset {
+        /// Measured offset ×256 (codes).
+        offset_q8: i32,
+    },
+    /// |motor current| above the limit for the configured number of ticks.
+    OverCurrent {
+        /// Current at the trip (µA).
+        current_ua: i32,
+    },
+    /// The duty stayed saturated: the drive cannot follow the torque reference.
+    Stall,
+    /// The approach reached its torque ceiling without detecting a contact.
+    NoContact,
+    /// The finger did not settle after the step within the timeout.
+    SettleTimeout,
+    /// The estimate was not delivered within the timeout.
+    EstimateTimeout,
+    /// A second contact: the stiffness during the step rose above that of any single contact.
+    SecondContact {
+        /// The stiffness seen (µN·m/rad).
+        kc_unm_per_rad: i32,
+    },
+    /// The finger moved further than a contact allows: the object is gone.
+    LossOfContact {
+        /// θa beyond the contact angle (µrad).
+        dtheta_a_urad: i32,
+    },
+    /// The estimator refused the measurement.
+    EstimateOutOfRange {
+        /// The solver's reason.
+        error: PtsError,
+    },
+}
+
+impl FaultReason {
+    /// A stable snake_case name for logs.
+    pub const fn kind(&self) -> &'static str {
+        match self {
+            FaultReason::EncoderJump { .. } => "encoder_jump",
+            FaultReason::AdcCode { .. } => "adc_code",
+            FaultReason::AdcOffset { .. } => "adc_offset",
+            FaultReason::OverCurrent { .. } => "over_current",
+            FaultReason::Stall => "stall",
+            FaultReason::NoContact => "no_contact",
+            FaultReason::SettleTimeout => "settle_timeout",
+            FaultReason::EstimateTimeout => "estimate_timeout",
+            FaultReason::SecondContact { .. } => "second_contact",
+            FaultReason::LossOfContact { .. } => "loss_of_contact",
+            FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
+        }
+    }
+
+    /// True for the sensor faults (encoder or current sensor).
+    pub const fn is_sensor_fault(&self) -> bool {
+        matches!(
+            self,
+            FaultReason::EncoderJump { .. }
+                | FaultReason::AdcCode { .. }
+                | FaultReason::AdcOffset { .. }
+        )
+    }
+}
+
+/// The controller's state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum State {
+    /// Not ticked yet.
+    Init,
+    /// Bridge off, measuring the current offset.
+    Calibrating,
+    /// Closing: torque reference ramping up, watching for contact.
+    Approach,
+    /// Contact detected; the reference is being raised by ΔT_a.
+    Step,
+    /// Reference at T_a,c + ΔT_a; waiting for θa to settle.
+    Settling,
+    /// Settled; the estimate request is out, waiting for [`Controller::deliver`].
+    Estimating,
+    /// Estimate delivered; holding the torque.
+    Holding,
+    /// Estimate delivered; ramping the torque down.
+    Releasing,
+    /// Released; bridge off.
+    Done,
+    /// Safe state: bridge off, with the reason.
+    Fault(FaultReason),
+}
+
+/// Every transition, with its data (for defmt logging). Times in ticks since start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Event {
+    /// Offset calibrated; approach starts.
+    Calibrated {
+        /// Tick.
+        tick: u32,
+        /// Zero-current ADC code ×256.
+        offset_q8: i32,
+    },
+    /// Contact detected.
+    ContactDetected {
+        /// Tick of the detection.
+        tick: u32,
+        /// Tick of the back-dated contact instant.
+        contact_tick: u32,
+        /// θa,c at the back-dated instant (µrad).
+        theta_a_urad: i32,
+        /// T_a,c at the back-dated instant (µN·m, measured).
+        torque_unm: i32,
+        /// Torque target of the step, T_a,c + ΔT_a (µN·m).
+        target_unm: i32,
+    },
+    /// The reference reached T_a,c + ΔT_a.
+    StepDone {
+        /// Tick.
+        tick: u32,
+    },
+    /// Settled: the estimate request is ready.
+    Settled {
+        /// Tick.
+        tick: u32,
+        /// Mean θa over the settle window (µrad).
+        theta_a_urad: i32,
+        /// Mean measured T_a over the settle window (µN·m).
+        torque_unm: i32,
+        /// Path samples handed to the estimator.
+        path_len: u16,
+    },
+    /// The estimate came back.
+    Estimated {
+        /// Tick.
+        tick: u32,
+        /// The result.
+        result: EstimateResult,
+    },
+    /// Holding after the estimate.
+    Holding {
+        /// Tick.
+        tick: u32,
+    },
+    /// Releasing after the estimate.
+    Releasing {
+        /// Tick.
+        tick: u32,
+    },
+    /// Released, bridge off.
+    Released {
+        /// Tick.
+        tick: u32,
+    },
+    /// Fault: safe state.
+    Fault {
+        /// Tick.
+        tick: u32,
+        /// Why.
+        reason: FaultReason,
+    },
+}
+
+/// What one tick did (for telemetry and the application).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TickOutput {
+    /// State after the tick.
+    pub state: State,
+    /// θa (µrad), absolute model angle.
+    pub theta_a_urad: i32,
+    /// Measured T_a (µN·m), one sample.
+    pub torque_unm: i32,
+    /// Torque reference (µN·m).
+    pub torque_ref_unm: i32,
+    /// Duty applied (±DUTY_MAX), 0 with the bridge off.
+    pub duty: i16,
+    /// True on the tick the estimate request became available ([`Controller::take_request`]).
+    pub estimate_ready: bool,
+}
+
+/// A fixed-capacity ring of the most recent samples.
+#[derive(Clone, Debug)]
+struct Ring {
+    buf: [Sample; HISTORY],
+    head: usize,
+    len: usize,
+}
+
+impl Ring {
+    const fn new() -> Self {
+        Self {
+            buf: [Sample::ZERO; HISTORY],
+            head: 0,
+            len: 0,
+        }
+    }
+    fn push(&mut self, s: Sample) {
+        if let Some(slot) = self.buf.get_mut(self.head) {
+            *slot = s;
+        }
+        self.head = (self.head + 1) % HISTORY;
+        self.len = (self.len + 1).min(HISTORY);
+    }
+    /// `back(0)` is the newest.
+    fn back(&self, i: usize) -> Option<Sample> {
+        if i >= self.len {
+            return None;
+        }
+        let idx = (self.head + HISTORY - 1 - i) % HISTORY;
+        self.buf.get(idx).copied()
+    }
+}
+
+/// Accumulates `sample_ticks` ticks into one averaged [`Sample`].
+#[derive(Clone, Copy, Debug, Default)]
+struct Acc {
+    theta: i64,
+    torque: i64,
+    n: u32,
+}
+
+/// The grasp controller. Holds no floating-point state; see the crate docs.
+#[derive(Clone, Debug)]
+pub struct Controller {
+    p: Params,
+    state: State,
+    tick: u32,
+    enc: Option<Encoder>,
+    cur: CurrentSense,
+    tl: TorqueLoop,
+    /// Torque reference, µN·m ×2¹⁶.
+    t_ref_q16: i64,
+    acc: Acc,
+    hist: Ring,
+    armed: bool,
+    stiff_count: u32,
+    contact: Sample,
+    contact_hist: Vec<Sample, HISTORY>,
+    target_unm: i32,
+    phase_tick: u32,
+    contact_tick: u32,
+    path: Vec<Sample, PATH_CAPACITY>,
+    path_stride: u32,
+    path_skip: u32,
+    end: Sample,
+    request_ready: bool,
+    result: Option<EstimateResult>,
+    events: Deque<Event, EVENT_CAPACITY>,
+    events_dropped: u32,
+    oc_count: u32,
+    stall_count: u32,
+    last_duty: i16,
+}
+
+impl Controller {
+    /// Builds a controller; the configuration is checked and converted once here
+    /// (the only floating-point work of the crate outside the estimator).
+    pub fn new(cfg: ControllerConfig) -> Result<Self, ConfigError> {
+        let p = cfg.params()?;
+        Ok(Self::from_params(p))
+    }
+
+    /// Builds a controller from already converted parameters (no float at all).
+    pub fn from_params(p: Params) -> Self {
+        Self {
+            p,
+            state: State::Init,
+            tick: 0,
+            enc: None,
+            cur: CurrentSense::new(&p),
+            tl: TorqueLoop::new(),
+            t_ref_q16: 0,
+            acc: Acc::default(),
+            hist: Ring::new(),
+            armed: false,
+            stiff_count: 0,
+            contact: Sample::ZERO,
+            contact_hist: Vec::new(),
+            target_unm: 0,
+            phase_tick: 0,
+            contact_tick: 0,
+            path: Vec::new(),
+            path_stride: 1,
+            path_skip: 0,
+            end: Sample::ZERO,
+            request_ready: false,
+            result: None,
+            events: Deque::new(),
+            events_dropped: 0,
+            oc_count: 0,
+            stall_count: 0,
+            last_duty: 0,
+        }
+    }
+
+    /// The integer parameters in use.
+    pub fn params(&self) -> &Params {
+        &self.p
+    }
+
+    /// Current state.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Ticks since start.
+    pub fn ticks(&self) -> u32 {
+        self.tick
+    }
+
+    /// The delivered estimate, once there is one.
+    pub fn result(&self) -> Option<&EstimateResult> {
+        self.result.as_ref()
+    }
+
+    /// Next queued event, oldest first.
+    pub fn poll_event(&mut self) -> Option<Event> {
+        self.events.pop_front()
+    }
+
+    /// Events dropped because the queue was full.
+    pub fn events_dropped(&self) -> u32 {
+        self.events_dropped
+    }
+
+    /// Torque reference (µN·m).
+    pub fn torque_ref_unm(&self) -> i32 {
+        sat_i32(self.t_ref_q16 >> 16)
+    }
+
+    fn emit(&mut self, e: Event) {
+        if self.events.push_back(e).is_err() {
+            self.events_dropped = self.events_dropped.saturating_add(1);
+        }
+    }
+
+    fn fault<H: Hardware + ?Sized>(&mut self, hw: &mut H, reason: FaultReason) {
+        hw.bridge_off();
+        self.tl.reset();
+        self.t_ref_q16 = 0;
+        self.last_duty = 0;
+        if !matches!(self.state, State::Fault(_)) {
+            self.state = State::Fault(reason);
+            let tick = self.tick;
+            self.emit(Event::Fault { tick, reason });
+        }
+    }
+
+    /// Forces the safe state from outside (e.g. an application watchdog), with a reason.
+    pub fn abort<H: Hardware + ?Sized>(&mut self, hw: &mut H, reason: FaultReason) {
+        self.fault(hw, reason);
+    }
+
+    /// Moves the estimate request out, once, after a tick reported `estimate_ready`.
+    /// Hand it to [`run_estimate`](crate::run_estimate) in a low-priority task.
+    pub fn take_request(&mut self) -> Option<EstimateRequest> {
+        if !self.request_ready || self.state != State::Estimating {
+            return None;
+        }
+        self.request_ready = false;
+        let mut pre = Vec::new();
+        core::mem::swap(&mut pre, &mut self.contact_hist);
+        let mut path = Vec::new();
+        core::mem::swap(&mut path, &mut self.path);
+        Some(EstimateRequest {
+            contact: self.contact,
+            end: self.end,
+            pre,
+            path,
+            sample_ticks: self.p.sample_ticks,
+            path_stride: self.path_stride,
+            delta_ta_cmd_unm: self.p.delta_ta_unm,
+            detect_k_unm_per_rad: sat_i32(self.p.detect_k_unm_per_rad),
+        })
+    }
+
+    /// Gives the estimate back (from the low-priority task). A refused estimate puts the
+    /// controller in the safe state. Ignored unless the controller is waiting for it;
+    /// the hardware is needed to switch the bridge off on a refusal or a release.
+    pub fn deliver<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        outcome: Result<EstimateResult, PtsError>,
+    ) {
+        if self.state != State::Estimating {
+            return;
+        }
+        let tick = self.tick;
+        match outcome {
+            Ok(r) => {
+                self.result = Some(r);
+                self.emit(Event::Estimated { tick, result: r });
+                match self.p.after_estimate {
+                    AfterEstimate::Hold => {
+                        self.state = State::Holding;
+                        self.emit(Event::Holding { tick });
+                    }
+                    AfterEstimate::Release => {
+                        self.state = State::Releasing;
+                        self.emit(Event::Releasing { tick });
+                    }
+                }
+            }
+            Err(PtsError::BeyondTip) => {
+                // Stiffer than any single contact on the distal phalanx: the finger is
+                // blocked at two points.
+                self.fault(
+                    hw,
+                    FaultReason::SecondContact {
+                        kc_unm_per_rad: i32::MAX,
+                    },
+                );
+            }
+            Err(error) => self.fault(hw, FaultReason::EstimateOutOfRange { error }),
+        }
+    }
+
+    /// One control period. Reads the sensors once, advances the state machine, writes the
+    /// duty (or switches the bridge off). Integer arithmetic only; bounded time.
+    pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H) -> TickOutput {
+        self.tick = self.tick.wrapping_add(1);
+        let raw_enc = hw.encoder_count();
+        let code = hw.current_raw();
+        let mut out = TickOutput {
+            state: self.state,
+            theta_a_urad: 0,
+            torque_unm: 0,
+            torque_ref_unm: 0,
+            duty: 0,
+            estimate_ready: false,
+        };
+        if let State::Fault(_) | State::Done = self.state {
+            hw.bridge_off();
+            return out;
+        }
+        let enc = match self.enc.as_mut() {
+            Some(e) => e,
+            None => {
+                // First tick: the finger is at rest, the reading there is θa,rest.
+                hw.bridge_off();
+                self.state = State::Calibrating;
+                self.enc.insert(Encoder::new(raw_enc))
+            }
+        };
+        if let Err(j) = enc.update(raw_enc, self.p.encoder_max_step) {
+            self.fault(
+                hw,
+                FaultReason::EncoderJump {
+                    step_counts: j.step_counts,
+                },
+            );
+            out.state = self.state;
+            return out;
+        }
+        let theta = enc.theta_a_urad(&self.p);
+        if code > 4095 {
+            self.fault(hw, FaultReason::AdcCode { code });
+            out.state = self.state;
+            return out;
+        }
+        let torque = self.cur.torque_unm(code, &self.p);
+        out.theta_a_urad = theta;
+        out.torque_unm = torque;
+
+        if self.state == State::Calibrating {
+            self.cur.calib_add(code);
+            if self.tick >= self.p.calib_ticks {
+                match self.cur.calib_finish(&self.p) {
+                    Ok(offset_q8) => {
+                        self.state = State::Approach;
+                        self.phase_tick = self.tick;
+                        let tick = self.tick;
+                        self.emit(Event::Calibrated { tick, offset_q8 });
+                    }
+                    Err(offset_q8) => self.fault(hw, FaultReason::AdcOffset { offset_q8 }),
+                }
+            }
+            out.state = self.state;
+            return out;
+        }
+
+        // Over-current: on the raw sample, persistent for a few ticks.
+        let ua = self.cur.current_ua(code, &self.p);
+        if ua.saturating_abs() > self.p.overcurrent_ua {
+            self.oc_count = self.oc_count.saturating_add(1);
+            if self.oc_count >= self.p.overcurrent_ticks {
+                self.fault(
+                    hw,
+                    FaultReason::OverCurrent {
+                        current_ua: sat_i32(ua),
+                    },
+                );
+                out.state = self.state;
+                return out;
+            }
+        } else {
+            self.oc_count = 0;
+        }
+
+        // Reference trajectory of this tick.
+        match self.state {
+            State::Approach => {
+                self.t_ref_q16 = self.t_ref_q16.saturating_add(self.p.approach_ramp_q16);
+            }
+            State::Step => {
+                let target = i64::from(self.target_unm) << 16;
+                if self.p.step_ramp_q16 == 0 {
+                    self.t_ref_q16 = target;
+                } else {
+                    self.t_ref_q16 = self
+                        .t_ref_q16
+                        .saturating_add(self.p.step_ramp_q16)
+                        .min(target);
+                }
+            }
+            State::Releasing => {
+                self.t_ref_q16 = self
+                    .t_ref_q16
+                    .saturating_sub(self.p.release_ramp_q16)
+                    .max(0);
+            }
+            _ => {}
+        }
+        let t_ref = self.torque_ref_unm();
+
+        // Sample accumulation (boxcar over `sample_ticks`, no smearing beyond it).
+        self.acc.theta = self.acc.theta.saturating_add(i64::from(theta));
+        self.acc.torque = self.acc.torque.saturating_add(i64::from(torque));
+        self.acc.n = self.acc.n.saturating_add(1);
+        if self.acc.n >= self.p.sample_ticks {
+            let n = i64::from(self.acc.n);
+            let s = Sample {
+                tick: self.tick,
+                theta_a_urad: sat_i32(self.acc.theta / n),
+                torque_unm: sat_i32(self.acc.torque / n),
+                torque_ref_unm: t_ref,
+            };
+            self.acc = Acc::default();
+            self.on_sample(hw, s);
+            if let State::Fault(_) = self.state {
+                out.state = self.state;
+                return out;
+            }
+        }
+        if self.state == State::Estimating && self.request_ready && !out.estimate_ready {
+            out.estimate_ready = self.tick == self.phase_tick;
+        }
+
+        // Per-tick supervision.
+        match self.state {
+            State::Step | State::Settling | State::Estimating | State::Holding => {
+                if let Some(d) = self.lost(theta, t_ref) {
+                    self.fault(hw, FaultReason::LossOfContact { dtheta_a_urad: d });
+                }
+            }
+            _ => {}
+        }
+        let since = self.tick.wrapping_sub(self.phase_tick);
+        match self.state {
+            State::Approach if t_ref >= self.p.approach_max_unm => {
+                self.fault(hw, FaultReason::NoContact);
+            }
+            State::Step | State::Settling
+                if self.tick.wrapping_sub(self.contact_tick) > self.p.settle_timeout_ticks =>
+            {
+                self.fault(hw, FaultReason::SettleTimeout);
+            }
+            State::Estimating if since > self.p.estimate_timeout_ticks => {
+                self.fault(hw, FaultReason::EstimateTimeout);
+            }
+            State::Releasing if self.t_ref_q16 == 0 => {
+                hw.bridge_off();
+                self.tl.reset();
+                self.state = State::Done;
+                let tick = self.tick;
+                self.emit(Event::Released { tick });
+            }
+            _ => {}
+        }
+        if let State::Fault(_) | State::Done = self.state {
+            out.state = self.state;
+            return out;
+        }
+
+        // Torque loop.
+        let duty = self.tl.update(t_ref, torque, &self.p);
+        if self.tl.saturated() {
+            self.stall_count = self.stall_count.saturating_add(1);
+            if self.stall_count >= self.p.stall_ticks {
+                self.fault(hw, FaultReason::Stall);
+                out.state = self.state;
+                return out;
+            }
+        } else {
+            self.stall_count = 0;
+        }
+        let duty = duty.clamp(-DUTY_MAX, DUTY_MAX);
+        hw.set_duty(duty);
+        self.last_duty = duty;
+        out.duty = duty;
+        out.torque_ref_unm = t_ref;
+        out.state = self.state;
+        out
+    }
+
+    /// Loss of contact: θa beyond what a stiffness ≥ K_detect allows from the contact point.
+    fn lost(&self, theta: i32, t_ref: i32) -> Option<i32> {
+        let dth = i64::from(theta) - i64::from(self.contact.theta_a_urad);
+        let dt = i64::from(t_ref) - i64::from(self.contact.torque_ref_unm);
+        let excess = dth - i64::from(self.p.loss_margin_urad);
+        if excess <= 0 {
+            return None;
+        }
+        // excess·K > ΔT·1e6  ⇔  the finger moved more than ΔT/K + margin.
+        if excess.saturating_mul(self.p.detect_k_unm_per_rad) > dt.max(0).saturating_mul(1_000_000)
+        {
+            Some(sat_i32(dth))
+        } else {
+            None
+        }
+    }
+
+    fn on_sample<H: Hardware + ?Sized>(&mut self, hw: &mut H, s: Sample) {
+        match self.state {
+            State::Approach => {
+                self.hist.push(s);
+                self.detect(s);
+            }
+            State::Step | State::Settling => {
+                self.path_push(s);
+                self.hist.push(s);
+                if self.state == State::Step {
+                    self.check_second(hw);
+                    if let State::Fault(_) = self.state {
+                        return;
+                    }
+                    if s.torque_ref_unm >= self.target_unm {
+                        self.state = State::Settling;
+                        self.phase_tick = self.tick;
+                        let tick = self.tick;
+                        self.emit(Event::StepDone { tick });
+                    }
+                } else if self.tick.wrapping_sub(self.phase_tick) >= self.p.settle_min_ticks {
+                    self.check_settled();
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// Windowed stiffness test: ΔT_ref·10⁶ ≥ K·Δθa over the last `detect_window` samples.
+    fn window(&self, w: usize) -> Option<(i64, i64)> {
+        let b = self.hist.back(0)?;
+        let a = self.hist.back(w)?;
+        Some((
+            i64::from(b.torque_ref_unm) - i64::from(a.torque_ref_unm),
+            i64::from(b.theta_a_urad) - i64::from(a.theta_a_urad),
+        ))
+    }
+
+    fn detect(&mut self, s: Sample) {
+        let w = self.p.detect_window;
+        let Some((dt, dth)) = self.window(w) else {
+            return;
+        };
+        if dt <= 0 {
+            return;
+        }
+        let stiff = dt.saturating_mul(1_000_000) >= self.p.detect_k_unm_per_rad.saturating_mul(dth);
+        if !stiff {
+            // Free motion seen: from now on a stiff window means contact.
+            self.armed = true;
+            self.stiff_count = 0;
+            return;
+        }
+        if !self.armed {
+            return;
+        }
+        self.stiff_count = self.stiff_count.saturating_add(1);
+        if self.stiff_count < self.p.detect_confirm {
+            return;
+        }
+        // Contact. Back-date: the knee is the last sample whose step still moved at least
+        // half the free-motion speed measured before the window.
+        let knee = self.knee(w).unwrap_or(s);
+        self.contact = knee;
+        self.contact_tick = self.tick;
+        self.contact_hist.clear();
+        let mut i = self.hist.len;
+        while i > 0 {
+            i -= 1;
+            if let Some(h) = self.hist.back(i) {
+                let _ = self.contact_hist.push(h);
+            }
+        }
+        self.target_unm = knee
+            .torque_ref_unm
+            .saturating_add(self.p.delta_ta_unm)
+            .max(s.torque_ref_unm);
+        self.path.clear();
+        self.path_stride = 1;
+        self.path_skip = 0;
+        self.state = State::Step;
+        self.phase_tick = self.tick;
+        let tick = self.tick;
+        let ev = Event::ContactDetected {
+            tick,
+            contact_tick: knee.tick,
+            theta_a_urad: knee.theta_a_urad,
+            torque_unm: knee.torque_unm,
+            target_unm: self.target_unm,
+        };
+        self.emit(ev);
+    }
+
+    /// The last sample (within the detection window) still moving at ≥ ½ the free speed.
+    fn knee(&self, w: usize) -> Option<Sample> {
+        let a = self.hist.back(w)?;
+        let b = self
+            .hist
+            .back(2 * w)
+            .or_else(|| self.hist.back(self.hist.len.checked_sub(1)?))?;
+        let span = (a.tick.wrapping_sub(b.tick)).max(1);
+        let v_free = i64::from(a.theta_a_urad) - i64::from(b.theta_a_urad); // per `span` ticks
+        let per = i64::from(self.p.sample_ticks);
+        let mut knee = a;
+        for i in (0..w).rev() {
+            let (Some(prev), Some(cur)) = (self.hist.back(i + 1), self.hist.back(i)) else {
+                continue;
+            };
+            let d = i64::from(cur.theta_a_urad) - i64::from(prev.theta_a_urad);
+            // d/per ≥ ½ v_free/span
+            if d.saturating_mul(2 * i64::from(span)) >= v_free.saturating_mul(per) {
+                knee = cur;
+            } else {
+                break;
+            }
+        }
+        Some(knee)
+    }
+
+    fn check_second<H: Hardware + ?Sized>(&mut self, hw: &mut H) {
+        let w = self.p.detect_window.saturating_mul(2);
+        // Only windows entirely after the contact detection.
+        let Some(a) = self.hist.back(w) else {
+            return;
+        };
+        if a.tick < self.contact_tick {
+            return;
+        }
+        let Some((dt, dth)) = self.window(w) else {
+            return;
+        };
+        if dt <= 0 {
+            return;
+        }
+        if dt.saturating_mul(1_000_000) > self.p.second_k_unm_per_rad.saturating_mul(dth.max(0)) {
+            let k = if dth > 0 {
+                sat_i32(dt.saturating_mul(1_000_000) / dth)
+            } else {
+                i32::MAX
+            };
+            self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad: k });
+        }
+    }
+
+    fn check_settled(&mut self) {
+        let w = self.p.settle_window;
+        let mut lo = i32::MAX;
+        let mut hi = i32::MIN;
+        let mut st = 0i64;
+        let mut sth = 0i64;
+        for i in 0..w {
+            let Some(s) = self.hist.back(i) else {
+                return;
+            };
+            if s.tick < self.phase_tick {
+                return;
+            }
+            lo = lo.min(s.theta_a_urad);
+            hi = hi.max(s.theta_a_urad);
+            st += i64::from(s.torque_unm);
+            sth += i64::from(s.theta_a_urad);
+        }
+        if i64::from(hi) - i64::from(lo) > i64::from(self.p.settle_band_urad) {
+            return;
+        }
+        let n = w as i64;
+        self.end = Sample {
+            tick: self.tick,
+            theta_a_urad: sat_i32(sth / n),
+            torque_unm: sat_i32(st / n),
+            torque_ref_unm: self.torque_ref_unm(),
+        };
+        self.state = State::Estimating;
+        self.phase_tick = self.tick;
+        self.request_ready = true;
+        let tick = self.tick;
+        let ev = Event::Settled {
+            tick,
+            theta_a_urad: self.end.theta_a_urad,
+            torque_unm: self.end.torque_unm,
+            path_len: self.path.len() as u16,
+        };
+        self.emit(ev);
+    }
+
+    fn path_push(&mut self, s: Sample) {
+        if self.path_skip > 0 {
+            self.path_skip -= 1;
+            return;
+        }
+        if self.path.is_full() {
+            // Keep the whole span: drop every other sample, double the stride.
+            let mut j = 0;
+            for i in (0..self.path.len()).step_by(2) {
+                if let Some(v) = self.path.get(i).copied() {
+                    if let Some(slot) = self.path.get_mut(j) {
+                        *slot = v;
+                    }
+                    j += 1;
+                }
+            }
+            self.path.truncate(j);
+            self.path_stride = self.path_stride.saturating_mul(2);
+        }
+        let _ = self.path.push(s);
+        self.path_skip = self.path_stride.saturating_sub(1);
+    }
+}

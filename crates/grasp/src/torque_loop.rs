@@ -1,0 +1,60 @@
+//! The torque (current) loop: feed-forward of the static drive inverse plus a PI on the
+//! measured actuator torque, with output limits and anti-windup. Integer only.
+#![deny(clippy::float_arithmetic)]
+
+use crate::config::Params;
+use crate::DUTY_MAX;
+
+/// PI torque controller state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct TorqueLoop {
+    /// Integrator, duty units ×2¹⁶.
+    integ_q16: i64,
+    /// Whether the last output was clamped at ±DUTY_MAX.
+    saturated: bool,
+}
+
+impl TorqueLoop {
+    /// A loop with an empty integrator.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Clears the integrator (bridge off / restart).
+    pub fn reset(&mut self) {
+        *self = Self::default();
+    }
+
+    /// Whether the last output hit the duty limit.
+    pub fn saturated(&self) -> bool {
+        self.saturated
+    }
+
+    /// One update: reference and measurement in µN·m → duty in ±[`DUTY_MAX`].
+    ///
+    /// Anti-windup: the integrator is itself limited to ±DUTY_MAX and is not advanced
+    /// while the output is clamped in the direction the error pushes (conditional integration).
+    pub fn update(&mut self, ref_unm: i32, meas_unm: i32, p: &Params) -> i16 {
+        let e = i64::from(ref_unm) - i64::from(meas_unm);
+        let lim = i64::from(DUTY_MAX) << 16;
+        let ff = i64::from(ref_unm).saturating_mul(p.ff_duty_per_unm_q16);
+        let pe = e.saturating_mul(p.kp_duty_per_unm_q16);
+        let di = e.saturating_mul(p.ki_duty_per_unm_q16);
+        let trial = ff
+            .saturating_add(pe)
+            .saturating_add(self.integ_q16)
+            .saturating_add(di);
+        let pushing_out = (trial > lim && di > 0) || (trial < -lim && di < 0);
+        if !pushing_out {
+            self.integ_q16 = self.integ_q16.saturating_add(di).clamp(-lim, lim);
+        }
+        let u = ff
+            .saturating_add(pe)
+            .saturating_add(self.integ_q16)
+            .clamp(-lim, lim);
+        self.saturated = u == lim || u == -lim;
+        // Round to nearest duty unit; |u| ≤ DUTY_MAX·2¹⁶ so the result fits i16.
+        let duty = (u + (1 << 15)) >> 16;
+        duty.clamp(-i64::from(DUTY_MAX), i64::from(DUTY_MAX)) as i16
+    }
+}
