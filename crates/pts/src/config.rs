@@ -27,14 +27,14 @@
 //! gear_ratio = 256.0    # motor turns per turn of the input crank θa
 //! efficiency = 0.7      # output torque = efficiency · gear_ratio · motor torque
 //! [motor]
-//! kt_nm_per_a = 0.00243
-//! resistance_ohm = 10.0
+//! kt_nm_per_a = 0.00395
+//! resistance_ohm = 10.2
 //! supply_v = 6.0
 //! max_current_a = 0.5
 //! [encoder]
 //! counts_per_rev = 64   # quadrature ×4 counts per motor revolution
 //! [current_sense]
-//! amps_per_count = 0.000488
+//! amps_per_count = 0.00025
 //! zero_count = 2048
 //! adc_bits = 12
 //! ```
@@ -166,24 +166,25 @@ impl Default for FingerFile {
 
 impl FingerFile {
     /// Drive defaults of the prototype: the paper gives none, these are a Maxon RE10
-    /// (2.43 mN·m/A) behind a 256:1 gear train at 70 %, a 16-line encoder (64 counts ×4)
-    /// and a 12-bit ADC reading ±1 A.
+    /// (3.95 mN·m/A, 10.2 Ω, 6 V) behind a 256:1 train at 70 %, a 16-line encoder
+    /// (64 counts ×4) and a 12-bit ADC at 0.25 mA/code, the same numbers as the simulated plant
+    /// (`plant`) and `grasp::DriveConfig::DEFAULT`.
     pub const PAPER_DRIVE: Drive = Drive {
         gear_ratio: 256.0,
         efficiency: 0.7,
     };
     /// Motor defaults of the prototype (see [`FingerFile::PAPER_DRIVE`]).
     pub const PAPER_MOTOR: Motor = Motor {
-        kt_nm_per_a: 0.00243,
-        resistance_ohm: 10.0,
+        kt_nm_per_a: 3.95e-3,
+        resistance_ohm: 10.2,
         supply_v: 6.0,
         max_current_a: 0.5,
     };
     /// Encoder defaults of the prototype.
     pub const PAPER_ENCODER: Encoder = Encoder { counts_per_rev: 64 };
-    /// Current-sense defaults of the prototype: ±1 A over a 12-bit ADC.
+    /// Current-sense defaults of the prototype: ±0.512 A over a 12-bit ADC.
     pub const PAPER_CURRENT_SENSE: CurrentSense = CurrentSense {
-        amps_per_count: 1.0 / 2048.0,
+        amps_per_count: 2.5e-4,
         zero_count: 2048,
         adc_bits: 12,
     };
@@ -653,8 +654,8 @@ mod tests {
     fn drive_conversions_are_inverse() {
         let f = FingerFile::paper();
         let t = f.torque_from_current(0.25);
-        // 0.25 A · 2.43 mN·m/A · 256 · 0.7
-        assert!((t - 0.25 * 0.00243 * 256.0 * 0.7).abs() < 1e-15);
+        // 0.25 A · 3.95 mN·m/A · 256 · 0.7
+        assert!((t - 0.25 * 0.00395 * 256.0 * 0.7).abs() < 1e-15);
         assert!((f.current_from_torque(t) - 0.25).abs() < 1e-15);
         let expected = 2.0 * core::f64::consts::PI / (64.0 * 256.0);
         assert!((f.rad_per_count() - expected).abs() < 1e-18);

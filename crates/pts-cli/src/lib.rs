@@ -1,0 +1,22 @@
+//! The `pts` host tool as a library: each subcommand is a module with plain functions, so the
+//! integration tests call the same code the binary runs.
+
+pub mod eval;
+pub mod path;
+
+use pts::config::FingerFile;
+use std::path::Path;
+
+/// The numeric type `pts eval --numeric fixed` runs: the firmware's back end. A stand-in
+/// (`f32`, the other target back end) until `pts::fixed` lands in the workspace.
+pub type FixedReal = f32;
+
+/// Loads a finger description, or the paper's prototype when no file is given.
+pub fn load_finger(path: Option<&Path>) -> Result<FingerFile, String> {
+    let Some(path) = path else {
+        return Ok(FingerFile::paper());
+    };
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read finger file {}: {e}", path.display()))?;
+    FingerFile::from_toml_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+}
