@@ -1,0 +1,161 @@
+//! Built-in scenes as `const` data (no parsing on the target). The TOML files in
+//! `crates/plant/scenes/` describe the same scenes for the host tools.
+
+use crate::drive::DriveParams;
+use crate::kin::{Object, Phalanx};
+use crate::path::ContactSpec;
+use crate::scene::{CommandMode, CommandProfile, FaultSpec, ObjectSpec, Scene};
+
+/// θ1 at contact of the paper's Table 2 scene (rad).
+pub const TABLE2_THETA1_C_RAD: f64 = 1.2797;
+/// Contact location of the Table 2 scene on the distal phalanx (m).
+pub const TABLE2_K2_M: f64 = 0.02927;
+/// Cylinder radius of the Table 2 scene (m).
+pub const TABLE2_RADIUS_M: f64 = 0.05;
+
+const fn touching(theta1_c_rad: f64, phalanx: Phalanx, k_c_m: f64, radius_m: f64) -> ObjectSpec {
+    ObjectSpec::Touching(ContactSpec {
+        theta1_c_rad,
+        phalanx,
+        k_c_m,
+        radius_m,
+    })
+}
+
+/// A slow duty ramp that closes the finger onto its object: 0 → 0.5 over 2 s.
+const CLOSE: CommandProfile = CommandProfile {
+    mode: CommandMode::Duty,
+    from: 0.0,
+    to: 0.5,
+    t_start_s: 0.0,
+    ramp_s: 2.0,
+};
+
+const fn scene(name: &'static str, object: ObjectSpec) -> Scene {
+    Scene {
+        name,
+        object,
+        command: CLOSE,
+        duration_s: 3.0,
+        ..Scene::DEFAULT
+    }
+}
+
+/// The paper's Table 2 scene: cylinder R = 0.05 m touching the distal phalanx at
+/// k2 = 0.02927 m when θ1 = 1.2797 rad. Realistic drive and sensors.
+pub const fn table2() -> Scene {
+    scene(
+        "table2",
+        touching(
+            TABLE2_THETA1_C_RAD,
+            Phalanx::Distal,
+            TABLE2_K2_M,
+            TABLE2_RADIUS_M,
+        ),
+    )
+}
+
+/// Names of all built-in scenes.
+pub const NAMES: &[&str] = &[
+    "table2",
+    "table2_ideal",
+    "free",
+    "vertex_k2_10",
+    "vertex_k2_30",
+    "vertex_k2_50",
+    "vertex_k2_70",
+    "cyl10_k2_20",
+    "cyl10_k2_50",
+    "cyl30_k2_40",
+    "proximal_vertex_k1_50",
+    "large_cyl_second_contact",
+    "large_cyl100_second_contact",
+    "vertex_beyond_tip",
+    "hard_stop_stall",
+    "fault_encoder_stuck",
+    "fault_loss_of_contact",
+];
+
+/// A built-in scene by name (see [`NAMES`]).
+pub fn by_name(name: &str) -> Option<Scene> {
+    let t1 = TABLE2_THETA1_C_RAD;
+    let s = match name {
+        "table2" => table2(),
+        "table2_ideal" => Scene {
+            name: "table2_ideal",
+            ..table2().ideal()
+        },
+        "free" => scene("free", ObjectSpec::None),
+        // Vertices along the distal phalanx (k2 = 10 % … 70 % of l2 = 0.075 m), contact at θ1 = 1.2797.
+        "vertex_k2_10" => scene("vertex_k2_10", touching(t1, Phalanx::Distal, 0.0075, 0.0)),
+        "vertex_k2_30" => scene("vertex_k2_30", touching(t1, Phalanx::Distal, 0.0225, 0.0)),
+        "vertex_k2_50" => scene("vertex_k2_50", touching(t1, Phalanx::Distal, 0.0375, 0.0)),
+        "vertex_k2_70" => scene("vertex_k2_70", touching(t1, Phalanx::Distal, 0.0525, 0.0)),
+        // Cylinders along the distal phalanx.
+        "cyl10_k2_20" => scene("cyl10_k2_20", touching(t1, Phalanx::Distal, 0.015, 0.01)),
+        "cyl10_k2_50" => scene("cyl10_k2_50", touching(t1, Phalanx::Distal, 0.0375, 0.01)),
+        "cyl30_k2_40" => scene("cyl30_k2_40", touching(t1, Phalanx::Distal, 0.030, 0.03)),
+        // A proximal contact.
+        "proximal_vertex_k1_50" => scene(
+            "proximal_vertex_k1_50",
+            touching(1.0, Phalanx::Proximal, 0.05, 0.0),
+        ),
+        // Large cylinders touching the distal phalanx near O2: the proximal phalanx soon
+        // touches too (second contact).
+        "large_cyl_second_contact" => scene(
+            "large_cyl_second_contact",
+            touching(t1, Phalanx::Distal, 0.010, 0.0975),
+        ),
+        "large_cyl100_second_contact" => scene(
+            "large_cyl100_second_contact",
+            touching(1.1, Phalanx::Distal, 0.006, 0.10),
+        ),
+        // A vertex near the tip: the contact slides past the tip while the torque rises.
+        "vertex_beyond_tip" => scene(
+            "vertex_beyond_tip",
+            touching(t1, Phalanx::Distal, 0.074, 0.0),
+        ),
+        // No object, full duty: the finger closes onto its stops and the motor stalls.
+        "hard_stop_stall" => Scene {
+            name: "hard_stop_stall",
+            object: ObjectSpec::None,
+            command: CommandProfile {
+                mode: CommandMode::Duty,
+                from: 1.0,
+                to: 1.0,
+                t_start_s: 0.0,
+                ramp_s: 0.0,
+            },
+            duration_s: 6.0,
+            ..Scene::DEFAULT
+        },
+        // Table 2 with the encoder freezing at 1.5 s (after contact).
+        "fault_encoder_stuck" => Scene {
+            name: "fault_encoder_stuck",
+            faults: FaultSpec {
+                encoder_stuck_at_s: 1.5,
+                ..FaultSpec::NONE
+            },
+            ..table2()
+        },
+        // Table 2 with the object removed at 2.0 s.
+        "fault_loss_of_contact" => Scene {
+            name: "fault_loss_of_contact",
+            faults: FaultSpec {
+                remove_object_at_s: 2.0,
+                ..FaultSpec::NONE
+            },
+            ..table2()
+        },
+        _ => return None,
+    };
+    Some(s)
+}
+
+/// An object at a fixed world position (helper for tests and tools).
+pub const fn fixed_object(x_m: f64, y_m: f64, radius_m: f64) -> ObjectSpec {
+    ObjectSpec::At(Object { x_m, y_m, radius_m })
+}
+
+/// The realistic drive (re-exported for convenience).
+pub const DRIVE: DriveParams = DriveParams::RE10_GP10A;

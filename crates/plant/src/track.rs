@@ -1,0 +1,378 @@
+//! Following the finger as θa moves: active-set changes, each located by bisection.
+
+use crate::kin::{Active, Constraint, Kin, Phalanx, Pose};
+use crate::PlantError;
+
+/// Bisection tolerance on θa for every event (rad). Events are reported at the feasible side
+/// of the bracket, within this distance of the true crossing.
+pub const EVENT_TOL_RAD: f64 = 1e-10;
+const MAX_BISECT: usize = 80;
+
+/// What happened to the finger.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum EventKind {
+    /// The object touched a phalanx (free → contact), at `k_m` from the phalanx's lower joint (m).
+    FirstContact {
+        /// Which phalanx.
+        phalanx: Phalanx,
+        /// Contact location (m).
+        k_m: f64,
+    },
+    /// The contact force fell to zero and the finger left the object.
+    LossOfContact {
+        /// Which phalanx.
+        phalanx: Phalanx,
+        /// Contact location at release (m).
+        k_m: f64,
+    },
+    /// The contact point passed the distal end of its phalanx (k > l).
+    BeyondTip {
+        /// Which phalanx.
+        phalanx: Phalanx,
+    },
+    /// The contact point passed behind the lower joint of its phalanx (k < 0).
+    BehindJoint {
+        /// Which phalanx.
+        phalanx: Phalanx,
+    },
+    /// The object also touches the other phalanx: the finger is locked.
+    SecondContact {
+        /// The phalanx touched second.
+        phalanx: Phalanx,
+        /// Its contact location (m).
+        k_m: f64,
+    },
+    /// A joint reached a mechanical stop.
+    JointLimit {
+        /// Which stop.
+        constraint: Constraint,
+    },
+    /// A joint left its stop.
+    LimitReleased {
+        /// Which stop.
+        constraint: Constraint,
+    },
+    /// A locked finger unloaded below its lock angle.
+    Unlocked,
+    /// The plant's solver failed and the plant froze its geometry (typed reason).
+    SolverFailure(PlantError),
+    /// The motor current exceeded the scene's over-current threshold (A).
+    OverCurrent {
+        /// Current (A).
+        current_a: f64,
+    },
+}
+
+impl EventKind {
+    /// snake_case name for logs and CSV.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            EventKind::FirstContact { .. } => "first_contact",
+            EventKind::LossOfContact { .. } => "loss_of_contact",
+            EventKind::BeyondTip { .. } => "beyond_tip",
+            EventKind::BehindJoint { .. } => "behind_joint",
+            EventKind::SecondContact { .. } => "second_contact",
+            EventKind::JointLimit { .. } => "joint_limit",
+            EventKind::LimitReleased { .. } => "limit_released",
+            EventKind::Unlocked => "unlocked",
+            EventKind::SolverFailure(_) => "solver_failure",
+            EventKind::OverCurrent { .. } => "over_current",
+        }
+    }
+}
+
+/// An event with where it happened.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Event {
+    /// Simulated time (s); 0 for quasi-static paths.
+    pub t_s: f64,
+    /// θa at the event (rad), bisected to [`EVENT_TOL_RAD`].
+    pub theta_a_rad: f64,
+    /// T_a at the event (N·m).
+    pub torque_nm: f64,
+    /// What.
+    pub kind: EventKind,
+}
+
+/// The solver plus its history: current pose, active set and which constraints are armed.
+#[derive(Clone, Copy, Debug)]
+pub struct Tracker {
+    /// The solver.
+    pub kin: Kin,
+    /// Last accepted pose.
+    pub pose: Pose,
+    armed: [bool; 6],
+}
+
+impl Tracker {
+    /// Starts at the rest pose; fails if the object already overlaps the finger there.
+    pub fn new(kin: Kin) -> Result<Self, PlantError> {
+        let pose = kin.rest()?;
+        let mut t = Self {
+            kin,
+            pose,
+            armed: [false; 6],
+        };
+        for c in Constraint::ALL {
+            if let Some(g) = kin.gap(c, pose.theta1_rad, pose.theta2_rad) {
+                if g.gap < 0.0 && matches!(c, Constraint::Contact(_)) && in_segment(&kin, c, g.k_m)
+                {
+                    return Err(PlantError::BadPlacement);
+                }
+                t.armed[c.slot()] = g.gap >= 0.0;
+            }
+        }
+        Ok(t)
+    }
+
+    /// Starts at a given free pose (θa) without checks other than arming (for paths).
+    pub fn at(kin: Kin, pose: Pose) -> Self {
+        let mut t = Self {
+            kin,
+            pose,
+            armed: [false; 6],
+        };
+        t.rearm();
+        t
+    }
+
+    fn rearm(&mut self) {
+        for c in Constraint::ALL {
+            let active = match self.pose.active {
+                Active::One(a) => a == c,
+                Active::Two { first, second, .. } => first == c || second == c,
+                Active::None => false,
+            };
+            if active {
+                self.armed[c.slot()] = false;
+                continue;
+            }
+            if let Some(g) = self.kin.gap(c, self.pose.theta1_rad, self.pose.theta2_rad) {
+                if g.gap >= 0.0 {
+                    self.armed[c.slot()] = true;
+                } else if g.gap < -1e-9 {
+                    self.armed[c.slot()] = false;
+                }
+            }
+        }
+    }
+
+    /// Moves the finger to θa (rad), reporting every event in order through `emit`.
+    /// On error the tracker keeps its last good pose.
+    pub fn advance(
+        &mut self,
+        theta_a_rad: f64,
+        emit: &mut dyn FnMut(Event),
+    ) -> Result<Pose, PlantError> {
+        for _ in 0..8 {
+            let old = self.pose;
+            let p = self.kin.solve(theta_a_rad, old.active, old.theta2_rad)?;
+            // 1. Release of the active constraint.
+            match old.active {
+                Active::One(c) if p.lambda < 0.0 => {
+                    let at = self.bisect(old, theta_a_rad, |k, pose| {
+                        let q = k.solve(pose, old.active, old.theta2_rad)?;
+                        Ok((q.lambda, q))
+                    })?;
+                    let kind = match c {
+                        Constraint::Contact(ph) => EventKind::LossOfContact {
+                            phalanx: ph,
+                            k_m: at.k_m,
+                        },
+                        other => EventKind::LimitReleased { constraint: other },
+                    };
+                    emit(ev(&at, kind));
+                    self.pose = self
+                        .kin
+                        .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
+                    self.rearm();
+                    continue;
+                }
+                Active::Two {
+                    first,
+                    theta_a_rad: ta_lock,
+                    ..
+                } if theta_a_rad < ta_lock => {
+                    let at = self
+                        .kin
+                        .solve(ta_lock, Active::One(first), old.theta2_rad)?;
+                    emit(ev(&at, EventKind::Unlocked));
+                    self.pose = at;
+                    self.rearm();
+                    continue;
+                }
+                _ => {}
+            }
+            // 2. The contact point leaving its phalanx.
+            if let Active::One(Constraint::Contact(ph)) = old.active {
+                let len = self.len(ph);
+                let was_in = (0.0..=len).contains(&old.k_m);
+                if was_in && !(0.0..=len).contains(&p.k_m) {
+                    let beyond = p.k_m > len;
+                    let at = self.bisect(old, theta_a_rad, |k, pose| {
+                        let q = k.solve(pose, old.active, old.theta2_rad)?;
+                        let ind = if beyond { len - q.k_m } else { q.k_m };
+                        Ok((ind, q))
+                    })?;
+                    let kind = if beyond {
+                        EventKind::BeyondTip { phalanx: ph }
+                    } else {
+                        EventKind::BehindJoint { phalanx: ph }
+                    };
+                    emit(ev(&at, kind));
+                    let vertex = self.kin.object.is_none_or(|o| o.radius_m <= 0.0);
+                    if vertex {
+                        // A vertex slips off the end: the phalanx is free again.
+                        emit(ev(
+                            &at,
+                            EventKind::LossOfContact {
+                                phalanx: ph,
+                                k_m: at.k_m,
+                            },
+                        ));
+                        let mut free =
+                            self.kin
+                                .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
+                        free.theta_a_rad = at.theta_a_rad;
+                        self.pose = free;
+                        self.armed[Constraint::Contact(ph).slot()] = false;
+                    } else {
+                        // Nudge the stored k just past the end so this event fires once; a
+                        // cylinder now rests on the corner of the phalanx.
+                        let mut q = at;
+                        q.k_m = if beyond { len + 1e-12 } else { -1e-12 };
+                        self.pose = q;
+                    }
+                    continue;
+                }
+            }
+            // 3. A new constraint becomes active: take the earliest one along the move.
+            let mut first_hit: Option<(Pose, Constraint, f64)> = None;
+            for c in Constraint::ALL {
+                if !self.armed[c.slot()] {
+                    continue;
+                }
+                let Some(g) = self.kin.gap(c, p.theta1_rad, p.theta2_rad) else {
+                    continue;
+                };
+                if g.gap >= 0.0 {
+                    continue;
+                }
+                let at = self.bisect(old, theta_a_rad, |k, pose| {
+                    let q = k.solve(pose, old.active, old.theta2_rad)?;
+                    let g = k
+                        .gap(c, q.theta1_rad, q.theta2_rad)
+                        .ok_or(PlantError::BadPlacement)?;
+                    Ok((g.gap, q))
+                })?;
+                let k_m = self
+                    .kin
+                    .gap(c, at.theta1_rad, at.theta2_rad)
+                    .map_or(0.0, |g| g.k_m);
+                let dist = (at.theta_a_rad - old.theta_a_rad).abs();
+                if first_hit.is_none_or(|(_, _, d)| dist < d) {
+                    first_hit = Some((at, c, dist));
+                    let _ = k_m;
+                }
+            }
+            if let Some((at, c, _)) = first_hit {
+                let k_m = self
+                    .kin
+                    .gap(c, at.theta1_rad, at.theta2_rad)
+                    .map_or(0.0, |g| g.k_m);
+                match old.active {
+                    Active::None => {
+                        let kind = match c {
+                            Constraint::Contact(ph) => EventKind::FirstContact { phalanx: ph, k_m },
+                            other => EventKind::JointLimit { constraint: other },
+                        };
+                        emit(ev(&at, kind));
+                        let mut q = self.kin.balance(at.theta_a_rad, at.theta2_rad, c)?;
+                        q.lambda = q.lambda.max(0.0);
+                        self.pose = q;
+                    }
+                    Active::One(first) => {
+                        let kind = match c {
+                            Constraint::Contact(ph) => {
+                                EventKind::SecondContact { phalanx: ph, k_m }
+                            }
+                            other => EventKind::JointLimit { constraint: other },
+                        };
+                        emit(ev(&at, kind));
+                        let mut q = at;
+                        q.active = Active::Two {
+                            first,
+                            second: c,
+                            theta_a_rad: at.theta_a_rad,
+                            torque_nm: at.torque_nm,
+                        };
+                        self.pose = q;
+                    }
+                    Active::Two { .. } => {
+                        // Already locked: a third constraint changes nothing in the model.
+                        self.pose = p;
+                        self.rearm();
+                        return Ok(p);
+                    }
+                }
+                self.armed[c.slot()] = false;
+                continue;
+            }
+            self.pose = p;
+            self.rearm();
+            return Ok(p);
+        }
+        Err(PlantError::NoConvergence)
+    }
+
+    fn len(&self, ph: Phalanx) -> f64 {
+        match ph {
+            Phalanx::Proximal => self.kin.finger.l1_m,
+            Phalanx::Distal => self.kin.finger.l2_m,
+        }
+    }
+
+    /// Bisection on θa between the accepted pose (indicator ≥ 0) and `target` (indicator < 0).
+    /// Returns the pose on the feasible side, within [`EVENT_TOL_RAD`] of the crossing.
+    fn bisect(
+        &self,
+        old: Pose,
+        target: f64,
+        mut ind: impl FnMut(&Kin, f64) -> Result<(f64, Pose), PlantError>,
+    ) -> Result<Pose, PlantError> {
+        let mut lo = old.theta_a_rad;
+        let mut lo_pose = old;
+        let mut hi = target;
+        for _ in 0..MAX_BISECT {
+            if (hi - lo).abs() <= EVENT_TOL_RAD {
+                break;
+            }
+            let mid = 0.5 * (lo + hi);
+            let (v, q) = ind(&self.kin, mid)?;
+            if v >= 0.0 {
+                lo = mid;
+                lo_pose = q;
+            } else {
+                hi = mid;
+            }
+        }
+        Ok(lo_pose)
+    }
+}
+
+fn in_segment(kin: &Kin, c: Constraint, k: f64) -> bool {
+    match c {
+        Constraint::Contact(Phalanx::Proximal) => (0.0..=kin.finger.l1_m).contains(&k),
+        Constraint::Contact(Phalanx::Distal) => (0.0..=kin.finger.l2_m).contains(&k),
+        _ => true,
+    }
+}
+
+fn ev(p: &Pose, kind: EventKind) -> Event {
+    Event {
+        t_s: 0.0,
+        theta_a_rad: p.theta_a_rad,
+        torque_nm: p.torque_nm,
+        kind,
+    }
+}
