@@ -17,6 +17,7 @@
 pub mod config;
 mod error;
 mod finger;
+pub mod fixed;
 pub mod model;
 pub mod real;
 
@@ -24,3 +25,6 @@ pub use error::PtsError;
 pub use finger::Finger;
 pub use model::{Closure, Config, Contact, Estimate, Model, Phalanx};
 pub use real::Real;
+
+/// The numeric back end the firmware's estimator runs on (chosen from `cargo xtask bench`).
+pub type FirmwareReal = fixed::Fx32;

@@ -267,14 +267,15 @@ impl<R: Real> Model<R> {
     pub fn kc_free(&self, theta2: R, ta: R) -> Result<R, PtsError> {
         let ta = check(ta, MAX_TORQUE)?;
         let cl = self.closure(theta2)?;
-        Ok(self.kc_free_from(ta, &cl))
+        ok_value(self.kc_free_from(ta, &cl))
     }
 
     fn kc_free_from(&self, ta: R, cl: &Closure<R>) -> R {
         // K1 K2′ / (K2′ + K1 x2²): the series form without dividing by K1.
         let k2p = self.k2_prime(ta, cl);
         let den = k2p + self.k1 * cl.x2 * cl.x2;
-        if den.abs() < R::from_f64(1e-12) {
+        // `<=`: the threshold rounds to zero in fixed point, where den can be exactly 0.
+        if !(den.abs() > R::from_f64(1e-12)) {
             return R::zero();
         }
         self.k1 * k2p / den
@@ -410,7 +411,7 @@ impl<R: Real> Model<R> {
         self.check_monotone(cfg)?;
         let k2p = self.k2_prime(cfg.ta, &cl);
         let x2 = cfg.x2;
-        let kc_free = self.kc_free_from(cfg.ta, &cl);
+        let kc_free = ok_value(self.kc_free_from(cfg.ta, &cl))?;
         let kc_prox = ok_value(k2p / (x2 * x2))?;
         let l1c = self.l1 * cfg.theta2.cos();
         let s_tip = self.l2 / (l1c + self.l2);

@@ -1,0 +1,474 @@
+//! Fixed-point back ends: [`Fx32`] (I32F32) and [`Fx16`] (I16F16) implementing [`Real`].
+//!
+//! Every operation saturates instead of overflowing or panicking: `+ − × ÷` and negation
+//! clamp to the type's limits, division by zero saturates to the limit of the dividend's
+//! sign, and [`Real::is_saturated`] reports a value sitting at a limit, which the model
+//! turns into [`crate::PtsError::Overflow`].
+//!
+//! The elementary functions are our own, integer-only, `no_std`:
+//! - `sin`/`cos`: reduction by π/2 with a 62-bit π/2 in 128-bit arithmetic, then the
+//!   Taylor polynomials to degree 13/14 in Q62 (|r| ≤ π/4, truncation error < 1e-12);
+//! - `atan2`: octant reduction, a second reduction by the nearest multiple of π/16
+//!   (`tan(a − b)` in the ratio, one division), then the Taylor series of atan to u¹¹
+//!   on |u| ≤ tan(π/32) (truncation error < 2e-14);
+//! - `sqrt`: normalisation to [¼, 1), a 24-entry seed table and four division-free
+//!   Newton steps on 1/√f in Q62 (relative error < 1e-13);
+//! - `acos(x) = atan2(√((1 − x)(1 + x)), x)` with the product kept exact in Q64.
+//!
+//! [`Fx32`] evaluates them to about one unit in the last place (2⁻³² ≈ 2.3e-10 rad);
+//! [`Fx16`] evaluates them in Q32 and rounds to Q16 (2⁻¹⁶ ≈ 1.5e-5).
+
+use crate::Real;
+use core::ops::{Add, Div, Mul, Neg, Sub};
+use fixed::types::{I16F16, I32F32};
+
+/// Integer kernels in Q62/Q32 shared by both widths.
+mod kernel {
+    /// 1.0 in Q62.
+    const ONE: i64 = 1 << 62;
+    /// π/2 in Q62 (and π in Q61: the same integer).
+    const PIO2_Q62: i64 = 7_244_019_458_077_122_842;
+    /// π in Q61.
+    const PI_Q61: i64 = 7_244_019_458_077_122_842;
+    /// π/2 in Q61.
+    const PIO2_Q61: i64 = 3_622_009_729_038_561_421;
+    /// 2/π in Q62.
+    const TWO_OVER_PI_Q62: i64 = 2_935_890_503_282_001_226;
+    /// sin(kπ/16), k = 0..=4, Q62.
+    const SIN16: [i64; 5] = [
+        0,
+        899_695_310_372_275_547,
+        1_764_815_834_521_887_442,
+        2_562_115_475_870_945_497,
+        3_260_954_456_333_195_553,
+    ];
+    /// cos(kπ/16), k = 0..=4, Q62.
+    const COS16: [i64; 5] = [
+        4_611_686_018_427_387_904,
+        4_523_073_764_714_963_030,
+        4_260_642_322_793_532_497,
+        3_834_476_785_802_888_710,
+        3_260_954_456_333_195_553,
+    ];
+    /// kπ/16, k = 0..=4, Q61.
+    const PI16_Q61: [i64; 5] = [
+        0,
+        452_751_216_129_820_178,
+        905_502_432_259_640_355,
+        1_358_253_648_389_460_533,
+        1_811_004_864_519_280_711,
+    ];
+    /// Sector bounds tan((2k+1)π/32), k = 0..=3, Q62.
+    const BOUND: [i64; 4] = [
+        454_211_427_797_526_680,
+        1_398_939_659_528_297_413,
+        2_464_997_532_358_006_541,
+        3_784_712_905_284_427_670,
+    ];
+    /// 1/√f at the midpoints of [i/32, (i+1)/32), i = 8..=31, Q62.
+    const RSQRT: [u64; 24] = [
+        8_947_985_207_604_834_467,
+        8_463_946_658_385_025_818,
+        8_050_819_146_976_387_774,
+        7_692_824_063_580_727_003,
+        7_378_697_629_483_820_646,
+        7_100_155_104_418_895_601,
+        6_850_948_758_066_045_017,
+        6_626_266_081_538_448_039,
+        6_422_331_936_732_038_658,
+        6_236_137_695_913_470_387,
+        6_065_252_089_597_902_754,
+        5_907_686_144_476_085_334,
+        5_761_794_833_175_141_141,
+        5_626_204_197_064_308_749,
+        5_499_756_494_980_793_145,
+        5_381_468_334_950_961_061,
+        5_270_498_306_774_157_605,
+        5_166_121_668_315_440_561,
+        5_067_710_337_963_762_279,
+        4_974_716_926_955_842_295,
+        4_886_661_881_625_228_118,
+        4_803_123_044_196_426_089,
+        4_723_727_112_236_820_430,
+        4_648_142_601_703_810_754,
+    ];
+
+    /// Product of two Q62 numbers of magnitude ≤ 1 (result ≤ 1 in magnitude).
+    #[inline]
+    fn mul62(a: i64, b: i64) -> i64 {
+        ((a as i128 * b as i128) >> 62) as i64
+    }
+
+    /// Rounds a Q62 value to Q32.
+    #[inline]
+    fn q62_to_q32(v: i64) -> i64 {
+        (v >> 30) + ((v >> 29) & 1)
+    }
+
+    /// (sin x, cos x) for x in Q32 (any magnitude), results in Q32.
+    pub(super) fn sin_cos_q32(x: i64) -> (i64, i64) {
+        // k = round(x·2/π); |x·2/π| < 2^63·2^62 in Q94: fits i128.
+        let q = x as i128 * TWO_OVER_PI_Q62 as i128;
+        let k = (q + (1i128 << 93)) >> 94;
+        // r = x − kπ/2 in Q62; |x << 30| < 2^93, |k·π/2| < 2^32·2^63.
+        let r = (((x as i128) << 30) - k * PIO2_Q62 as i128) as i64;
+        let r2 = mul62(r, r);
+        // sin r = r(1 − r²/3! + r⁴/5! − … + r¹²/13!)
+        let mut p = ONE / 6_227_020_800;
+        p = -(ONE / 39_916_800) + mul62(r2, p);
+        p = ONE / 362_880 + mul62(r2, p);
+        p = -(ONE / 5_040) + mul62(r2, p);
+        p = ONE / 120 + mul62(r2, p);
+        p = -(ONE / 6) + mul62(r2, p);
+        let s = r + mul62(r, mul62(r2, p));
+        // cos r = 1 − r²/2! + … + r¹⁴/14!
+        let mut c = -(ONE / 87_178_291_200);
+        c = ONE / 479_001_600 + mul62(r2, c);
+        c = -(ONE / 3_628_800) + mul62(r2, c);
+        c = ONE / 40_320 + mul62(r2, c);
+        c = -(ONE / 720) + mul62(r2, c);
+        c = ONE / 24 + mul62(r2, c);
+        c = -(ONE / 2) + mul62(r2, c);
+        let c = ONE + mul62(r2, c);
+        let (s, c) = (q62_to_q32(s), q62_to_q32(c));
+        match (k as i64) & 3 {
+            0 => (s, c),
+            1 => (c, -s),
+            2 => (-s, -c),
+            _ => (-c, s),
+        }
+    }
+
+    /// atan2(y, x) in Q32 for y, x in any common scale; (0, 0) gives 0. Range (−π, π].
+    pub(super) fn atan2_q32(y: i64, x: i64) -> i64 {
+        if y == 0 && x == 0 {
+            return 0;
+        }
+        let (ax, ay) = (x.unsigned_abs(), y.unsigned_abs());
+        let (n, d, swapped) = if ay > ax {
+            (ax, ay, true)
+        } else {
+            (ay, ax, false)
+        };
+        // Normalise d into [2^61, 2^62); n ≤ d follows.
+        let lz = d.leading_zeros();
+        let (n, d) = if lz >= 2 {
+            (n << (lz - 2), d << (lz - 2))
+        } else {
+            (n >> (2 - lz), d >> (2 - lz))
+        };
+        let (n, d) = (n as i128, d as i128);
+        // Sector k: |atan(n/d) − kπ/16| ≤ π/32.
+        let k = BOUND.iter().filter(|&&b| (n << 62) > d * b as i128).count();
+        let (s, c, base) = match (SIN16.get(k), COS16.get(k), PI16_Q61.get(k)) {
+            (Some(&s), Some(&c), Some(&b)) => (s as i128, c as i128, b),
+            _ => (0, ONE as i128, 0),
+        };
+        // tan(θ − kπ/16) = (n cos − d sin)/(d cos + n sin)
+        let num = (n * c - d * s) >> 62;
+        let den = (d * c + n * s) >> 62;
+        if den <= 0 {
+            return 0;
+        }
+        let u = ((num << 62) / den) as i64;
+        let u2 = mul62(u, u);
+        let mut p = -(ONE / 11);
+        p = ONE / 9 + mul62(u2, p);
+        p = -(ONE / 7) + mul62(u2, p);
+        p = ONE / 5 + mul62(u2, p);
+        p = -(ONE / 3) + mul62(u2, p);
+        let at = u + mul62(u, mul62(u2, p));
+        let mut a = base + (at >> 1);
+        if swapped {
+            a = PIO2_Q61 - a;
+        }
+        if x < 0 {
+            a = PI_Q61 - a;
+        }
+        if y < 0 {
+            a = -a;
+        }
+        (a >> 29) + ((a >> 28) & 1)
+    }
+
+    /// √(x / 2^frac) in Q32 (rounded), for `frac` in 4..=62.
+    pub(super) fn sqrt_q32(x: u64, frac: u32) -> u64 {
+        if x == 0 {
+            return 0;
+        }
+        let lz = x.leading_zeros();
+        // m = x·2^e in [2^62, 2^64) with e + frac even.
+        let odd = (lz + frac) & 1;
+        let (m, e) = if lz == 0 && odd == 1 {
+            (x >> 1, -1i32)
+        } else {
+            (x << (lz - odd), (lz - odd) as i32)
+        };
+        let f63 = (m >> 1) as u128; // f = m/2^64 ∈ [¼, 1) in Q63
+        let idx = ((m >> 59) as usize).saturating_sub(8);
+        let mut y = RSQRT.get(idx).copied().unwrap_or(1 << 62) as u128; // Q62
+        for _ in 0..4 {
+            let y2 = (y * y) >> 62;
+            let fy2 = (f63 * y2) >> 63;
+            let t = (3u128 << 62).saturating_sub(fy2);
+            y = (y * t) >> 63;
+        }
+        let r = (f63 * y) >> 63; // √f in Q62
+        let sh = ((e + frac as i32) / 2 - 2).clamp(1, 100) as u32;
+        ((r + (1u128 << (sh - 1))) >> sh) as u64
+    }
+
+    /// acos(x) in Q32 for x in Q32, clamped to [−1, 1].
+    pub(super) fn acos_q32(x: i64) -> i64 {
+        let one = 1i64 << 32;
+        let x = x.clamp(-one, one);
+        // (1 − x)(1 + x) exactly in Q64 (≤ 2^64), then Q62.
+        let p = ((one - x) as u128 * (one + x) as u128) >> 2;
+        let s = sqrt_q32(p as u64, 62) as i64;
+        atan2_q32(s, x)
+    }
+}
+
+macro_rules! common_impls {
+    ($name:ident, $inner:ty, $raw:ty) => {
+        impl $name {
+            /// The largest value (the positive saturation limit).
+            pub const MAX: Self = Self(<$inner>::MAX);
+            /// The smallest value (the negative saturation limit).
+            pub const MIN: Self = Self(<$inner>::MIN);
+            /// Builds from the raw two's-complement bits.
+            pub const fn from_bits(bits: $raw) -> Self {
+                Self(<$inner>::from_bits(bits))
+            }
+            /// The raw two's-complement bits.
+            pub const fn to_bits(self) -> $raw {
+                self.0.to_bits()
+            }
+            /// The wrapped `fixed` value.
+            pub const fn inner(self) -> $inner {
+                self.0
+            }
+        }
+        impl From<$inner> for $name {
+            fn from(v: $inner) -> Self {
+                Self(v)
+            }
+        }
+        impl From<$name> for $inner {
+            fn from(v: $name) -> Self {
+                v.0
+            }
+        }
+        impl Add for $name {
+            type Output = Self;
+            #[inline]
+            fn add(self, rhs: Self) -> Self {
+                Self(self.0.saturating_add(rhs.0))
+            }
+        }
+        impl Sub for $name {
+            type Output = Self;
+            #[inline]
+            fn sub(self, rhs: Self) -> Self {
+                Self(self.0.saturating_sub(rhs.0))
+            }
+        }
+        impl Neg for $name {
+            type Output = Self;
+            #[inline]
+            fn neg(self) -> Self {
+                Self(self.0.saturating_neg())
+            }
+        }
+        impl core::fmt::Display for $name {
+            fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+                core::fmt::Display::fmt(&self.0, f)
+            }
+        }
+    };
+}
+
+/// Q32.32 fixed point (`fixed::types::I32F32`): range ±2.1e9, resolution 2.3e-10.
+/// Saturating; the firmware's estimator type (see [`crate::FirmwareReal`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Fx32(pub I32F32);
+
+/// Q16.16 fixed point (`fixed::types::I16F16`): range ±32768, resolution 1.5e-5.
+/// Saturating.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Fx16(pub I16F16);
+
+common_impls!(Fx32, I32F32, i64);
+common_impls!(Fx16, I16F16, i32);
+
+impl From<Fx16> for Fx32 {
+    fn from(v: Fx16) -> Self {
+        Fx32(I32F32::from_bits((v.to_bits() as i64) << 16))
+    }
+}
+
+#[inline]
+fn sat_i64(v: i128) -> i64 {
+    v.clamp(i64::MIN as i128, i64::MAX as i128) as i64
+}
+
+#[inline]
+fn sat_i32(v: i64) -> i32 {
+    v.clamp(i32::MIN as i64, i32::MAX as i64) as i32
+}
+
+impl Mul for Fx32 {
+    type Output = Self;
+    #[inline]
+    fn mul(self, rhs: Self) -> Self {
+        // Q64 product, rounded to nearest Q32, saturated.
+        let p = self.to_bits() as i128 * rhs.to_bits() as i128;
+        Self::from_bits(sat_i64((p + (1 << 31)) >> 32))
+    }
+}
+
+impl Div for Fx32 {
+    type Output = Self;
+    #[inline]
+    fn div(self, rhs: Self) -> Self {
+        let (a, b) = (self.to_bits(), rhs.to_bits());
+        if b == 0 {
+            return if a < 0 { Self::MIN } else { Self::MAX };
+        }
+        Self::from_bits(sat_i64(((a as i128) << 32) / b as i128))
+    }
+}
+
+impl Mul for Fx16 {
+    type Output = Self;
+    #[inline]
+    fn mul(self, rhs: Self) -> Self {
+        let p = self.to_bits() as i64 * rhs.to_bits() as i64;
+        Self::from_bits(sat_i32((p + (1 << 15)) >> 16))
+    }
+}
+
+impl Div for Fx16 {
+    type Output = Self;
+    #[inline]
+    fn div(self, rhs: Self) -> Self {
+        let (a, b) = (self.to_bits(), rhs.to_bits());
+        if b == 0 {
+            return if a < 0 { Self::MIN } else { Self::MAX };
+        }
+        Self::from_bits(sat_i32(((a as i64) << 16) / b as i64))
+    }
+}
+
+/// Rounds a Q32 value to Q16, saturating.
+#[inline]
+fn q32_to_q16(v: i64) -> i32 {
+    sat_i32((v >> 16) + ((v >> 15) & 1))
+}
+
+impl Real for Fx32 {
+    const TOL: f64 = 2e-8;
+    const NAME: &'static str = "Fx32 (I32F32)";
+    fn try_from_f64(x: f64) -> Option<Self> {
+        if !x.is_finite() {
+            return None;
+        }
+        let v = Self(I32F32::checked_from_num(x)?);
+        (!v.is_saturated()).then_some(v)
+    }
+    fn from_f64(x: f64) -> Self {
+        if x.is_nan() {
+            Self::default()
+        } else {
+            Self(I32F32::saturating_from_num(x))
+        }
+    }
+    fn to_f64(self) -> f64 {
+        self.0.to_num::<f64>()
+    }
+    fn is_finite(self) -> bool {
+        true
+    }
+    fn is_saturated(self) -> bool {
+        self == Self::MAX || self == Self::MIN
+    }
+    fn abs(self) -> Self {
+        Self(self.0.saturating_abs())
+    }
+    fn sqrt(self) -> Self {
+        let b = self.to_bits();
+        if b <= 0 {
+            return Self::default();
+        }
+        Self::from_bits(kernel::sqrt_q32(b as u64, 32) as i64)
+    }
+    fn sin(self) -> Self {
+        Self::from_bits(kernel::sin_cos_q32(self.to_bits()).0)
+    }
+    fn cos(self) -> Self {
+        Self::from_bits(kernel::sin_cos_q32(self.to_bits()).1)
+    }
+    fn atan2(self, x: Self) -> Self {
+        Self::from_bits(kernel::atan2_q32(self.to_bits(), x.to_bits()))
+    }
+    fn acos(self) -> Self {
+        Self::from_bits(kernel::acos_q32(self.to_bits()))
+    }
+}
+
+impl Real for Fx16 {
+    const TOL: f64 = 4e-4;
+    const NAME: &'static str = "Fx16 (I16F16)";
+    fn try_from_f64(x: f64) -> Option<Self> {
+        if !x.is_finite() {
+            return None;
+        }
+        let v = Self(I16F16::checked_from_num(x)?);
+        (!v.is_saturated()).then_some(v)
+    }
+    fn from_f64(x: f64) -> Self {
+        if x.is_nan() {
+            Self::default()
+        } else {
+            Self(I16F16::saturating_from_num(x))
+        }
+    }
+    fn to_f64(self) -> f64 {
+        self.0.to_num::<f64>()
+    }
+    fn is_finite(self) -> bool {
+        true
+    }
+    fn is_saturated(self) -> bool {
+        self == Self::MAX || self == Self::MIN
+    }
+    fn abs(self) -> Self {
+        Self(self.0.saturating_abs())
+    }
+    fn sqrt(self) -> Self {
+        let b = self.to_bits();
+        if b <= 0 {
+            return Self::default();
+        }
+        Self::from_bits(q32_to_q16(kernel::sqrt_q32(b as u64, 16) as i64))
+    }
+    fn sin(self) -> Self {
+        Self::from_bits(q32_to_q16(
+            kernel::sin_cos_q32((self.to_bits() as i64) << 16).0,
+        ))
+    }
+    fn cos(self) -> Self {
+        Self::from_bits(q32_to_q16(
+            kernel::sin_cos_q32((self.to_bits() as i64) << 16).1,
+        ))
+    }
+    fn atan2(self, x: Self) -> Self {
+        Self::from_bits(q32_to_q16(kernel::atan2_q32(
+            self.to_bits() as i64,
+            x.to_bits() as i64,
+        )))
+    }
+    fn acos(self) -> Self {
+        Self::from_bits(q32_to_q16(kernel::acos_q32((self.to_bits() as i64) << 16)))
+    }
+}
