@@ -1,8 +1,106 @@
-//! Linker arguments for the target binary only, so host builds and tests are unaffected.
+//! Build script of the firmware package.
+//!
+//! * Linker arguments only for the target binary (`target_os = "none"`), as
+//!   `rustc-link-arg-bins`, so host builds, tests and clippy are unaffected.
+//! * The memory map of the selected board (`board` or `qemu` feature) is copied to
+//!   `OUT_DIR/fw-memory.x`, which `memory.x` includes; the QEMU build also gets the
+//!   `device.x` of its small interrupt table (src/sim/pac.rs).
+//! * The finger description becomes `const` data (`OUT_DIR/fw_config.rs`): the TOML file named
+//!   by `FINGER_TOML` (parsed with `pts::config`), else the paper's prototype. The target does no
+//!   parsing. The QEMU scene is chosen by `FINGER_FW_SCENE` (a scene name or a TOML file), set by
+//!   `cargo xtask demo --scene`; default `table2`.
+use std::{env, fmt::Write as _, fs, path::PathBuf};
+
 fn main() {
-    println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=build.rs");
-    if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
+    println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=memory-stm32f411ce.x");
+    println!("cargo:rerun-if-changed=memory-mps2-an386.x");
+    println!("cargo:rerun-if-env-changed=FINGER_TOML");
+    println!("cargo:rerun-if-env-changed=FINGER_FW_SCENE");
+
+    let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
+    let qemu = env::var_os("CARGO_FEATURE_QEMU").is_some();
+    let board = env::var_os("CARGO_FEATURE_BOARD").is_some();
+    let target_none = env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none");
+
+    if target_none {
+        if qemu == board {
+            panic!("finger-fw: enable exactly one of the features `board` (default) and `qemu` (use --no-default-features --features qemu)");
+        }
+        let map = if qemu {
+            "memory-mps2-an386.x"
+        } else {
+            "memory-stm32f411ce.x"
+        };
+        fs::copy(map, out.join("fw-memory.x")).expect("copy the memory map");
+        if qemu {
+            fs::write(out.join("device.x"), DEVICE_X).expect("write device.x");
+        }
+        println!("cargo:rustc-link-search={}", out.display());
         println!("cargo:rustc-link-arg-bins=-Tlink.x");
+        println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
+        println!("cargo:rustc-link-arg-bins=--nmagic");
     }
+
+    let mut src = String::new();
+    finger_consts(&mut src);
+    scene_consts(&mut src);
+    fs::write(out.join("fw_config.rs"), src).expect("write fw_config.rs");
+}
+
+/// Weak defaults for the QEMU interrupt table (names of src/sim/pac.rs).
+const DEVICE_X: &str = "\
+PROVIDE(UART0RX = DefaultHandler);
+PROVIDE(UART0TX = DefaultHandler);
+PROVIDE(UART1RX = DefaultHandler);
+PROVIDE(UART1TX = DefaultHandler);
+PROVIDE(UART2RX = DefaultHandler);
+PROVIDE(UART2TX = DefaultHandler);
+PROVIDE(GPIO0 = DefaultHandler);
+PROVIDE(GPIO1 = DefaultHandler);
+PROVIDE(TIMER0 = DefaultHandler);
+PROVIDE(TIMER1 = DefaultHandler);
+PROVIDE(DUALTIMER = DefaultHandler);
+PROVIDE(SPI0 = DefaultHandler);
+PROVIDE(ADC = DefaultHandler);
+";
+
+fn finger_consts(src: &mut String) {
+    let file = match env::var("FINGER_TOML") {
+        Ok(path) if !path.is_empty() => {
+            println!("cargo:rerun-if-changed={path}");
+            let text = fs::read_to_string(&path)
+                .unwrap_or_else(|e| panic!("FINGER_TOML={path}: cannot read: {e}"));
+            pts::config::FingerFile::from_toml_str(&text)
+                .unwrap_or_else(|e| panic!("FINGER_TOML={path}: {e:?}"))
+        }
+        _ => pts::config::FingerFile::paper(),
+    };
+    let f = file.finger;
+    let _ = writeln!(
+        src,
+        "/// Name of the finger description this firmware was built for.\n\
+         pub const FINGER_NAME: &str = {:?};",
+        file.name
+    );
+    let _ = writeln!(
+        src,
+        "/// Geometry and springs (SI), from the finger description at build time.\n\
+         pub const FINGER: pts::Finger = pts::Finger {{ l1: {:?}, l2: {:?}, a: {:?}, b: {:?}, c: {:?}, \
+         phi2: {:?}, theta01: {:?}, theta02: {:?}, k1: {:?}, k2: {:?} }};",
+        f.l1, f.l2, f.a, f.b, f.c, f.phi2, f.theta01, f.theta02, f.k1, f.k2
+    );
+}
+
+fn scene_consts(src: &mut String) {
+    let scene = env::var("FINGER_FW_SCENE")
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "table2".to_string());
+    let _ = writeln!(
+        src,
+        "/// The QEMU build's scene (name or file), chosen at build time by FINGER_FW_SCENE.\n\
+         pub const SCENE: &str = {scene:?};"
+    );
 }

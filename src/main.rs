@@ -1,4 +1,54 @@
-//! Firmware entry point (placeholder until the RTIC app lands).
+//! Motor-controller firmware of the PTS finger: a thin RTIC 2 shell around crates/grasp.
+//!
+//! Target builds (`target_os = "none"`, thumbv7em-none-eabihf):
+//! * feature `board` (default): STM32F411CEU6 Black Pill, drivers in `board/`, defmt over RTT;
+//! * feature `qemu`: QEMU mps2-an386 with the simulated finger (crates/plant) as the board,
+//!   defmt over semihosting, exits with a status.
+//!
+//! On the host the package builds an inert binary (no registers, no linker scripts), so
+//! `cargo build/test/clippy --workspace` stays host-only and harmless.
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg_attr(target_os = "none", no_main)]
+
+/// Build-time constants: the finger description and the QEMU scene (from build.rs).
+// Generated data: exact decimal values from the finger file (π/2 is written out, not a typo).
+#[allow(dead_code, clippy::approx_constant)]
+mod config {
+    include!(concat!(env!("OUT_DIR"), "/fw_config.rs"));
+}
+
+#[cfg(target_os = "none")]
+mod app;
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
+mod board;
+#[cfg(target_os = "none")]
+mod ctl;
+#[cfg(target_os = "none")]
+mod fault;
+#[cfg(all(target_os = "none", feature = "qemu"))]
+mod sim;
+#[cfg(target_os = "none")]
+mod standin;
+#[cfg(target_os = "none")]
+mod telemetry;
+
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
+use board as platform;
+#[cfg(all(target_os = "none", feature = "qemu"))]
+use sim as platform;
+
+#[cfg(all(target_os = "none", feature = "qemu"))]
+use defmt_semihosting as _;
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
+use defmt_rtt as _;
+
+#[cfg(not(target_os = "none"))]
 fn main() {
-    println!("finger-fw: build for thumbv7em-none-eabihf to get the firmware");
+    println!(
+        "finger-fw {} (finger {:?}): this is the firmware package; build it for the target:\n  \
+         cargo build --release --target thumbv7em-none-eabihf            (board)\n  \
+         cargo xtask demo                                               (QEMU with the simulated finger)",
+        env!("CARGO_PKG_VERSION"),
+        config::FINGER_NAME
+    );
 }
