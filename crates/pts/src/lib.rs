@@ -19,6 +19,7 @@ mod error;
 mod finger;
 pub mod fixed;
 pub mod model;
+pub mod pathfit;
 pub mod real;
 
 pub use error::PtsError;

@@ -1,0 +1,520 @@
+//! The estimator's own model of the quasi-static contact path (used by [`crate::pathfit`]).
+//!
+//! After contact on the distal phalanx at k2,c the object is fixed: a vertex (R = 0) or a
+//! cylinder of radius R tangent to the phalanx at the contact point, on its flexion side.
+//! Written in the frame of the distal phalanx at contact (unit vectors u along the phalanx,
+//! n its left normal), with O1 at the origin, the contact constraint has a closed form in the
+//! rotation δφ of the distal phalanx and the change δ2 of θ2:
+//!
+//! ```text
+//! E1 = sin(θ2c+δ2) − sin(θ2c+δφ) − (k2c sin δφ + R (1 − cos δφ))/l1 = 0   (tangency)
+//! E2 = δφ − (γ(θ2c+δ2) − γc) − Δθa = 0                                   (θa = θ1+θ2−φ2−γ)
+//! k2 = l1 (cos(θ2c+δφ) − cos θ2) + k2c cos δφ + R sin δφ                  (contact point)
+//! ```
+//!
+//! and the equilibrium with the contact force f eliminated
+//! (`T_a = K1 Δ1 + f L`, `T_a x2 = K2 Δ2 + f k2`, `L = l1 cos θ2 + k2`) gives
+//! `T_a = (K1 Δ1 k2 − K2 Δ2 L) / (k2 − x2 L)`.
+//!
+//! Only small angles (|δ| ≤ [`MAX_DELTA`]) enter the trigonometry, through polynomials; the
+//! four-bar closure γ(θ2), x2(θ2) comes from a lazily filled table of exact closures with
+//! cubic Hermite interpolation between nodes [`NODE_STEP`] apart. So a path evaluation costs
+//! multiplications and a few divisions, no library trigonometry.
+
+use crate::{Model, PtsError, Real};
+
+/// Spacing of the closure table nodes in θ2 (rad). A power of two: exact in fixed point.
+pub const NODE_STEP: f64 = 0.125;
+/// Nodes below θ2,c in the table.
+const NODES_BELOW: usize = 2;
+/// Total nodes: θ2 ∈ [θ2,c − 0.25, θ2,c + 1.375] rad.
+pub const NODES: usize = 14;
+/// Largest |δφ|, |δ2| (rad) the polynomials and the table accept along a path.
+pub const MAX_DELTA: f64 = 1.25;
+/// Newton iterations per path point (a warm-started solve needs 2–3).
+pub const MAX_PATH_NEWTON: usize = 8;
+
+/// sin and cos of a small angle |x| ≤ 1.3 rad by Taylor polynomials (error < 3e-9).
+pub fn sin_cos_small<R: Real>(x: R, c: &PolyConsts<R>) -> (R, R) {
+    let x2 = x * x;
+    // sin: x (1 − x²/6 (1 − x²/20 (1 − x²/42 (1 − x²/72 (1 − x²/110)))))
+    let s = R::one() - x2 * c.inv110;
+    let s = R::one() - x2 * c.inv72 * s;
+    let s = R::one() - x2 * c.inv42 * s;
+    let s = R::one() - x2 * c.inv20 * s;
+    let s = R::one() - x2 * c.inv6 * s;
+    let s = x * s;
+    // cos: 1 − x²/2 (1 − x²/12 (1 − x²/30 (1 − x²/56 (1 − x²/90 (1 − x²/132)))))
+    let k = R::one() - x2 * c.inv132;
+    let k = R::one() - x2 * c.inv90 * k;
+    let k = R::one() - x2 * c.inv56 * k;
+    let k = R::one() - x2 * c.inv30 * k;
+    let k = R::one() - x2 * c.inv12 * k;
+    let k = R::one() - x2 * c.half * k;
+    (s, k)
+}
+
+/// Polynomial coefficients, converted once per back end.
+#[derive(Clone, Copy, Debug)]
+pub struct PolyConsts<R> {
+    half: R,
+    inv6: R,
+    inv12: R,
+    inv20: R,
+    inv30: R,
+    inv42: R,
+    inv56: R,
+    inv72: R,
+    inv90: R,
+    inv110: R,
+    inv132: R,
+}
+
+impl<R: Real> PolyConsts<R> {
+    /// Converts the coefficients.
+    pub fn new() -> Self {
+        let f = |d: f64| R::from_f64(1.0 / d);
+        Self {
+            half: f(2.0),
+            inv6: f(6.0),
+            inv12: f(12.0),
+            inv20: f(20.0),
+            inv30: f(30.0),
+            inv42: f(42.0),
+            inv56: f(56.0),
+            inv72: f(72.0),
+            inv90: f(90.0),
+            inv110: f(110.0),
+            inv132: f(132.0),
+        }
+    }
+}
+
+impl<R: Real> Default for PolyConsts<R> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// γ, x2 and dx2/dθ2 at one θ2 node.
+#[derive(Clone, Copy, Debug)]
+struct Node<R> {
+    gamma: R,
+    x2: R,
+    dx2: R,
+}
+
+/// The contact configuration and everything a path evaluation needs, built once per contact.
+#[derive(Clone, Copy, Debug)]
+pub struct PathModel<R> {
+    /// θ1 at contact (rad).
+    pub theta1c: R,
+    /// θ2 at contact (rad).
+    pub theta2c: R,
+    /// T_a of the free-motion equilibrium at contact (N·m).
+    pub tac: R,
+    s2c: R,
+    c2c: R,
+    gamma_c: R,
+    d1c: R,
+    d2c: R,
+    l1: R,
+    inv_l1: R,
+    l2: R,
+    k1: R,
+    k2: R,
+    h: R,
+    inv_h: R,
+    max_delta: R,
+    tol: R,
+    nodes: [Option<Node<R>>; NODES],
+    /// Closure evaluations done so far (cost accounting).
+    pub closures: u16,
+    /// Newton iterations done so far (cost accounting).
+    pub newton_iters: u32,
+    pc: PolyConsts<R>,
+}
+
+/// One solved point of the path with its first-order sensitivities.
+#[derive(Clone, Copy, Debug)]
+pub struct PathPoint<R> {
+    /// Rotation of the distal phalanx since contact (rad).
+    pub dphi: R,
+    /// Change of θ2 since contact (rad).
+    pub d2: R,
+    /// Contact location from O2 (m).
+    pub k2: R,
+    /// Actuator torque of the equilibrium (N·m).
+    pub ta: R,
+    /// Contact force times k2 (N·m): negative means the contact would open.
+    pub fk2: R,
+    /// ∂T_a/∂k2,c at fixed θa (N·m per m).
+    pub dta_dk2c: R,
+    /// ∂T_a/∂R at fixed θa (N·m per m).
+    pub dta_dr: R,
+    /// dT_a/dθa along the path (N·m/rad).
+    pub stiffness: R,
+}
+
+/// Why a path point cannot be computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PathFail {
+    /// The model failed (closure, toggle, overflow).
+    Model(PtsError),
+    /// The contact point left the distal phalanx past the tip.
+    PastTip,
+    /// The contact point reached O2 (k2 ≤ 0).
+    PastJoint,
+    /// The contact force would be negative: the object does not hold the finger.
+    ContactOpens,
+    /// The angles left the range of the polynomials/table, or the locking point was reached.
+    OutOfRange,
+    /// The Newton solve did not converge in its budget.
+    NoConvergence,
+}
+
+impl From<PtsError> for PathFail {
+    fn from(e: PtsError) -> Self {
+        PathFail::Model(e)
+    }
+}
+
+/// Warm-start state: the last solved point and its tangent dδ/dθa.
+#[derive(Clone, Copy, Debug)]
+pub struct Cursor<R> {
+    dta: R,
+    dphi: R,
+    d2: R,
+    tphi: R,
+    t2: R,
+}
+
+impl<R: Real> Cursor<R> {
+    /// The contact point itself, tangent unknown (zero).
+    pub fn start() -> Self {
+        Self {
+            dta: R::zero(),
+            dphi: R::zero(),
+            d2: R::zero(),
+            tphi: R::zero(),
+            t2: R::zero(),
+        }
+    }
+}
+
+impl<R: Real> PathModel<R> {
+    /// Builds the path model at the contact configuration found by free motion from θa,c.
+    pub fn new(model: &Model<R>, theta_a_c: R) -> Result<Self, PtsError> {
+        let cfg = model.free_from_theta_a(theta_a_c)?;
+        let f = model.finger;
+        let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
+        let cl = model.closure(cfg.theta2)?;
+        let mut nodes = [None; NODES];
+        if let Some(slot) = nodes.get_mut(NODES_BELOW) {
+            *slot = Some(Node {
+                gamma: cl.gamma,
+                x2: cl.x2,
+                dx2: cl.dx2,
+            });
+        }
+        Ok(Self {
+            theta1c: cfg.theta1,
+            theta2c: cfg.theta2,
+            tac: cfg.ta,
+            s2c: cfg.theta2.sin(),
+            c2c: cfg.theta2.cos(),
+            gamma_c: cl.gamma,
+            d1c: cfg.theta1 - conv(f.theta01)?,
+            d2c: cfg.theta2 - conv(f.theta02)?,
+            l1: conv(f.l1)?,
+            inv_l1: conv(1.0 / f.l1)?,
+            l2: conv(f.l2)?,
+            k1: conv(f.k1)?,
+            k2: conv(f.k2)?,
+            h: conv(NODE_STEP)?,
+            inv_h: conv(1.0 / NODE_STEP)?,
+            max_delta: conv(MAX_DELTA)?,
+            tol: conv(R::TOL.max(1e-12) * 8.0)?,
+            nodes,
+            closures: 1,
+            newton_iters: 0,
+            pc: PolyConsts::new(),
+        })
+    }
+
+    /// Distal phalanx length (m).
+    pub fn l2(&self) -> R {
+        self.l2
+    }
+
+    fn node(&mut self, model: &Model<R>, i: usize) -> Result<Node<R>, PathFail> {
+        match self.nodes.get(i) {
+            Some(Some(n)) => return Ok(*n),
+            Some(None) => {}
+            None => return Err(PathFail::OutOfRange),
+        }
+        // θ2 of node i: θ2c + (i − NODES_BELOW) h, built by repeated addition (no int→Real).
+        let mut th = self.theta2c;
+        let mut k = 0usize;
+        while k < NODES_BELOW {
+            th = th - self.h;
+            k += 1;
+        }
+        let mut k = 0usize;
+        while k < i {
+            th = th + self.h;
+            k += 1;
+        }
+        let cl = model.closure(th)?;
+        let n = Node {
+            gamma: cl.gamma,
+            x2: cl.x2,
+            dx2: cl.dx2,
+        };
+        self.closures = self.closures.saturating_add(1);
+        if let Some(slot) = self.nodes.get_mut(i) {
+            *slot = Some(n);
+        }
+        Ok(n)
+    }
+
+    /// γ(θ2c+δ2) − γc, x2 and dx2/dθ2 by cubic Hermite interpolation of the table.
+    fn closure_at(&mut self, model: &Model<R>, d2: R) -> Result<(R, R, R), PathFail> {
+        let mut lo = -(self.h + self.h);
+        if !d2.is_finite() || d2 > self.max_delta || d2 < lo {
+            return Err(PathFail::OutOfRange);
+        }
+        // Segment index: the first i with (i+1−NODES_BELOW) h > δ2.
+        let mut i = 0usize;
+        while i + 2 < NODES && d2 >= lo + self.h {
+            lo = lo + self.h;
+            i += 1;
+        }
+        let a = self.node(model, i)?;
+        let b = self.node(model, i + 1)?;
+        let t = (d2 - lo) * self.inv_h;
+        let t2 = t * t;
+        let t3 = t2 * t;
+        let two = R::from_f64(2.0);
+        let three = R::from_f64(3.0);
+        let h00 = two * t3 - three * t2 + R::one();
+        let h10 = t3 - two * t2 + t;
+        let h01 = three * t2 - two * t3;
+        let h11 = t3 - t2;
+        // Derivatives of the basis with respect to t.
+        let six = R::from_f64(6.0);
+        let four = R::from_f64(4.0);
+        let g00 = six * t2 - six * t;
+        let g10 = three * t2 - four * t + R::one();
+        let g11 = three * t2 - two * t;
+        let (ga, gb) = (R::one() - a.x2, R::one() - b.x2);
+        let gamma = h00 * a.gamma + h10 * self.h * ga + h01 * b.gamma + h11 * self.h * gb;
+        let x2 = h00 * a.x2 + h10 * self.h * a.dx2 + h01 * b.x2 + h11 * self.h * b.dx2;
+        let dx2 = (g00 * (a.x2 - b.x2)) * self.inv_h + g10 * a.dx2 + g11 * b.dx2;
+        Ok((gamma - self.gamma_c, x2, dx2))
+    }
+
+    /// Solves the path point at actuator displacement Δθa = `dta` (rad) since contact for the
+    /// hypothesis (k2,c, R) (m), warm-started from `cur`, which it advances.
+    pub fn point(
+        &mut self,
+        model: &Model<R>,
+        k2c: R,
+        radius: R,
+        dta: R,
+        cur: &mut Cursor<R>,
+    ) -> Result<PathPoint<R>, PathFail> {
+        let step = dta - cur.dta;
+        if cur.tphi == R::zero() && cur.t2 == R::zero() {
+            // No tangent yet: the linearised path at the cursor, J t = (0, 1).
+            let st = self.eval(model, k2c, radius, cur.dphi, cur.d2)?;
+            if !(st.det.abs() > R::from_f64(1e-6)) {
+                return Err(PathFail::OutOfRange);
+            }
+            let inv = R::one() / st.det;
+            cur.tphi = -st.a12 * inv;
+            cur.t2 = st.a11 * inv;
+        }
+        let mut dphi = cur.dphi + cur.tphi * step;
+        let mut d2 = cur.d2 + cur.t2 * step;
+        let mut converged = false;
+        let mut it = 0usize;
+        while it < MAX_PATH_NEWTON {
+            it += 1;
+            self.newton_iters = self.newton_iters.saturating_add(1);
+            let st = self.eval(model, k2c, radius, dphi, d2)?;
+            let e1 = st.s2 - st.s2p - (k2c * st.sp + radius * (R::one() - st.cp)) * self.inv_l1;
+            let e2 = dphi - st.dgamma - dta;
+            if !(st.det.abs() > R::from_f64(1e-6)) {
+                return Err(PathFail::OutOfRange);
+            }
+            // [a11 a12; a21 a22] [dδφ; dδ2] = −[e1; e2]
+            let inv = R::one() / st.det;
+            let sphi = -(st.a22 * e1 - st.a12 * e2) * inv;
+            let s2 = -(st.a11 * e2 - st.a21 * e1) * inv;
+            dphi = dphi + sphi;
+            d2 = d2 + s2;
+            if !dphi.is_finite() || dphi.abs() > self.max_delta {
+                return Err(PathFail::OutOfRange);
+            }
+            if sphi.abs() <= self.tol && s2.abs() <= self.tol {
+                converged = true;
+                break;
+            }
+        }
+        if !converged {
+            return Err(PathFail::NoConvergence);
+        }
+        // Re-evaluate at the converged point for the outputs (one more closure lookup).
+        let st = self.eval(model, k2c, radius, dphi, d2)?;
+        let lc = self.l1 * st.c2;
+        let k2 = self.l1 * (st.c2p - st.c2) + k2c * st.cp + radius * st.sp;
+        if k2 > self.l2 {
+            return Err(PathFail::PastTip);
+        }
+        if !(k2 > R::zero()) {
+            return Err(PathFail::PastJoint);
+        }
+        let l = lc + k2;
+        let d1 = self.d1c + dphi - d2;
+        let dd2 = self.d2c + d2;
+        let num = self.k1 * d1 * k2 - self.k2 * dd2 * l;
+        let den = k2 - st.x2 * l;
+        if !(den.abs() > R::from_f64(1e-9)) {
+            return Err(PathFail::OutOfRange);
+        }
+        let inv_den = R::one() / den;
+        let ta = num * inv_den;
+        let fk2 = ta * st.x2 - self.k2 * dd2;
+        if fk2 < -R::from_f64(1e-6) {
+            return Err(PathFail::ContactOpens);
+        }
+        // Total derivative of T_a for a direction (dδφ, dδ2, dk2c, dR).
+        let dk2_dphi = -self.l1 * st.s2p - k2c * st.sp + radius * st.cp;
+        let dk2_d2 = self.l1 * st.s2;
+        let dt = |xphi: R, x2d: R, xk: R, xr: R| -> R {
+            let dk2 = dk2_dphi * xphi + dk2_d2 * x2d + st.cp * xk + st.sp * xr;
+            let dl = -self.l1 * st.s2 * x2d + dk2;
+            let dd1 = xphi - x2d;
+            let dn = self.k1 * (k2 * dd1 + d1 * dk2) - self.k2 * (l * x2d + dd2 * dl);
+            let dden = dk2 - st.x2 * dl - l * st.dx2 * x2d;
+            (dn - ta * dden) * inv_den
+        };
+        let inv = R::one() / st.det;
+        // Tangent along the path: J t = (0, 1).
+        let tphi = -st.a12 * inv;
+        let t2 = st.a11 * inv;
+        let stiffness = dt(tphi, t2, R::zero(), R::zero());
+        // Sensitivities at fixed θa: J dδ = −(∂E1/∂p, 0).
+        let e1k = -st.sp * self.inv_l1;
+        let e1r = -(R::one() - st.cp) * self.inv_l1;
+        let dphi_k = -(st.a22 * e1k) * inv;
+        let d2_k = (st.a21 * e1k) * inv;
+        let dphi_r = -(st.a22 * e1r) * inv;
+        let d2_r = (st.a21 * e1r) * inv;
+        let dta_dk2c = dt(dphi_k, d2_k, R::one(), R::zero());
+        let dta_dr = dt(dphi_r, d2_r, R::zero(), R::one());
+        *cur = Cursor {
+            dta,
+            dphi,
+            d2,
+            tphi,
+            t2,
+        };
+        let out = PathPoint {
+            dphi,
+            d2,
+            k2,
+            ta,
+            fk2,
+            dta_dk2c,
+            dta_dr,
+            stiffness,
+        };
+        if !out.ta.is_finite() || out.ta.is_saturated() || out.dta_dk2c.is_saturated() {
+            return Err(PathFail::Model(PtsError::Overflow));
+        }
+        Ok(out)
+    }
+
+    fn eval(
+        &mut self,
+        model: &Model<R>,
+        k2c: R,
+        radius: R,
+        dphi: R,
+        d2: R,
+    ) -> Result<EvalState<R>, PathFail> {
+        if !dphi.is_finite() || dphi.abs() > self.max_delta || d2.abs() > self.max_delta {
+            return Err(PathFail::OutOfRange);
+        }
+        let (sp, cp) = sin_cos_small(dphi, &self.pc);
+        let (sd, cd) = sin_cos_small(d2, &self.pc);
+        // θ2c + δφ and θ2 = θ2c + δ2 by angle addition.
+        let s2p = self.s2c * cp + self.c2c * sp;
+        let c2p = self.c2c * cp - self.s2c * sp;
+        let s2 = self.s2c * cd + self.c2c * sd;
+        let c2 = self.c2c * cd - self.s2c * sd;
+        let (dgamma, x2, dx2) = self.closure_at(model, d2)?;
+        let a11 = -c2p - (k2c * cp + radius * sp) * self.inv_l1;
+        let a12 = c2;
+        let a21 = R::one();
+        let a22 = x2 - R::one();
+        let det = a11 * a22 - a12 * a21;
+        Ok(EvalState {
+            s2,
+            c2,
+            s2p,
+            c2p,
+            sp,
+            cp,
+            dgamma,
+            x2,
+            dx2,
+            a11,
+            a12,
+            a21,
+            a22,
+            det,
+        })
+    }
+
+    /// Signed clearance (m) between a cylinder of radius R tangent at k2,c and the proximal
+    /// phalanx after it rotated by δ1 = δφ − δ2 since contact: negative means the object cuts
+    /// the proximal phalanx (a second contact). `None` when the closest point of the proximal
+    /// line lies outside the phalanx (no second contact possible there).
+    pub fn proximal_clearance(&self, k2c: R, radius: R, dphi: R, d2: R) -> Option<R> {
+        // C − O1 in the contact frame (u, n): (l1 cos θ2c + k2c, R − l1 sin θ2c).
+        let cx = self.l1 * self.c2c + k2c;
+        let cy = radius - self.l1 * self.s2c;
+        // The proximal phalanx points at angle δ1 − θ2c from u.
+        let (sd, cd) = sin_cos_small(dphi - d2, &self.pc);
+        let ce = cd * self.c2c + sd * self.s2c; // cos(δ1 − θ2c)
+        let se = sd * self.c2c - cd * self.s2c; // sin(δ1 − θ2c)
+        let along = cx * ce + cy * se;
+        let normal = -cx * se + cy * ce;
+        if along > R::zero() && along < self.l1 {
+            Some(normal - radius)
+        } else {
+            None
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct EvalState<R> {
+    s2: R,
+    c2: R,
+    s2p: R,
+    c2p: R,
+    sp: R,
+    cp: R,
+    dgamma: R,
+    x2: R,
+    dx2: R,
+    a11: R,
+    a12: R,
+    a21: R,
+    a22: R,
+    det: R,
+}
