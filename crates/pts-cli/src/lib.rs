@@ -3,6 +3,7 @@
 
 pub mod eval;
 pub mod path;
+pub mod plot;
 
 use pts::config::FingerFile;
 use std::path::Path;
