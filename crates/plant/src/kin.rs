@@ -227,6 +227,12 @@ impl Kin {
 
     /// Gap of one constraint at (θ1, θ2); `None` for a contact when there is no object.
     pub fn gap(&self, c: Constraint, theta1: f64, theta2: f64) -> Option<Gap> {
+        self.gap_ext(c, theta1, theta2, false)
+    }
+
+    /// [`Kin::gap`]; with `line` the contact gap is the signed distance to the phalanx's whole
+    /// line (the segment extended past both ends), used to locate a contact leaving its phalanx.
+    pub fn gap_ext(&self, c: Constraint, theta1: f64, theta2: f64, line: bool) -> Option<Gap> {
         let f = &self.finger;
         let stop = |gap: f64, j: [f64; 2]| Some(Gap { gap, j, k_m: 0.0 });
         match c {
@@ -246,7 +252,7 @@ impl Kin {
                 let r = centre.sub(base);
                 let k = r.dot(u);
                 let h = r.dot(n);
-                let (gap, nhat, p) = if (0.0..=len).contains(&k) {
+                let (gap, nhat, p) = if line || (0.0..=len).contains(&k) {
                     (h - obj.radius_m, n, base.add(u.scale(k)))
                 } else {
                     let kc = k.clamp(0.0, len);
@@ -314,15 +320,7 @@ impl Kin {
                     active,
                 })
             }
-            Active::One(c) => {
-                let t2 = newton(guess, |t2| {
-                    let l = f.linkage(t2)?;
-                    let t1 = theta_a_rad - l.phi_rad;
-                    let g = self.gap(c, t1, t2).ok_or(PlantError::BadPlacement)?;
-                    Ok((g.gap, l.x2 * g.j[0] - g.j[1]))
-                })?;
-                self.balance(theta_a_rad, t2, c)
-            }
+            Active::One(c) => self.solve_one(theta_a_rad, c, guess, false),
             Active::Two {
                 first,
                 theta_a_rad: ta_lock,
@@ -338,6 +336,26 @@ impl Kin {
                 Ok(p)
             }
         }
+    }
+
+    /// One active constraint at θa; `line` as in [`Kin::gap_ext`].
+    pub fn solve_one(
+        &self,
+        theta_a_rad: f64,
+        c: Constraint,
+        theta2_guess: f64,
+        line: bool,
+    ) -> Result<Pose, PlantError> {
+        let f = &self.finger;
+        let t2 = newton(theta2_guess, |t2| {
+            let l = f.linkage(t2)?;
+            let t1 = theta_a_rad - l.phi_rad;
+            let g = self
+                .gap_ext(c, t1, t2, line)
+                .ok_or(PlantError::BadPlacement)?;
+            Ok((g.gap, l.x2 * g.j[0] - g.j[1]))
+        })?;
+        self.balance_ext(theta_a_rad, t2, c, line)
     }
 
     fn balance_at_lock(&self, ta: f64, c: Constraint, guess: f64) -> Result<Pose, PlantError> {
@@ -359,11 +377,21 @@ impl Kin {
         theta2_rad: f64,
         c: Constraint,
     ) -> Result<Pose, PlantError> {
+        self.balance_ext(theta_a_rad, theta2_rad, c, false)
+    }
+
+    fn balance_ext(
+        &self,
+        theta_a_rad: f64,
+        theta2_rad: f64,
+        c: Constraint,
+        line: bool,
+    ) -> Result<Pose, PlantError> {
         let f = &self.finger;
         let l = f.linkage(theta2_rad)?;
         let t1 = theta_a_rad - l.phi_rad;
         let g = self
-            .gap(c, t1, theta2_rad)
+            .gap_ext(c, t1, theta2_rad, line)
             .ok_or(PlantError::BadPlacement)?;
         let a = f.k1_nm_per_rad * (t1 - f.theta01_rad);
         let b = f.k2_nm_per_rad * (theta2_rad - f.theta02_rad);

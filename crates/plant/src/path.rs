@@ -116,6 +116,14 @@ pub fn quasi_static_path_with(
     let c = Constraint::Contact(spec.phalanx);
     let mut start = kin.balance(free.theta_a_rad, free.theta2_rad, c)?;
     start.lambda = start.lambda.max(0.0);
+    // A large object placed near O2 may already cut the other phalanx at the contact pose
+    // (MODEL.md): that is a second contact from the start.
+    let other = Constraint::Contact(spec.phalanx.other());
+    if let Some(g) = kin.gap(other, start.theta1_rad, start.theta2_rad) {
+        if g.gap < -1e-12 {
+            return Err(PlantError::SecondContact);
+        }
+    }
     let ta_c = finger.k1_nm_per_rad * (start.theta1_rad - finger.theta01_rad);
     let target = ta_c + dta_nm;
     let mut tr = Tracker::at(kin, start);
@@ -126,13 +134,24 @@ pub fn quasi_static_path_with(
         if (prev.torque_nm - target) * dir >= 0.0 {
             break;
         }
-        let mut first: Option<EventKind> = None;
+        let mut first: Option<(EventKind, f64, f64)> = None;
         let next = tr.advance(prev.theta_a_rad + dir * PATH_STEP_RAD, &mut |e| {
             if first.is_none() {
-                first = Some(e.kind);
+                first = Some((e.kind, e.torque_nm, e.theta_a_rad));
             }
-        })?;
-        if let Some(kind) = first {
+        });
+        if let Some((kind, torque_at_event, theta_at_event)) = first {
+            if (torque_at_event - target) * dir >= 0.0 {
+                // The target torque comes before the event inside this step.
+                let at = kin.solve_one(theta_at_event, c, prev.theta2_rad, true);
+                let hi = match at {
+                    Ok(p) if (p.torque_nm - target) * dir >= 0.0 => p,
+                    _ => return Err(PlantError::NoConvergence),
+                };
+                let fin = refine(&kin, prev, hi, target)?;
+                on_sample(&PathSample { pose: fin });
+                return Ok(result(start, ta_c, &fin, object));
+            }
             return Err(match kind {
                 EventKind::SecondContact { .. } => PlantError::SecondContact,
                 EventKind::BeyondTip { .. } => PlantError::BeyondTip,
@@ -142,41 +161,35 @@ pub fn quasi_static_path_with(
                 _ => PlantError::NoConvergence,
             });
         }
+        let next = next?;
         if (next.torque_nm - target) * dir >= 0.0 {
             // Refine inside [prev, next] by safeguarded secant (T_a is monotone in θa here).
             let fin = refine(&kin, prev, next, target)?;
             on_sample(&PathSample { pose: fin });
-            return Ok(PathResult {
-                theta_a_c_rad: start.theta_a_rad,
-                ta_c_nm: ta_c,
-                theta_a_rad: fin.theta_a_rad,
-                ta_nm: fin.torque_nm,
-                k_m: fin.k_m,
-                dtheta_a_rad: fin.theta_a_rad - start.theta_a_rad,
-                theta1_rad: fin.theta1_rad,
-                theta2_rad: fin.theta2_rad,
-                force_n: fin.lambda,
-                object,
-            });
+            return Ok(result(start, ta_c, &fin, object));
         }
         on_sample(&PathSample { pose: next });
         prev = next;
     }
     if dta_nm == 0.0 {
-        return Ok(PathResult {
-            theta_a_c_rad: start.theta_a_rad,
-            ta_c_nm: ta_c,
-            theta_a_rad: start.theta_a_rad,
-            ta_nm: start.torque_nm,
-            k_m: start.k_m,
-            dtheta_a_rad: 0.0,
-            theta1_rad: start.theta1_rad,
-            theta2_rad: start.theta2_rad,
-            force_n: start.lambda,
-            object,
-        });
+        return Ok(result(start, ta_c, &start, object));
     }
     Err(PlantError::NoConvergence)
+}
+
+fn result(start: Pose, ta_c: f64, fin: &Pose, object: Object) -> PathResult {
+    PathResult {
+        theta_a_c_rad: start.theta_a_rad,
+        ta_c_nm: ta_c,
+        theta_a_rad: fin.theta_a_rad,
+        ta_nm: fin.torque_nm,
+        k_m: fin.k_m,
+        dtheta_a_rad: fin.theta_a_rad - start.theta_a_rad,
+        theta1_rad: fin.theta1_rad,
+        theta2_rad: fin.theta2_rad,
+        force_n: fin.lambda,
+        object,
+    }
 }
 
 fn refine(kin: &Kin, a: Pose, b: Pose, target: f64) -> Result<Pose, PlantError> {

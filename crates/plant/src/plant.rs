@@ -4,7 +4,7 @@ use crate::drive::{DriveState, Input, Load};
 use crate::kin::{Active, Constraint, Kin, Phalanx};
 use crate::scene::{CommandMode, Scene};
 use crate::sensors::Rng;
-use crate::track::{Event, EventKind, Tracker};
+use crate::track::{ev, Event, EventKind, Tracker};
 use crate::PlantError;
 
 /// Contact state of the finger, as the truth reports it.
@@ -237,9 +237,7 @@ impl Plant {
                     self.failed = true;
                     self.push_event(Event {
                         t_s: self.t_s,
-                        theta_a_rad: pose.theta_a_rad,
-                        torque_nm: pose.torque_nm,
-                        kind: EventKind::SolverFailure(e),
+                        ..ev(&pose, EventKind::SolverFailure(e))
                     });
                 }
             }
@@ -251,9 +249,7 @@ impl Plant {
                 let p = self.tracker.pose;
                 self.push_event(Event {
                     t_s: self.t_s,
-                    theta_a_rad: p.theta_a_rad,
-                    torque_nm: p.torque_nm,
-                    kind: EventKind::OverCurrent { current_a: i },
+                    ..ev(&p, EventKind::OverCurrent { current_a: i })
                 });
             }
         } else if i.abs() < 0.9 * self.scene.faults.over_current_a {
@@ -317,12 +313,13 @@ impl Plant {
                 if let Active::One(Constraint::Contact(ph)) = was.active {
                     self.push_event(Event {
                         t_s: self.t_s,
-                        theta_a_rad: was.theta_a_rad,
-                        torque_nm: was.torque_nm,
-                        kind: EventKind::LossOfContact {
-                            phalanx: ph,
-                            k_m: was.k_m,
-                        },
+                        ..ev(
+                            &was,
+                            EventKind::LossOfContact {
+                                phalanx: ph,
+                                k_m: was.k_m,
+                            },
+                        )
                     });
                 }
                 if let Ok(p) = pose {

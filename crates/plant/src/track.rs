@@ -90,6 +90,10 @@ pub struct Event {
     pub theta_a_rad: f64,
     /// T_a at the event (N·m).
     pub torque_nm: f64,
+    /// θ1 at the event (rad).
+    pub theta1_rad: f64,
+    /// θ2 at the event (rad).
+    pub theta2_rad: f64,
     /// What.
     pub kind: EventKind,
 }
@@ -166,7 +170,20 @@ impl Tracker {
     ) -> Result<Pose, PlantError> {
         for _ in 0..8 {
             let old = self.pose;
-            let p = self.kin.solve(theta_a_rad, old.active, old.theta2_rad)?;
+            // While a contact is inside its phalanx, solve against the phalanx's whole line so
+            // that a contact about to leave the segment is still solvable and can be bisected.
+            let line = match old.active {
+                Active::One(c @ Constraint::Contact(ph))
+                    if (0.0..=self.len(ph)).contains(&old.k_m) =>
+                {
+                    Some(c)
+                }
+                _ => None,
+            };
+            let p = match line {
+                Some(c) => self.kin.solve_one(theta_a_rad, c, old.theta2_rad, true)?,
+                None => self.kin.solve(theta_a_rad, old.active, old.theta2_rad)?,
+            };
             // 1. Release of the active constraint.
             match old.active {
                 Active::One(c) if p.lambda < 0.0 => {
@@ -210,7 +227,8 @@ impl Tracker {
                 if was_in && !(0.0..=len).contains(&p.k_m) {
                     let beyond = p.k_m > len;
                     let at = self.bisect(old, theta_a_rad, |k, pose| {
-                        let q = k.solve(pose, old.active, old.theta2_rad)?;
+                        let c = Constraint::Contact(ph);
+                        let q = k.solve_one(pose, c, old.theta2_rad, true)?;
                         let ind = if beyond { len - q.k_m } else { q.k_m };
                         Ok((ind, q))
                     })?;
@@ -368,11 +386,13 @@ fn in_segment(kin: &Kin, c: Constraint, k: f64) -> bool {
     }
 }
 
-fn ev(p: &Pose, kind: EventKind) -> Event {
+pub(crate) fn ev(p: &Pose, kind: EventKind) -> Event {
     Event {
         t_s: 0.0,
         theta_a_rad: p.theta_a_rad,
         torque_nm: p.torque_nm,
+        theta1_rad: p.theta1_rad,
+        theta2_rad: p.theta2_rad,
         kind,
     }
 }
