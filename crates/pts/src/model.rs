@@ -20,6 +20,19 @@ pub const MAX_NEWTON: usize = 40;
 /// Relative band below the free-motion stiffness still read as "no contact"
 /// (measurement noise); below it the stiffness is an error.
 pub const FREE_BAND: f64 = 0.05;
+/// Largest accepted condition number of the distal inversion, κ = (K_c/l2)/(dK_c/dk2):
+/// the shift of k2, as a fraction of l2, per unit relative error in K̂c. Over the monotone
+/// range of the paper's finger κ ≤ 0.43 (a 1 % error in K̂c moves k2 by ≤ 0.43 % of l2);
+/// it grows without bound where K1 s x2 + K2′ → 0 (dK_c/dk2 → 0). Above this the
+/// inversion is refused with [`PtsError::IllConditioned`].
+pub const MAX_CONDITION: f64 = 2.0;
+/// Reference uncertainty of a measured θa (rad) for refusing noisy estimates: one count of
+/// the default drive, 2π/(64 counts·3072) ≈ 3.2e-5 rad, rounded up.
+pub const THETA_A_NOISE_RAD: f64 = 3.2e-5;
+/// Largest accepted shift of k2 (fraction of l2) caused by a θa error of
+/// [`THETA_A_NOISE_RAD`] in the two-point estimate: κ·δθa/Δθa. Above it the estimate is
+/// refused with [`PtsError::IllConditioned`] (the step was too small for this stiffness).
+pub const MAX_K2_NOISE: f64 = 0.05;
 
 /// The four-bar closure at one θ2: the input-crank angle γ and the transmission.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -381,7 +394,12 @@ impl<R: Real> Model<R> {
     /// Checks that K_c(k2) is strictly increasing on (0, l2] at this configuration
     /// (MODEL.md, "Monotonicity"), so the inversion is unique.
     pub fn check_monotone(&self, cfg: &Config<R>) -> Result<(), PtsError> {
-        let c2 = cfg.theta2.cos();
+        self.check_monotone_cos(cfg, cfg.theta2.cos())
+    }
+
+    /// [`Model::check_monotone`] with cos θ2 supplied by the caller (a table, say).
+    pub fn check_monotone_cos(&self, cfg: &Config<R>, cos_theta2: R) -> Result<(), PtsError> {
+        let c2 = check(cos_theta2, 1.0 + 1e-3)?;
         if !(c2 > R::zero()) || !(cfg.x2 < R::one()) || !(cfg.x2 > R::zero()) {
             return Err(PtsError::NotMonotone);
         }
@@ -401,6 +419,28 @@ impl<R: Real> Model<R> {
     /// Classifies a measured stiffness K_c (N·m/rad) at the contact configuration and,
     /// for a distal contact, inverts the closed form for k2 (m) as a quadratic in s.
     pub fn invert(&self, cfg: &Config<R>, kc: R) -> Result<Contact<R>, PtsError> {
+        self.invert_cos(cfg, cfg.theta2.cos(), kc)
+    }
+
+    /// [`Model::invert`] with cos θ2 supplied by the caller, so that a back end without
+    /// cheap trigonometry (fixed point with a free-motion table) needs none here.
+    pub fn invert_cos(
+        &self,
+        cfg: &Config<R>,
+        cos_theta2: R,
+        kc: R,
+    ) -> Result<Contact<R>, PtsError> {
+        self.invert_inner(cfg, cos_theta2, kc, None)
+    }
+
+    /// The inversion; with `dtheta_a` also refuses when θa noise would move k2 too far.
+    fn invert_inner(
+        &self,
+        cfg: &Config<R>,
+        cos_theta2: R,
+        kc: R,
+        dtheta_a: Option<R>,
+    ) -> Result<Contact<R>, PtsError> {
         let kc = check(kc, MAX_STIFFNESS)?;
         let cl = Closure {
             lambda: R::zero(),
@@ -408,12 +448,12 @@ impl<R: Real> Model<R> {
             x2: cfg.x2,
             dx2: cfg.dx2,
         };
-        self.check_monotone(cfg)?;
+        self.check_monotone_cos(cfg, cos_theta2)?;
         let k2p = self.k2_prime(cfg.ta, &cl);
         let x2 = cfg.x2;
         let kc_free = ok_value(self.kc_free_from(cfg.ta, &cl))?;
         let kc_prox = ok_value(k2p / (x2 * x2))?;
-        let l1c = self.l1 * cfg.theta2.cos();
+        let l1c = self.l1 * cos_theta2;
         let s_tip = self.l2 / (l1c + self.l2);
         let d_tip = s_tip - x2;
         let kc_tip = ok_value((self.k1 * s_tip * s_tip + k2p) / (d_tip * d_tip))?;
@@ -446,6 +486,22 @@ impl<R: Real> Model<R> {
         }
         let s = (kc * x2 * x2 - k2p) / (kc * x2 + disc.sqrt());
         let s = ok_value(s)?.max(R::zero()).min(s_tip);
+        // Conditioning, division-free: κ = l1c (x2 − s)(K1 s² + K2′) / (2 l2 (1 − s)² (K1 s x2 + K2′)).
+        let slope = self.k1 * s * x2 + k2p;
+        let one_s = R::one() - s;
+        let lhs = l1c * (x2 - s) * (self.k1 * s * s + k2p);
+        let den = R::from_f64(2.0) * self.l2 * one_s * one_s * slope;
+        let rhs = R::from_f64(MAX_CONDITION) * den;
+        if !(slope > R::zero()) || !(lhs <= rhs) || lhs.is_saturated() || rhs.is_saturated() {
+            return Err(PtsError::IllConditioned);
+        }
+        if let Some(dth) = dtheta_a {
+            // κ·δθ/Δθa ≤ MAX_K2_NOISE, ordered so that no product underflows in Q16.16.
+            let rhs = R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD) * dth * den;
+            if !(lhs <= rhs) || rhs.is_saturated() {
+                return Err(PtsError::IllConditioned);
+            }
+        }
         let k2 = s * l1c / (R::one() - s);
         contact.phalanx = Phalanx::Distal;
         contact.k2 = Some(ok_value(k2)?.min(self.l2));
@@ -454,6 +510,10 @@ impl<R: Real> Model<R> {
 
     /// The paper's two-point estimate: K̂c = ΔT_a/Δθa from the contact instant
     /// (θa,c, T_a,c) and the end of the step (θa, T_a), inverted at the contact configuration.
+    ///
+    /// Refused with [`PtsError::IllConditioned`] where the inversion is ill-conditioned
+    /// (κ > [`MAX_CONDITION`]) or where a θa error of [`THETA_A_NOISE_RAD`] would move k2
+    /// by more than [`MAX_K2_NOISE`]·l2.
     pub fn estimate_two_point(
         &self,
         theta_a_c: R,
@@ -461,6 +521,25 @@ impl<R: Real> Model<R> {
         theta_a: R,
         ta: R,
     ) -> Result<Estimate<R>, PtsError> {
+        self.estimate_two_point_with(theta_a_c, ta_c, theta_a, ta, |t| {
+            let cfg = self.free_from_theta_a(t)?;
+            Ok((cfg, cfg.theta2.cos()))
+        })
+    }
+
+    /// [`Model::estimate_two_point`] with the free-motion configuration at θa,c (and its
+    /// cos θ2) supplied by `contact_config`, e.g. from a table instead of the Newton solve.
+    pub fn estimate_two_point_with<F>(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+        contact_config: F,
+    ) -> Result<Estimate<R>, PtsError>
+    where
+        F: FnOnce(R) -> Result<(Config<R>, R), PtsError>,
+    {
         let theta_a_c = check(theta_a_c, MAX_ANGLE)?;
         let theta_a = check(theta_a, MAX_ANGLE)?;
         let ta_c = check(ta_c, MAX_TORQUE)?;
@@ -477,10 +556,10 @@ impl<R: Real> Model<R> {
         if kc_hat > R::from_f64(MAX_STIFFNESS) {
             return Err(PtsError::BeyondTip);
         }
-        let mut cfg = self.free_from_theta_a(theta_a_c)?;
+        let (mut cfg, cos_theta2) = contact_config(theta_a_c)?;
         // The G term carries the torque actually applied at contact.
         cfg.ta = ta_c;
-        let contact = self.invert(&cfg, kc_hat)?;
+        let contact = self.invert_inner(&cfg, cos_theta2, kc_hat, Some(dtheta_a))?;
         Ok(Estimate {
             kc_hat,
             dta,
