@@ -37,6 +37,10 @@ use path::{Cursor, PathFail, PathModel};
 pub const MAX_BINS: usize = 12;
 /// Fewest bins with data the fit accepts.
 pub const MIN_BINS: usize = 4;
+/// Torque scale of the fit's statistics: residuals, columns and variances are kept in
+/// mN·m so that their squares stay well inside fixed point's resolution (2⁻³² for Fx32).
+const TSCALE: f64 = 1000.0;
+
 /// Budget of path evaluations (each: ≤ [`MAX_BINS`] path points) over the whole fit.
 pub const MAX_EVALS: usize = 24;
 
@@ -268,6 +272,8 @@ struct Work<R> {
     /// Friction offset read from the approach (N·m) and its weight (0: no prior).
     tf_prior: R,
     w_prior: R,
+    /// [`TSCALE`] in the back end.
+    ks: R,
 }
 
 /// Result of one path evaluation at the bins.
@@ -306,6 +312,7 @@ impl<R: Real> Work<R> {
             evals: 0,
             tf_prior: z,
             w_prior: z,
+            ks: R::from_f64(TSCALE),
         }
     }
 }
@@ -330,16 +337,23 @@ fn from_count<R: Real>(n: u32) -> R {
 /// `theta_a_c_rad` is the actuator angle at contact (absolute model angle),
 /// `approach_torque_nm` the torque measured while the finger still moved freely just before
 /// contact (`None` if unknown: the friction offset is then fitted from the path alone), and
-/// `samples` every (θa, T_a) from contact to the end of the step in time order (loading).
+/// `samples` every (θa, T_a) from contact to the end of the step in time order (loading):
+/// any cloneable iterator (a slice's `iter().copied()`, or a map over the controller's own
+/// sample buffer, so no copy is needed). It is traversed three times.
 /// Returns the initial and final contact locations with σ, or why the path cannot determine
 /// them.
-pub fn fit_path<R: Real>(
+pub fn fit_path<R: Real, I>(
     model: &Model<R>,
     cfg: &PathFitConfig,
     theta_a_c_rad: R,
     approach_torque_nm: Option<R>,
-    samples: &[PathSample<R>],
-) -> Result<PathFit<R>, PathFitError> {
+    samples: I,
+) -> Result<PathFit<R>, PathFitError>
+where
+    I: IntoIterator<Item = PathSample<R>>,
+    I::IntoIter: Clone,
+{
+    let samples = samples.into_iter();
     if !theta_a_c_rad.is_finite() {
         return Err(PathFitError::Model(PtsError::NonFinite));
     }
@@ -358,7 +372,8 @@ pub fn fit_path<R: Real>(
     };
     let k2_init = initial_k2(model, &contact_config, &w, l2);
     let noise_w = conv(cfg.torque_noise_floor_nm)?;
-    let s2_bins = (w.var_sample * w.inv_n).max(noise_w * noise_w * w.inv_n);
+    let noise_s = noise_w * w.ks;
+    let s2_bins = (w.var_sample * w.inv_n).max(noise_s * noise_s * w.inv_n);
     if let Some(tac) = approach_torque_nm {
         let sp = conv(cfg.friction_prior_sigma_nm)?;
         if !tac.is_finite() {
@@ -366,7 +381,8 @@ pub fn fit_path<R: Real>(
         }
         if sp > R::zero() {
             w.tf_prior = tac - pm.tac;
-            w.w_prior = s2_bins / (sp * sp);
+            let sps = sp * w.ks;
+            w.w_prior = s2_bins / (sps * sps);
         }
     }
 
@@ -501,7 +517,7 @@ pub fn fit_path<R: Real>(
     let radius_observable = object == FittedObject::Cylinder
         && radius > zero
         && sigma_r < radius * conv(cfg.radius_rel_sigma)?;
-    let rms = (fit.sse).max(zero).sqrt();
+    let rms = (fit.sse).max(zero).sqrt() / w.ks;
     Ok(PathFit {
         k2_contact_m: k2c,
         sigma_k2_m: sigma_k2,
@@ -523,16 +539,16 @@ pub fn fit_path<R: Real>(
     })
 }
 
-fn bin_samples<R: Real>(
+fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone>(
     w: &mut Work<R>,
     cfg: &PathFitConfig,
     theta_a_c: R,
-    samples: &[PathSample<R>],
+    samples: I,
 ) -> Result<(), PathFitError> {
     let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
     let nbins = (cfg.bins as usize).clamp(MIN_BINS, MAX_BINS);
     let mut hi = theta_a_c;
-    for s in samples {
+    for s in samples.clone() {
         if !s.theta_a_rad.is_finite() || !s.torque_nm.is_finite() {
             return Err(PathFitError::Model(PtsError::NonFinite));
         }
@@ -549,7 +565,7 @@ fn bin_samples<R: Real>(
     let mut sum_t = [R::zero(); MAX_BINS];
     let mut sum_th = [R::zero(); MAX_BINS];
     let mut cnt = [0u32; MAX_BINS];
-    for s in samples {
+    for s in samples.clone() {
         if s.theta_a_rad < lo {
             continue;
         }
@@ -607,7 +623,7 @@ fn bin_samples<R: Real>(
         if let Some(b) = idx_map.get(i).and_then(|&j| w.bins.get(j)) {
             // Remove the bin's trend: the local slope between neighbours is not known yet,
             // so use the deviation from the bin mean (over-estimates the noise a little).
-            let d = s.torque_nm - b.t;
+            let d = (s.torque_nm - b.t) * w.ks;
             ss = ss + d * d;
         }
     }
@@ -686,23 +702,24 @@ fn evaluate<R: Real>(
     }
     // Optimal offset with the approach prior: (Σ w r + w_p T_f,prior)/(1 + w_p) (Σ w = 1).
     tf = (tf + w.w_prior * w.tf_prior) / (R::one() + w.w_prior);
-    let dp = w.tf_prior - tf;
+    let ks = w.ks;
+    let dp = (w.tf_prior - tf) * ks;
     let mut sse = w.w_prior * dp * dp;
     if let Some(row) = a.get_mut(2) {
         if let Some(x) = row.get_mut(2) {
-            *x = *x + w.w_prior;
+            *x = *x + w.w_prior * ks * ks;
         }
     }
     if let Some(x) = g.get_mut(2) {
-        *x = *x - w.w_prior * dp;
+        *x = *x - w.w_prior * ks * dp;
     }
     for (i, b) in w.bins.iter().take(w.nb).enumerate() {
         let (Some(&r0), Some(&y), Some(&q)) = (res.get(i), jk.get(i), jr.get(i)) else {
             continue;
         };
-        let r = r0 - tf;
+        let r = (r0 - tf) * ks;
         sse = sse + b.w * r * r;
-        let col = [y, q, R::one()];
+        let col = [y * ks, q * ks, ks];
         for (ri, ci) in a.iter_mut().zip(col.iter()) {
             for (aij, cj) in ri.iter_mut().zip(col.iter()) {
                 *aij = *aij + b.w * *ci * *cj;
@@ -743,11 +760,10 @@ fn lm<R: Real>(
         let a00 = best.a[0][0] * (R::one() + mu);
         let a02 = best.a[0][2];
         let a22 = best.a[2][2] * (R::one() + mu);
-        let det = a00 * a22 - a02 * a02;
-        if !(det.abs() > R::from_f64(1e-18)) {
+        let Some(c) = invert2(&[[a00, a02], [a02, a22]]) else {
             break;
-        }
-        let dk = -(a22 * best.g[0] - a02 * best.g[2]) / det;
+        };
+        let dk = -(c[0][0] * best.g[0] + c[0][1] * best.g[2]);
         let trial = (p[0] + dk * l2).max(lo).min(l2);
         match evaluate(pm, model, w, trial, z) {
             Ok(e) if e.sse <= best.sse => {
@@ -851,36 +867,65 @@ fn lm3<R: Real>(
     Ok(best)
 }
 
+/// Inverse of a symmetric positive 2×2 matrix, Jacobi-scaled (unit diagonal) first so that
+/// fixed point neither overflows nor loses the determinant.
 fn invert2<R: Real>(a: &[[R; 2]; 2]) -> Option<[[R; 2]; 2]> {
-    let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
-    if !(det.abs() > R::from_f64(1e-18)) || !det.is_finite() {
+    if !(a[0][0] > R::zero() && a[1][1] > R::zero()) {
+        return None;
+    }
+    let d = [R::one() / a[0][0].sqrt(), R::one() / a[1][1].sqrt()];
+    let b01 = a[0][1] * d[0] * d[1];
+    let det = R::one() - b01 * b01;
+    if !(det > R::from_f64(1e-7)) || !det.is_finite() {
         return None;
     }
     let inv = R::one() / det;
     Some([
-        [a[1][1] * inv, -a[0][1] * inv],
-        [-a[1][0] * inv, a[0][0] * inv],
+        [inv * d[0] * d[0], -b01 * inv * d[0] * d[1]],
+        [-b01 * inv * d[0] * d[1], inv * d[1] * d[1]],
     ])
 }
 
+/// Inverse of a symmetric positive 3×3 matrix, Jacobi-scaled first (see [`invert2`]).
 fn invert3<R: Real>(a: &[[R; 3]; 3]) -> Option<[[R; 3]; 3]> {
-    let c00 = a[1][1] * a[2][2] - a[1][2] * a[2][1];
-    let c01 = a[1][2] * a[2][0] - a[1][0] * a[2][2];
-    let c02 = a[1][0] * a[2][1] - a[1][1] * a[2][0];
-    let det = a[0][0] * c00 + a[0][1] * c01 + a[0][2] * c02;
-    if !(det.abs() > R::from_f64(1e-24)) || !det.is_finite() {
+    if !(a[0][0] > R::zero() && a[1][1] > R::zero() && a[2][2] > R::zero()) {
+        return None;
+    }
+    let d = [
+        R::one() / a[0][0].sqrt(),
+        R::one() / a[1][1].sqrt(),
+        R::one() / a[2][2].sqrt(),
+    ];
+    let mut b = [[R::zero(); 3]; 3];
+    for (i, row) in b.iter_mut().enumerate() {
+        for (j, x) in row.iter_mut().enumerate() {
+            *x = if i == j {
+                R::one()
+            } else {
+                a[i][j] * d[i] * d[j]
+            };
+        }
+    }
+    let c00 = b[1][1] * b[2][2] - b[1][2] * b[2][1];
+    let c01 = b[1][2] * b[2][0] - b[1][0] * b[2][2];
+    let c02 = b[1][0] * b[2][1] - b[1][1] * b[2][0];
+    let det = b[0][0] * c00 + b[0][1] * c01 + b[0][2] * c02;
+    if !(det > R::from_f64(1e-7)) || !det.is_finite() {
         return None;
     }
     let inv = R::one() / det;
-    let c10 = a[0][2] * a[2][1] - a[0][1] * a[2][2];
-    let c11 = a[0][0] * a[2][2] - a[0][2] * a[2][0];
-    let c12 = a[0][1] * a[2][0] - a[0][0] * a[2][1];
-    let c20 = a[0][1] * a[1][2] - a[0][2] * a[1][1];
-    let c21 = a[0][2] * a[1][0] - a[0][0] * a[1][2];
-    let c22 = a[0][0] * a[1][1] - a[0][1] * a[1][0];
-    Some([
-        [c00 * inv, c10 * inv, c20 * inv],
-        [c01 * inv, c11 * inv, c21 * inv],
-        [c02 * inv, c12 * inv, c22 * inv],
-    ])
+    let c10 = b[0][2] * b[2][1] - b[0][1] * b[2][2];
+    let c11 = b[0][0] * b[2][2] - b[0][2] * b[2][0];
+    let c12 = b[0][1] * b[2][0] - b[0][0] * b[2][1];
+    let c20 = b[0][1] * b[1][2] - b[0][2] * b[1][1];
+    let c21 = b[0][2] * b[1][0] - b[0][0] * b[1][2];
+    let c22 = b[0][0] * b[1][1] - b[0][1] * b[1][0];
+    let m = [[c00, c10, c20], [c01, c11, c21], [c02, c12, c22]];
+    let mut out = [[R::zero(); 3]; 3];
+    for (i, row) in out.iter_mut().enumerate() {
+        for (j, x) in row.iter_mut().enumerate() {
+            *x = m[i][j] * inv * d[i] * d[j];
+        }
+    }
+    Some(out)
 }

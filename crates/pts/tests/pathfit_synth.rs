@@ -200,6 +200,10 @@ struct Stats {
     within3: usize,
     radius_ok: usize,
     radius_claims: usize,
+    /// Largest |k2 (FirmwareReal) − k2 (f64)| / l2 over cases both accepted.
+    fx_max_diff: f64,
+    /// Cases where the fixed-point fit and the f64 fit disagree on refusing.
+    fx_disagree: usize,
 }
 
 fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
@@ -217,7 +221,11 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
         within3: 0,
         radius_ok: 0,
         radius_claims: 0,
+        fx_max_diff: 0.0,
+        fx_disagree: 0,
     };
+    let mfx = Model::<pts::FirmwareReal>::paper().unwrap();
+    let fx = |v: f64| <pts::FirmwareReal as pts::Real>::from_f64(v);
     for &r in &RADII {
         let mut row_max = [0.0f64; 5];
         let mut row_2p = [0.0f64; 5];
@@ -230,7 +238,35 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
                     st.n += 1;
                     let (tc_meas, samples, th_end, t_end) =
                         board_samples(&p, dta, board, seed + 1000 * kk as u64, 400, 200);
-                    let res = fit_path(&m, &cfg, theta_a_c, Some(tc_meas), &samples);
+                    let res = fit_path(&m, &cfg, theta_a_c, Some(tc_meas), samples.iter().copied());
+                    let res_fx = fit_path(
+                        &mfx,
+                        &cfg,
+                        fx(theta_a_c),
+                        Some(fx(tc_meas)),
+                        samples.iter().map(|s| PathSample {
+                            theta_a_rad: fx(s.theta_a_rad),
+                            torque_nm: fx(s.torque_nm),
+                        }),
+                    );
+                    match (&res, &res_fx) {
+                        (Ok(a), Ok(b)) => {
+                            let d = (a.k2_contact_m - pts::Real::to_f64(b.k2_contact_m)).abs() / L2;
+                            st.fx_max_diff = st.fx_max_diff.max(d);
+                        }
+                        (Err(_), Err(_)) => {}
+                        _ => {
+                            st.fx_disagree += 1;
+                            if print {
+                                println!(
+                                    "  fx disagrees: R={r} k2c={:.1} dT={dta}: f64 {:?} fx {:?}",
+                                    k2c / L2,
+                                    res.as_ref().map(|f| f.k2_contact_m),
+                                    res_fx.as_ref().map(|f| f.k2_contact_m)
+                                );
+                            }
+                        }
+                    }
                     if p.ended.is_some() {
                         st.expected_refusals += 1;
                     }
@@ -327,6 +363,12 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
             st.radius_claims,
             st.radius_ok
         );
+        println!(
+            "fixed point ({}) vs f64: max |Δk2| {:.4} % l2, accept/refuse disagreements {}",
+            <pts::FirmwareReal as pts::Real>::NAME,
+            100.0 * st.fx_max_diff,
+            st.fx_disagree
+        );
         for w in st.wrong_refusals.iter().take(20) {
             println!("  refused: {w}");
         }
@@ -340,6 +382,17 @@ fn ideal_grid_max_error_below_one_percent() {
     let st = run_grid(IDEAL, 1, true);
     let max = st.errs.iter().cloned().fold(0.0, f64::max);
     assert!(max <= 0.01, "max error {max}");
+    assert!(
+        st.within3 * 100 >= st.errs.len() * 99,
+        "3σ coverage {}/{}",
+        st.within3,
+        st.errs.len()
+    );
+    assert!(
+        st.fx_max_diff <= 1e-3,
+        "fixed point vs f64 {}",
+        st.fx_max_diff
+    );
 }
 
 #[test]
@@ -363,19 +416,19 @@ fn refuses_garbage_without_panicking() {
     let cfg = PathFitConfig::DEFAULT;
     let th = -0.2;
     assert_eq!(
-        fit_path(&m, &cfg, th, None, &[]).unwrap_err(),
+        fit_path(&m, &cfg, th, None, []).unwrap_err(),
         PathFitError::NoMotion
     );
     let nan = [PathSample {
         theta_a_rad: f64::NAN,
         torque_nm: 0.0,
     }];
-    assert!(fit_path(&m, &cfg, th, None, &nan).is_err());
+    assert!(fit_path(&m, &cfg, th, None, nan).is_err());
     let flat: Vec<_> = (0..100)
         .map(|i| PathSample {
             theta_a_rad: th + 1e-3 * i as f64,
             torque_nm: 5.0,
         })
         .collect();
-    assert!(fit_path(&m, &cfg, th, None, &flat).is_err());
+    assert!(fit_path(&m, &cfg, th, None, flat.iter().copied()).is_err());
 }
