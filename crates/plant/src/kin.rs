@@ -144,6 +144,9 @@ pub enum Active {
         theta_a_rad: f64,
         /// T_a at the lock (N·m).
         torque_nm: f64,
+        /// Direction θa moved into the lock (+1 flexion, −1 extension); the lock holds while
+        /// (θa − θa,lock)·dir ≥ 0.
+        dir: i8,
     },
 }
 

@@ -70,10 +70,12 @@ pub const NAMES: &[&str] = &[
     "cyl30_k2_40",
     "proximal_vertex_k1_50",
     "large_cyl_second_contact",
-    "large_cyl100_second_contact",
+    "large_cyl_cuts_proximal",
     "vertex_beyond_tip",
     "hard_stop_stall",
     "fault_encoder_stuck",
+    "fault_encoder_jump",
+    "fault_short",
     "fault_loss_of_contact",
 ];
 
@@ -101,15 +103,18 @@ pub fn by_name(name: &str) -> Option<Scene> {
             "proximal_vertex_k1_50",
             touching(1.0, Phalanx::Proximal, 0.05, 0.0),
         ),
-        // Large cylinders touching the distal phalanx near O2: the proximal phalanx soon
-        // touches too (second contact).
+        // A large cylinder (R = 5 cm) on the proximal phalanx near O2: as the torque rises the
+        // distal phalanx wraps onto it (second contact, the finger locks).
         "large_cyl_second_contact" => scene(
             "large_cyl_second_contact",
-            touching(t1, Phalanx::Distal, 0.010, 0.0975),
+            touching(1.0, Phalanx::Proximal, 0.08, 0.05),
         ),
-        "large_cyl100_second_contact" => scene(
-            "large_cyl100_second_contact",
-            touching(1.1, Phalanx::Distal, 0.006, 0.10),
+        // A large cylinder (R = 9.75 cm) placed tangent to the distal phalanx near O2: it
+        // already cuts the proximal phalanx there (MODEL.md trap), so the proximal phalanx
+        // touches first and the distal one second.
+        "large_cyl_cuts_proximal" => scene(
+            "large_cyl_cuts_proximal",
+            touching(t1, Phalanx::Distal, 0.010, 0.0975),
         ),
         // A vertex near the tip: the contact slides past the tip while the torque rises.
         "vertex_beyond_tip" => scene(
@@ -130,20 +135,40 @@ pub fn by_name(name: &str) -> Option<Scene> {
             duration_s: 6.0,
             ..Scene::DEFAULT
         },
-        // Table 2 with the encoder freezing at 1.5 s (after contact).
+        // Table 2 with the encoder freezing at 1.0 s (during the approach, motor turning).
         "fault_encoder_stuck" => Scene {
             name: "fault_encoder_stuck",
             faults: FaultSpec {
-                encoder_stuck_at_s: 1.5,
+                encoder_stuck_at_s: 1.0,
                 ..FaultSpec::NONE
             },
             ..table2()
         },
-        // Table 2 with the object removed at 2.0 s.
+        // Table 2 with the encoder count jumping by +500 counts at 1.0 s (a glitch).
+        "fault_encoder_jump" => Scene {
+            name: "fault_encoder_jump",
+            faults: FaultSpec {
+                encoder_jump_at_s: 1.0,
+                encoder_jump_counts: 500,
+                ..FaultSpec::NONE
+            },
+            ..table2()
+        },
+        // Table 2 with the winding shorted to 2 Ω at 1.0 s: over-current.
+        "fault_short" => Scene {
+            name: "fault_short",
+            faults: FaultSpec {
+                short_at_s: 1.0,
+                short_r_ohm: 2.0,
+                ..FaultSpec::NONE
+            },
+            ..table2()
+        },
+        // Table 2 with the object removed at 3.5 s, after contact (loss of contact).
         "fault_loss_of_contact" => Scene {
             name: "fault_loss_of_contact",
             faults: FaultSpec {
-                remove_object_at_s: 2.0,
+                remove_object_at_s: 3.5,
                 ..FaultSpec::NONE
             },
             ..table2()

@@ -208,8 +208,9 @@ impl Tracker {
                 Active::Two {
                     first,
                     theta_a_rad: ta_lock,
+                    dir,
                     ..
-                } if theta_a_rad < ta_lock => {
+                } if (theta_a_rad - ta_lock) * f64::from(dir) < 0.0 => {
                     let at = self
                         .kin
                         .solve(ta_lock, Active::One(first), old.theta2_rad)?;
@@ -323,6 +324,11 @@ impl Tracker {
                             second: c,
                             theta_a_rad: at.theta_a_rad,
                             torque_nm: at.torque_nm,
+                            dir: if theta_a_rad >= old.theta_a_rad {
+                                1
+                            } else {
+                                -1
+                            },
                         };
                         self.pose = q;
                     }
