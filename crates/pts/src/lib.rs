@@ -21,6 +21,7 @@ pub mod fixed;
 pub mod model;
 pub mod pathfit;
 pub mod real;
+pub mod table;
 
 pub use error::PtsError;
 pub use finger::Finger;

@@ -1,0 +1,209 @@
+//! A free-motion table: the contact configuration from θa without a Newton solve.
+//!
+//! The two-point estimate spends almost all its work finding the free-motion configuration
+//! at θa,c (a Newton solve, each step a four-bar closure with five trigonometric calls).
+//! [`FreeTable`] replaces it by a lookup: θ2, θ1, x2, dx2/dθ2 and cos θ2 as piecewise cubic
+//! (Hermite) functions of θa on a uniform grid, built once at init from the **f64** model
+//! (values and central-difference slopes), then evaluated in the back end's arithmetic:
+//! one multiply for the index and three per field. With cos θ2 in the table the inversion
+//! ([`Model::invert_cos`], the closed-form quadratic) needs no trigonometry at all.
+//!
+//! The grid spans the free motion for T_a from [`TABLE_TA_MIN_NM`] to [`TABLE_TA_MAX_NM`]
+//! (θa ≈ −0.99 … 0.60 rad for the paper's finger); outside it the lookup falls back to the
+//! model's Newton solve, so the answers are the same function of the inputs everywhere.
+
+use crate::model::{Config, Estimate, Model};
+use crate::real::Real;
+use crate::{Finger, PtsError};
+
+/// Intervals of the uniform θa grid.
+pub const TABLE_INTERVALS: usize = 32;
+/// Lowest free-motion torque covered by the table (N·m).
+pub const TABLE_TA_MIN_NM: f64 = -0.3;
+/// Highest free-motion torque covered by the table (N·m).
+pub const TABLE_TA_MAX_NM: f64 = 1.6;
+/// Fields per knot: θ2, θ1, x2, dx2/dθ2, cos θ2.
+const FIELDS: usize = 5;
+
+/// A back end the table can index: splits a non-negative grid coordinate into the
+/// interval number and the fraction within it.
+pub trait TableReal: Real {
+    /// `(floor(t), t − floor(t))` for finite `t ≥ 0` below 2³¹; `None` otherwise.
+    fn split_index(self) -> Option<(usize, Self)>;
+}
+
+impl TableReal for f64 {
+    fn split_index(self) -> Option<(usize, Self)> {
+        if !(0.0..2147483648.0).contains(&self) {
+            return None;
+        }
+        let i = libm::floor(self);
+        Some((i as usize, self - i))
+    }
+}
+
+impl TableReal for f32 {
+    fn split_index(self) -> Option<(usize, Self)> {
+        if !(0.0..2147483648.0).contains(&self) {
+            return None;
+        }
+        let i = libm::floorf(self);
+        Some((i as usize, self - i))
+    }
+}
+
+impl TableReal for crate::fixed::Fx32 {
+    fn split_index(self) -> Option<(usize, Self)> {
+        let b = self.to_bits();
+        if b < 0 || self.is_saturated() {
+            return None;
+        }
+        Some(((b >> 32) as usize, Self::from_bits(b & 0xFFFF_FFFF)))
+    }
+}
+
+impl TableReal for crate::fixed::Fx16 {
+    fn split_index(self) -> Option<(usize, Self)> {
+        let b = self.to_bits();
+        if b < 0 || self.is_saturated() {
+            return None;
+        }
+        Some(((b >> 16) as usize, Self::from_bits(b & 0xFFFF)))
+    }
+}
+
+/// One interval: per field the cubic a0 + u(a1 + u(a2 + u·a3)), u ∈ [0, 1).
+#[derive(Clone, Copy, Debug)]
+struct Segment<R> {
+    c: [[R; 4]; FIELDS],
+}
+
+/// The free-motion curve of one finger as a table over θa, with the model it came from.
+#[derive(Clone, Debug)]
+pub struct FreeTable<R> {
+    model: Model<R>,
+    theta_a0: R,
+    inv_h: R,
+    k1: R,
+    theta01: R,
+    seg: [Segment<R>; TABLE_INTERVALS],
+}
+
+/// Free-motion fields at θa from the f64 model: θ2, θ1, x2, dx2, cos θ2.
+fn fields(m: &Model<f64>, theta_a: f64) -> Result<[f64; FIELDS], PtsError> {
+    let c = m.free_from_theta_a(theta_a)?;
+    Ok([c.theta2, c.theta1, c.x2, c.dx2, libm::cos(c.theta2)])
+}
+
+impl<R: TableReal> FreeTable<R> {
+    /// Builds the table from the f64 model of `finger` (about 100 free-motion solves).
+    ///
+    /// Fails like [`Model::new`], with [`PtsError::OutOfRange`] when the finger has no
+    /// free motion over the table's torque range (K1 = 0) or a value does not fit `R`.
+    pub fn new(finger: &Finger) -> Result<Self, PtsError> {
+        let m64 = Model::<f64>::new(finger)?;
+        let model = Model::<R>::new(finger)?;
+        if !(finger.k1 > 0.0) {
+            return Err(PtsError::OutOfRange);
+        }
+        let lo = m64.free_from_torque(TABLE_TA_MIN_NM)?.theta_a;
+        let hi = m64.free_from_torque(TABLE_TA_MAX_NM)?.theta_a;
+        if !(hi > lo) {
+            return Err(PtsError::OutOfRange);
+        }
+        let h = (hi - lo) / TABLE_INTERVALS as f64;
+        let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
+        // Values and slopes (per interval, i.e. ×h) at the knots.
+        let delta = 1e-5;
+        let knot = |i: usize| -> Result<([f64; FIELDS], [f64; FIELDS]), PtsError> {
+            let t = lo + h * i as f64;
+            let (v, a, b) = (
+                fields(&m64, t)?,
+                fields(&m64, t - delta)?,
+                fields(&m64, t + delta)?,
+            );
+            let mut d = [0.0; FIELDS];
+            for ((d, a), b) in d.iter_mut().zip(a).zip(b) {
+                *d = (b - a) / (2.0 * delta) * h;
+            }
+            Ok((v, d))
+        };
+        let zero = R::zero();
+        let mut seg = [Segment {
+            c: [[zero; 4]; FIELDS],
+        }; TABLE_INTERVALS];
+        let mut prev = knot(0)?;
+        for (i, s) in seg.iter_mut().enumerate() {
+            let next = knot(i + 1)?;
+            let ((p0, m0), (p1, m1)) = (prev, next);
+            for (f, c) in s.c.iter_mut().enumerate() {
+                *c = [
+                    conv(p0[f])?,
+                    conv(m0[f])?,
+                    conv(3.0 * (p1[f] - p0[f]) - 2.0 * m0[f] - m1[f])?,
+                    conv(2.0 * (p0[f] - p1[f]) + m0[f] + m1[f])?,
+                ];
+            }
+            prev = next;
+        }
+        Ok(Self {
+            model,
+            theta_a0: conv(lo)?,
+            inv_h: conv(1.0 / h)?,
+            k1: conv(finger.k1)?,
+            theta01: conv(finger.theta01)?,
+            seg,
+        })
+    }
+
+    /// The model the table was built for, on the same back end.
+    pub fn model(&self) -> &Model<R> {
+        &self.model
+    }
+
+    /// The θa range (rad) the table covers; outside it lookups fall back to Newton.
+    pub fn theta_a_range(&self) -> (f64, f64) {
+        let lo = self.theta_a0.to_f64();
+        (lo, lo + TABLE_INTERVALS as f64 / self.inv_h.to_f64())
+    }
+
+    /// Free-motion configuration at θa (rad) and its cos θ2, interpolated (no trigonometry,
+    /// no division) inside the table, by the model's Newton solve outside it.
+    pub fn free_from_theta_a(&self, theta_a: R) -> Result<(Config<R>, R), PtsError> {
+        if !theta_a.is_finite() || theta_a.is_saturated() {
+            return Err(PtsError::NonFinite);
+        }
+        let t = (theta_a - self.theta_a0) * self.inv_h;
+        let hit = t
+            .split_index()
+            .and_then(|(i, u)| self.seg.get(i).map(|s| (s, u)));
+        let Some((s, u)) = hit else {
+            let c = self.model.free_from_theta_a(theta_a)?;
+            return Ok((c, c.theta2.cos()));
+        };
+        let ev = |c: &[R; 4]| c[0] + u * (c[1] + u * (c[2] + u * c[3]));
+        let [theta2, theta1, x2, dx2, cos2] = s.c.each_ref().map(ev);
+        let cfg = Config {
+            theta1,
+            theta2,
+            theta_a,
+            ta: self.k1 * (theta1 - self.theta01),
+            x2,
+            dx2,
+        };
+        Ok((cfg, cos2))
+    }
+
+    /// The paper's two-point estimate ([`Model::estimate_two_point`]) with the contact
+    /// configuration from the table.
+    pub fn estimate_two_point(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+    ) -> Result<Estimate<R>, PtsError> {
+        self.model
+            .estimate_two_point_with(theta_a_c, ta_c, theta_a, ta, |t| self.free_from_theta_a(t))
+    }
+}

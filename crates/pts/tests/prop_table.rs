@@ -1,0 +1,166 @@
+//! The free-motion table against the f64 model's Newton solve, and the table-based
+//! estimate against the f64 reference estimate.
+use pts::fixed::{Fx16, Fx32};
+use pts::table::{FreeTable, TableReal};
+use pts::{Finger, Model, Real};
+
+use proptest::prelude::*;
+
+const L2: f64 = 0.075;
+
+/// Largest deviation of each interpolated field from the f64 Newton solve.
+fn table_error<R: TableReal>(n: usize) -> [f64; 5] {
+    let m = Model::<f64>::paper().unwrap();
+    let t = FreeTable::<R>::new(&Finger::PAPER).unwrap();
+    let (lo, hi) = t.theta_a_range();
+    let mut worst = [0.0f64; 5];
+    for i in 0..=n {
+        let th = R::from_f64(lo + (hi - lo) * i as f64 / n as f64);
+        let want = m.free_from_theta_a(th.to_f64()).unwrap();
+        let (got, cos2) = t.free_from_theta_a(th).unwrap();
+        let e = [
+            got.theta2.to_f64() - want.theta2,
+            got.theta1.to_f64() - want.theta1,
+            got.x2.to_f64() - want.x2,
+            got.dx2.to_f64() - want.dx2,
+            cos2.to_f64() - want.theta2.cos(),
+        ];
+        for (w, e) in worst.iter_mut().zip(e) {
+            *w = w.max(e.abs());
+        }
+        assert!((got.ta.to_f64() - want.ta).abs() < 1e-3);
+    }
+    worst
+}
+
+#[test]
+fn table_matches_newton() {
+    let e = table_error::<f64>(5000);
+    println!("f64 table: max |error| theta2 theta1 x2 dx2 cos2 = {e:?}");
+    assert!(e.iter().all(|&x| x < 1e-7), "{e:?}");
+    let e = table_error::<Fx32>(5000);
+    println!("Fx32 table: {e:?}");
+    assert!(e.iter().all(|&x| x < 1e-7), "{e:?}");
+    let e = table_error::<f32>(2000);
+    println!("f32 table: {e:?}");
+    assert!(e.iter().all(|&x| x < 2e-6), "{e:?}");
+    let e = table_error::<Fx16>(2000);
+    println!("Fx16 table: {e:?}");
+    assert!(e.iter().all(|&x| x < 2e-4), "{e:?}");
+}
+
+#[test]
+fn table_covers_working_range_and_falls_back_outside() {
+    let m = Model::<f64>::paper().unwrap();
+    let t = FreeTable::<Fx32>::new(&Finger::PAPER).unwrap();
+    let (lo, hi) = t.theta_a_range();
+    let at = |ta: f64| m.free_from_torque(ta).unwrap().theta_a;
+    assert!(lo < at(0.0) && hi > at(1.5), "range {lo}..{hi}");
+    // Outside: the Newton solve on the same back end, so still the f64 answer.
+    for th in [lo - 0.1, hi + 0.05] {
+        let (c, cos2) = t.free_from_theta_a(Fx32::from_f64(th)).unwrap();
+        let want = m.free_from_theta_a(Fx32::from_f64(th).to_f64()).unwrap();
+        assert!((c.theta2.to_f64() - want.theta2).abs() < 1e-7);
+        assert!((cos2.to_f64() - want.theta2.cos()).abs() < 1e-7);
+    }
+    assert!(t.free_from_theta_a(Fx32::MAX).is_err());
+}
+
+fn measurement(ta_c: f64, k2: f64, dta: f64) -> Option<[f64; 4]> {
+    let m = Model::<f64>::paper().unwrap();
+    let cfg = m.free_from_torque(ta_c).ok()?;
+    let kc = m.kc_distal(cfg.theta2, ta_c, k2).ok()?;
+    Some([cfg.theta_a, ta_c, cfg.theta_a + dta / kc, ta_c + dta])
+}
+
+/// Max |Δk2|/l2 and max relative ΔK̂c of the table estimate on `R` against the f64
+/// Newton estimate, over a grid of contact torques, locations and steps.
+fn estimate_error<R: TableReal>() -> (usize, usize, f64, f64) {
+    let m = Model::<f64>::paper().unwrap();
+    let t = FreeTable::<R>::new(&Finger::PAPER).unwrap();
+    let (mut n, mut both, mut ek, mut ec) = (0, 0, 0.0f64, 0.0f64);
+    for i in 0..=30 {
+        for j in 0..=30 {
+            let ta_c = 1.5 * i as f64 / 30.0;
+            let k2 = L2 * (0.02 + 0.97 * j as f64 / 30.0);
+            let Some(v) = measurement(ta_c, k2, 0.5) else {
+                continue;
+            };
+            let q = v.map(R::from_f64);
+            n += 1;
+            let want =
+                m.estimate_two_point(q[0].to_f64(), q[1].to_f64(), q[2].to_f64(), q[3].to_f64());
+            let got = t.estimate_two_point(q[0], q[1], q[2], q[3]);
+            match (want, got) {
+                (Ok(w), Ok(g)) => {
+                    assert_eq!(w.contact.phalanx, g.contact.phalanx);
+                    if let (Some(a), Some(b)) = (w.contact.k2, g.contact.k2) {
+                        both += 1;
+                        ek = ek.max((a - b.to_f64()).abs() / L2);
+                        ec = ec.max(((g.kc_hat.to_f64() - w.kc_hat) / w.kc_hat).abs());
+                    }
+                }
+                (Err(a), Err(b)) => assert_eq!(a, b),
+                (w, g) => panic!("{} f64 {w:?} vs {g:?}", R::NAME),
+            }
+        }
+    }
+    (n, both, ek, ec)
+}
+
+#[test]
+fn table_estimate_matches_f64_reference() {
+    let (n, both, ek, ec) = estimate_error::<Fx32>();
+    println!("Fx32 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}");
+    assert!(both * 10 >= n * 6 && ek < 1e-4 && ec < 1e-4);
+    let (n, both, ek, ec) = estimate_error::<f64>();
+    println!("f64 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}");
+    assert!(both * 10 >= n * 6 && ek < 1e-6 && ec < 1e-9);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(500))]
+
+    #[test]
+    fn fx32_table_estimate_property(ta_c in 0.0f64..1.5, k2f in 0.01f64..0.99, dta in 0.05f64..1.0) {
+        let Some(v) = measurement(ta_c, (k2f * L2).max(1e-6), dta) else { return Ok(()) };
+        let m = Model::<f64>::paper().unwrap();
+        let t = FreeTable::<Fx32>::new(&Finger::PAPER).unwrap();
+        let q = v.map(Fx32::from_f64);
+        let want = m.estimate_two_point(q[0].to_f64(), q[1].to_f64(), q[2].to_f64(), q[3].to_f64());
+        match (want, t.estimate_two_point(q[0], q[1], q[2], q[3])) {
+            (Ok(w), Ok(g)) => {
+                prop_assert_eq!(w.contact.phalanx, g.contact.phalanx);
+                if let (Some(a), Some(b)) = (w.contact.k2, g.contact.k2) {
+                    prop_assert!((a - b.to_f64()).abs() < 1e-4 * L2);
+                }
+            }
+            (Err(a), Err(b)) => prop_assert_eq!(a, b),
+            (w, g) => prop_assert!(false, "f64 {w:?} vs {g:?}"),
+        }
+    }
+
+    /// Any input, every back end: Ok with finite unsaturated values or a typed Err.
+    #[test]
+    fn table_any_input(v in prop::array::uniform4(prop_oneof![
+        any::<f64>(), -2.0f64..2.0, Just(f64::NAN), Just(f64::INFINITY), Just(-1e300)
+    ])) {
+        fn run<R: TableReal>(v: &[f64; 4]) -> Result<(), TestCaseError> {
+            let t = FreeTable::<R>::new(&Finger::PAPER).unwrap();
+            let q = v.map(R::from_f64);
+            let ok = |x: R| x.is_finite() && !x.is_saturated();
+            if let Ok((c, cos2)) = t.free_from_theta_a(q[0]) {
+                prop_assert!(ok(c.theta2) && ok(c.x2) && ok(c.dx2) && ok(cos2) && ok(c.ta));
+            }
+            if let Ok(e) = t.estimate_two_point(q[0], q[1], q[2], q[3]) {
+                prop_assert!(ok(e.kc_hat) && ok(e.dtheta_a));
+                prop_assert!(e.contact.k2.is_none_or(|k| ok(k) && k > R::zero()));
+            }
+            Ok(())
+        }
+        run::<f64>(&v)?;
+        run::<f32>(&v)?;
+        run::<Fx32>(&v)?;
+        run::<Fx16>(&v)?;
+    }
+}
