@@ -183,7 +183,7 @@ pub struct Kin {
 /// Newton iteration budget.
 const MAX_ITER: usize = 60;
 /// Convergence tolerance on θ2 (rad).
-const TOL_THETA: f64 = 1e-13;
+const TOL_THETA: f64 = 1e-12;
 /// Largest Newton step (rad).
 const MAX_STEP: f64 = 0.1;
 
@@ -303,7 +303,7 @@ impl Kin {
         };
         match active {
             Active::None => {
-                let t2 = newton(guess, |t2| {
+                let t2 = newton_secant(guess, |t2| {
                     let l = f.linkage(t2)?;
                     let a = f.k1_nm_per_rad * (theta_a_rad - l.phi_rad - f.theta01_rad);
                     let val = a * l.x2 - f.k2_nm_per_rad * (t2 - f.theta02_rad);
@@ -430,6 +430,43 @@ impl Kin {
         let ta = self.theta_a(f.theta01_rad, t2)?;
         self.solve(ta, Active::None, t2)
     }
+}
+
+/// Newton with an approximate derivative, upgraded to the secant slope once two iterates are
+/// far enough apart (superlinear instead of linear convergence: fewer linkage evaluations).
+pub(crate) fn newton_secant(
+    x0: f64,
+    mut f: impl FnMut(f64) -> Result<(f64, f64), PlantError>,
+) -> Result<f64, PlantError> {
+    let mut x = x0;
+    let mut prev: Option<(f64, f64)> = None;
+    for _ in 0..MAX_ITER {
+        let (v, d_approx) = f(x)?;
+        if !v.is_finite() || !d_approx.is_finite() {
+            return Err(PlantError::NonFinite);
+        }
+        let mut d = d_approx;
+        if let Some((xp, vp)) = prev {
+            let dx = x - xp;
+            if dx.abs() > 1e-9 {
+                let s = (v - vp) / dx;
+                // Trust the secant only if it agrees in sign and roughly in size.
+                if s * d_approx > 0.0 && (s / d_approx) > 0.2 && (s / d_approx) < 5.0 {
+                    d = s;
+                }
+            }
+        }
+        if !(d.abs() > 1e-300) {
+            return Err(PlantError::Singular);
+        }
+        let step = (v / d).clamp(-MAX_STEP, MAX_STEP);
+        prev = Some((x, v));
+        x -= step;
+        if step.abs() < TOL_THETA {
+            return Ok(x);
+        }
+    }
+    Err(PlantError::NoConvergence)
 }
 
 /// Safeguarded Newton on a scalar function returning (value, derivative).

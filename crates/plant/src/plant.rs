@@ -208,7 +208,8 @@ impl Plant {
         self.steps = self.steps.wrapping_add(1);
         let gear = self.gear_out();
         let theta_a = self.scene.drive.finger_angle(gear, self.theta_a_rest_rad);
-        if !self.failed {
+        // A finger that did not move (stall, dead band, stiction) needs no new solve.
+        if !self.failed && theta_a != pose.theta_a_rad {
             let t = self.t_s;
             let mut buf: [Option<Event>; 8] = [None; 8];
             let mut nb = 0usize;

@@ -121,18 +121,19 @@ pub fn by_name(name: &str) -> Option<Scene> {
             "vertex_beyond_tip",
             touching(t1, Phalanx::Distal, 0.074, 0.0),
         ),
-        // No object, full duty: the finger closes onto its stops and the motor stalls.
+        // No object, duty ramped to −1 in 0.2 s: the finger opens onto its extension stops,
+        // locks, and the motor stalls at 6 V / 20 Ω = 0.3 A (over-current above 0.28 A).
         "hard_stop_stall" => Scene {
             name: "hard_stop_stall",
             object: ObjectSpec::None,
             command: CommandProfile {
                 mode: CommandMode::Duty,
-                from: 1.0,
-                to: 1.0,
+                from: 0.0,
+                to: -1.0,
                 t_start_s: 0.0,
-                ramp_s: 0.0,
+                ramp_s: 0.2,
             },
-            duration_s: 6.0,
+            duration_s: 2.0,
             ..Scene::DEFAULT
         },
         // Table 2 with the encoder freezing at 1.0 s (during the approach, motor turning).

@@ -180,9 +180,23 @@ impl Tracker {
                 }
                 _ => None,
             };
-            let p = match line {
-                Some(c) => self.kin.solve_one(theta_a_rad, c, old.theta2_rad, true)?,
-                None => self.kin.solve(theta_a_rad, old.active, old.theta2_rad)?,
+            let p = match (line, old.active) {
+                (Some(c), _) => self.kin.solve_one(theta_a_rad, c, old.theta2_rad, true)?,
+                // Locked: the geometry is frozen; only the structural spring moves.
+                (
+                    None,
+                    Active::Two {
+                        theta_a_rad: ta_lock,
+                        torque_nm,
+                        ..
+                    },
+                ) => Pose {
+                    theta_a_rad,
+                    torque_nm: torque_nm
+                        + self.kin.finger.k_lock_nm_per_rad * (theta_a_rad - ta_lock),
+                    ..old
+                },
+                (None, _) => self.kin.solve(theta_a_rad, old.active, old.theta2_rad)?,
             };
             // 1. Release of the active constraint.
             match old.active {

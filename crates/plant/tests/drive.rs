@@ -288,3 +288,26 @@ fn never_panics_and_rejects_bad_scenes() {
     };
     assert_eq!(Plant::new(&bad).err(), Some(PlantError::BadPlacement));
 }
+
+/// The hard-stop scene: both extension stops, then the stall current 6 V / 20 Ω = 0.3 A trips
+/// the 0.28 A over-current flag, and the locked finger holds N·η·kt·i within friction.
+#[test]
+fn hard_stop_stall_scene() {
+    let mut p = Plant::new(&scenes::by_name("hard_stop_stall").unwrap()).unwrap();
+    let mut names = Vec::new();
+    for _ in 0..20_000 {
+        p.step_scene();
+        while let Some(e) = p.poll_event() {
+            names.push(e.kind.name());
+        }
+    }
+    assert_eq!(names, ["joint_limit", "joint_limit", "over_current"]);
+    let t = p.truth();
+    assert!((t.current_a - -0.3).abs() < 1e-9, "i = {}", t.current_a);
+    let hand = 3072.0 * 0.6175 * 4.5e-3 * -0.3;
+    assert!(
+        (t.torque_a_nm - hand).abs() <= 3072.0 * 0.6175 * 60e-6 + 1e-9,
+        "T = {}",
+        t.torque_a_nm
+    );
+}
