@@ -35,14 +35,16 @@ pub struct DriveConfig {
 impl DriveConfig {
     /// The drive of the simulated prototype (same numbers as the plant's default drive).
     pub const DEFAULT: DriveConfig = DriveConfig {
-        dt_s: 1.0e-3,
-        gear_ratio: 256.0,
-        efficiency: 0.7,
-        kt_nm_per_a: 3.95e-3,
-        resistance_ohm: 10.2,
+        dt_s: 100e-6,
+        gear_ratio: 3072.0,
+        efficiency: 0.6175,
+        kt_nm_per_a: 4.5e-3,
+        resistance_ohm: 20.0,
         bus_v: 6.0,
         encoder_counts_per_rev: 64.0,
-        amps_per_code: 2.5e-4,
+        // 3.3 V / (0.5 Ω × 10 V/V × 4096 codes)
+        amps_per_code: 3.3 / (0.5 * 10.0 * 4096.0),
+        // 1.65 V mid-scale of a 3.3 V 12-bit ADC
         adc_zero_code: 2048.0,
         theta_a_rest_rad: -0.850_360_8,
     };
@@ -88,16 +90,23 @@ pub enum AfterEstimate {
 pub struct ControllerConfig {
     /// The drive constants.
     pub drive: DriveConfig,
-    /// Ticks with the bridge off used to calibrate the current offset (ticks, 16‥4096).
-    pub calib_ticks: u32,
+    /// Time with the bridge off used to calibrate the current offset (s; 16‥4096 ticks).
+    pub calib_s: f64,
     /// Largest accepted |ADC offset − nominal zero code| (codes); more is a sensor fault.
     pub calib_max_offset_codes: u16,
     /// Approach: rate at which the torque reference rises from zero (N·m/s).
     pub approach_rate_nm_per_s: f64,
+    /// Approach: the reference stops rising while the actuator moves faster than this (rad/s):
+    /// limits the speed, and so the impact, at contact.
+    pub approach_speed_max_rad_s: f64,
+    /// Virtual damping added by the torque loop, T_cmd = T_ref − B·ω̂a (N·m·s/rad). The drive's
+    /// reflected rotor inertia (J·N² ≈ 0.066 kg·m²) on the contact stiffness is otherwise an
+    /// undamped oscillator under torque control; at rest it changes nothing.
+    pub damping_nm_s_per_rad: f64,
     /// Approach: torque at which the approach gives up (no contact) (N·m).
     pub approach_max_nm: f64,
-    /// Decimation: ticks averaged into one sample of the history / path (ticks).
-    pub sample_ticks: u32,
+    /// Decimation: time averaged into one sample of the history / path (s; 1‥64 ticks).
+    pub sample_s: f64,
     /// Contact detection window, in samples.
     pub detect_window: u32,
     /// Contact detection: consecutive stiff windows needed (samples).
@@ -105,6 +114,16 @@ pub struct ControllerConfig {
     /// Contact detection threshold on ΔT_ref/Δθa over the window (N·m/rad). Between the
     /// free-motion stiffness (≈ 0.5‥0.7) and the proximal-contact stiffness (≈ 2.6).
     pub detect_stiffness_nm_per_rad: f64,
+    /// Contact detection: smallest measured torque rise over the window that counts (N·m),
+    /// above the torque quantization and noise.
+    pub detect_min_rise_nm: f64,
+    /// Contact detection is armed once a window moved at least this far with a free-motion
+    /// stiffness (rad).
+    pub detect_arm_rad: f64,
+    /// After contact the reference is held at T_a,c + this while the impact dies out; the
+    /// first static point is taken there, a second one at max(2×this, ΔT_a/2) (N·m). 2×
+    /// must be below ΔT_a.
+    pub seat_above_nm: f64,
     /// The torque increase ΔT_a after contact (N·m).
     pub delta_ta_nm: f64,
     /// Shape of the increase.
@@ -126,10 +145,10 @@ pub struct ControllerConfig {
     pub loss_margin_rad: f64,
     /// Over-current limit on |motor current| (A).
     pub overcurrent_a: f64,
-    /// Over-current must persist this many ticks.
-    pub overcurrent_ticks: u32,
-    /// Stall: duty saturated for this many ticks.
-    pub stall_ticks: u32,
+    /// Over-current must persist this long (s).
+    pub overcurrent_s: f64,
+    /// Stall: duty saturated for this long (s).
+    pub stall_s: f64,
     /// Largest physically possible encoder change per tick (counts); more is a sensor fault.
     pub encoder_max_counts_per_tick: u16,
     /// Current loop proportional gain, relative to the static plant inverse (dimensionless).
@@ -146,27 +165,32 @@ impl ControllerConfig {
     /// Defaults tuned against the simulated plant (see the host tests).
     pub const DEFAULT: ControllerConfig = ControllerConfig {
         drive: DriveConfig::DEFAULT,
-        calib_ticks: 256,
+        calib_s: 0.02,
         calib_max_offset_codes: 200,
-        approach_rate_nm_per_s: 0.25,
+        approach_rate_nm_per_s: 0.15,
+        approach_speed_max_rad_s: 0.15,
+        damping_nm_s_per_rad: 1.0,
         approach_max_nm: 1.5,
-        sample_ticks: 4,
+        sample_s: 4e-3,
         detect_window: 5,
         detect_confirm: 2,
         detect_stiffness_nm_per_rad: 1.5,
+        detect_min_rise_nm: 0.01,
+        detect_arm_rad: 2e-3,
+        seat_above_nm: 0.01,
         delta_ta_nm: 0.2,
         step_shape: StepShape::Ramp(1.0),
         settle_window: 25,
-        settle_band_rad: 1.0e-3,
+        settle_band_rad: 2.0e-4,
         settle_min_s: 0.05,
         settle_timeout_s: 3.0,
         estimate_timeout_s: 1.0,
         second_contact_stiffness_nm_per_rad: 80.0,
         loss_margin_rad: 0.02,
-        overcurrent_a: 0.6,
-        overcurrent_ticks: 5,
-        stall_ticks: 500,
-        encoder_max_counts_per_tick: 200,
+        overcurrent_a: 0.27,
+        overcurrent_s: 2e-3,
+        stall_s: 0.2,
+        encoder_max_counts_per_tick: 64,
         kp_rel: 0.2,
         ki_rel: 0.3,
         after_estimate: AfterEstimate::Hold,
@@ -195,8 +219,17 @@ impl ControllerConfig {
             d.theta_a_rest_rad,
             self.approach_rate_nm_per_s,
             self.approach_max_nm,
+            self.approach_speed_max_rad_s,
+            self.damping_nm_s_per_rad,
+            self.calib_s,
+            self.sample_s,
+            self.overcurrent_s,
+            self.stall_s,
             self.detect_stiffness_nm_per_rad,
             self.delta_ta_nm,
+            self.seat_above_nm,
+            self.detect_min_rise_nm,
+            self.detect_arm_rad,
             self.settle_band_rad,
             self.settle_min_s,
             self.settle_timeout_s,
@@ -235,24 +268,30 @@ impl ControllerConfig {
             || d.amps_per_code == 0.0
             || !(0.0..4096.0).contains(&d.adc_zero_code)
             || self.kp_rel < 0.0
+            || self.seat_above_nm < 0.0
+            || 2.0 * self.seat_above_nm >= self.delta_ta_nm
+            || self.damping_nm_s_per_rad < 0.0
+            || self.approach_speed_max_rad_s <= 0.0
             || !(self.ki_rel > 0.0 && self.ki_rel <= 1.0)
             || self.settle_min_s < 0.0
             || self.loss_margin_rad < 0.0
         {
             return Err(ConfigError::OutOfRange);
         }
-        if !(16..=4096).contains(&self.calib_ticks)
-            || !(1..=64).contains(&self.sample_ticks)
+        let secs = |s: f64| to_u32(s / d.dt_s);
+        let calib_ticks = secs(self.calib_s);
+        let sample_ticks = secs(self.sample_s);
+        if !(16..=4096).contains(&calib_ticks)
+            || !(1..=64).contains(&sample_ticks)
             || !(2..=(HISTORY as u32 / 2)).contains(&self.detect_window)
             || !(1..=16).contains(&self.detect_confirm)
             || !(2..=(HISTORY as u32)).contains(&self.settle_window)
-            || self.overcurrent_ticks == 0
-            || self.stall_ticks == 0
+            || secs(self.overcurrent_s) == 0
+            || secs(self.stall_s) == 0
             || self.encoder_max_counts_per_tick == 0
         {
             return Err(ConfigError::OutOfRange);
         }
-        let secs = |s: f64| to_u32(s / d.dt_s);
         let unm = |nm: f64| to_i32(nm * 1e6);
         // Static inverse of the drive: duty (DUTY_MAX units) per µN·m of actuator torque,
         // at standstill: V = R I, I = T/(kt N η).
@@ -266,7 +305,7 @@ impl ControllerConfig {
             StepShape::Ramp(_) => return Err(ConfigError::OutOfRange),
         };
         let p = Params {
-            calib_ticks: self.calib_ticks,
+            calib_ticks,
             adc_zero_code: to_i32(d.adc_zero_code),
             calib_max_offset_codes: i32::from(self.calib_max_offset_codes),
             // θa_µrad = rest + counts × urad_per_count (Q16).
@@ -277,10 +316,17 @@ impl ControllerConfig {
             ua_per_code_q16: q16(d.amps_per_code * 1e6),
             approach_ramp_q16: ramp(self.approach_rate_nm_per_s),
             approach_max_unm: unm(self.approach_max_nm),
-            sample_ticks: self.sample_ticks,
+            // µrad per sample.
+            approach_vmax_urad: to_i32(self.approach_speed_max_rad_s * 1e6 * self.sample_s),
+            // µN·m per (µrad per sample), Q16: B [N·m·s/rad] / sample_s.
+            damping_q16: q16(self.damping_nm_s_per_rad / self.sample_s),
+            sample_ticks,
             detect_window: self.detect_window as usize,
             detect_confirm: self.detect_confirm,
             detect_k_unm_per_rad: to_i64(self.detect_stiffness_nm_per_rad * 1e6),
+            detect_min_rise_unm: unm(self.detect_min_rise_nm),
+            detect_arm_urad: to_i32(self.detect_arm_rad * 1e6),
+            seat_above_unm: unm(self.seat_above_nm),
             delta_ta_unm: unm(self.delta_ta_nm),
             step_ramp_q16,
             settle_window: self.settle_window as usize,
@@ -291,8 +337,8 @@ impl ControllerConfig {
             second_k_unm_per_rad: to_i64(self.second_contact_stiffness_nm_per_rad * 1e6),
             loss_margin_urad: to_i32(self.loss_margin_rad * 1e6),
             overcurrent_ua: to_i64(self.overcurrent_a * 1e6),
-            overcurrent_ticks: self.overcurrent_ticks,
-            stall_ticks: self.stall_ticks,
+            overcurrent_ticks: secs(self.overcurrent_s),
+            stall_ticks: secs(self.stall_s),
             encoder_max_step: i32::from(self.encoder_max_counts_per_tick),
             ff_duty_per_unm_q16: q16(duty_per_unm),
             kp_duty_per_unm_q16: q16(duty_per_unm * self.kp_rel),
@@ -350,6 +396,10 @@ pub struct Params {
     pub ua_per_code_q16: i64,
     /// Approach torque ramp, µN·m per tick, Q16.
     pub approach_ramp_q16: i64,
+    /// Approach speed limit (µrad per sample).
+    pub approach_vmax_urad: i32,
+    /// Damping, µN·m per (µrad per sample), Q16.
+    pub damping_q16: i64,
     /// Approach torque ceiling (µN·m).
     pub approach_max_unm: i32,
     /// Ticks per sample.
@@ -360,6 +410,12 @@ pub struct Params {
     pub detect_confirm: u32,
     /// Detection stiffness (µN·m/rad).
     pub detect_k_unm_per_rad: i64,
+    /// Smallest torque rise for a stiff window (µN·m).
+    pub detect_min_rise_unm: i32,
+    /// Arming displacement (µrad).
+    pub detect_arm_urad: i32,
+    /// Seating: press above T_a,c (µN·m).
+    pub seat_above_unm: i32,
     /// ΔT_a (µN·m).
     pub delta_ta_unm: i32,
     /// Step ramp, µN·m per tick, Q16; 0 = a step.

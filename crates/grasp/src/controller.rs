@@ -108,7 +108,11 @@ pub enum State {
     Calibrating,
     /// Closing: torque reference ramping up, watching for contact.
     Approach,
-    /// Contact detected; the reference is being raised by ΔT_a.
+    /// Contact detected: the reference is held at T_a,c + δ_seat while the impact dies out,
+    /// the first static point is taken, then a second one at T_a,c + max(2δ_seat, ΔT_a/2)
+    /// (with the end point, the path's slope and curvature for back-dating).
+    Seating,
+    /// The reference is being raised to T_a,c + ΔT_a.
     Step,
     /// Reference at T_a,c + ΔT_a; waiting for θa to settle.
     Settling,
@@ -147,6 +151,18 @@ pub enum Event {
         torque_unm: i32,
         /// Torque target of the step, T_a,c + ΔT_a (µN·m).
         target_unm: i32,
+    },
+    /// A static point after contact, pressed on the object at T_a,c + δ_seat (stage 0)
+    /// or T_a,c + max(2δ_seat, ΔT_a/2) (stage 1).
+    Seated {
+        /// Tick.
+        tick: u32,
+        /// 0 or 1.
+        stage: u8,
+        /// Mean θa over the settle window (µrad).
+        theta_a_urad: i32,
+        /// Mean measured T_a over the settle window (µN·m).
+        torque_unm: i32,
     },
     /// The reference reached T_a,c + ΔT_a.
     StepDone {
@@ -265,11 +281,20 @@ pub struct Controller {
     tl: TorqueLoop,
     /// Torque reference, µN·m ×2¹⁶.
     t_ref_q16: i64,
+    /// Actuator speed estimate, µrad per sample (over the last two samples).
+    vel: i32,
+    /// θa of the last two samples (µrad), newest first.
+    theta_prev: [Option<i32>; 2],
+    /// Damping term of the last tick (µN·m).
+    damp_unm: i32,
     acc: Acc,
     hist: Ring,
     armed: bool,
     stiff_count: u32,
     contact: Sample,
+    seat: Sample,
+    seat2: Sample,
+    seat_stage: u8,
     contact_hist: Vec<Sample, HISTORY>,
     target_unm: i32,
     phase_tick: u32,
@@ -305,11 +330,17 @@ impl Controller {
             cur: CurrentSense::new(&p),
             tl: TorqueLoop::new(),
             t_ref_q16: 0,
+            vel: 0,
+            theta_prev: [None, None],
+            damp_unm: 0,
             acc: Acc::default(),
             hist: Ring::new(),
             armed: false,
             stiff_count: 0,
             contact: Sample::ZERO,
+            seat: Sample::ZERO,
+            seat2: Sample::ZERO,
+            seat_stage: 0,
             contact_hist: Vec::new(),
             target_unm: 0,
             phase_tick: 0,
@@ -399,6 +430,8 @@ impl Controller {
         core::mem::swap(&mut path, &mut self.path);
         Some(EstimateRequest {
             contact: self.contact,
+            seat: self.seat,
+            seat2: self.seat2,
             end: self.end,
             pre,
             path,
@@ -534,18 +567,19 @@ impl Controller {
 
         // Reference trajectory of this tick.
         match self.state {
-            State::Approach => {
+            // The ramp pauses while the actuator is at its approach speed limit.
+            State::Approach if self.vel < self.p.approach_vmax_urad => {
                 self.t_ref_q16 = self.t_ref_q16.saturating_add(self.p.approach_ramp_q16);
             }
-            State::Step => {
+            State::Seating | State::Step => {
                 let target = i64::from(self.target_unm) << 16;
-                if self.p.step_ramp_q16 == 0 {
+                let r = self.p.step_ramp_q16;
+                if r == 0 {
                     self.t_ref_q16 = target;
+                } else if self.t_ref_q16 < target {
+                    self.t_ref_q16 = self.t_ref_q16.saturating_add(r).min(target);
                 } else {
-                    self.t_ref_q16 = self
-                        .t_ref_q16
-                        .saturating_add(self.p.step_ramp_q16)
-                        .min(target);
+                    self.t_ref_q16 = self.t_ref_q16.saturating_sub(r).max(target);
                 }
             }
             State::Releasing => {
@@ -566,12 +600,18 @@ impl Controller {
             let n = i64::from(self.acc.n);
             let s = Sample {
                 tick: self.tick,
-                theta_a_urad: sat_i32(self.acc.theta / n),
-                torque_unm: sat_i32(self.acc.torque / n),
+                theta_a_urad: sat_i32(self.acc.theta.checked_div(n).unwrap_or(0)),
+                torque_unm: sat_i32(self.acc.torque.checked_div(n).unwrap_or(0)),
                 torque_ref_unm: t_ref,
             };
             self.acc = Acc::default();
-            self.on_sample(hw, s);
+            if let Some(old) = self.theta_prev[1] {
+                let v = (i64::from(s.theta_a_urad) - i64::from(old)) / 2;
+                self.vel = sat_i32(v);
+                self.damp_unm = sat_i32(v.saturating_mul(self.p.damping_q16) >> 16);
+            }
+            self.theta_prev = [Some(s.theta_a_urad), self.theta_prev[0]];
+            self.on_sample(s);
             if let State::Fault(_) = self.state {
                 out.state = self.state;
                 return out;
@@ -583,7 +623,7 @@ impl Controller {
 
         // Per-tick supervision.
         match self.state {
-            State::Step | State::Settling | State::Estimating | State::Holding => {
+            State::Seating | State::Step | State::Settling | State::Estimating | State::Holding => {
                 if let Some(d) = self.lost(theta, t_ref) {
                     self.fault(hw, FaultReason::LossOfContact { dtheta_a_urad: d });
                 }
@@ -595,7 +635,7 @@ impl Controller {
             State::Approach if t_ref >= self.p.approach_max_unm => {
                 self.fault(hw, FaultReason::NoContact);
             }
-            State::Step | State::Settling
+            State::Seating | State::Step | State::Settling
                 if self.tick.wrapping_sub(self.contact_tick) > self.p.settle_timeout_ticks =>
             {
                 self.fault(hw, FaultReason::SettleTimeout);
@@ -617,8 +657,9 @@ impl Controller {
             return out;
         }
 
-        // Torque loop.
-        let duty = self.tl.update(t_ref, torque, &self.p);
+        // Torque loop on T_cmd = T_ref − B·ω̂a.
+        let t_cmd = sat_i32(i64::from(t_ref) - i64::from(self.damp_unm));
+        let duty = self.tl.update(t_cmd, torque, &self.p);
         if self.tl.saturated() {
             self.stall_count = self.stall_count.saturating_add(1);
             if self.stall_count >= self.p.stall_ticks {
@@ -641,7 +682,7 @@ impl Controller {
     /// Loss of contact: θa beyond what a stiffness ≥ K_detect allows from the contact point.
     fn lost(&self, theta: i32, t_ref: i32) -> Option<i32> {
         let dth = i64::from(theta) - i64::from(self.contact.theta_a_urad);
-        let dt = i64::from(t_ref) - i64::from(self.contact.torque_ref_unm);
+        let dt = i64::from(t_ref) - i64::from(self.contact.torque_unm);
         let excess = dth - i64::from(self.p.loss_margin_urad);
         if excess <= 0 {
             return None;
@@ -655,21 +696,47 @@ impl Controller {
         }
     }
 
-    fn on_sample<H: Hardware + ?Sized>(&mut self, hw: &mut H, s: Sample) {
+    fn on_sample(&mut self, s: Sample) {
         match self.state {
             State::Approach => {
                 self.hist.push(s);
                 self.detect(s);
             }
+            State::Seating => {
+                self.path_push(s);
+                self.hist.push(s);
+                let at_target = s.torque_ref_unm == self.target_unm;
+                if at_target && self.tick.wrapping_sub(self.phase_tick) >= self.p.settle_min_ticks {
+                    if let Some(p) = self.settled(self.phase_tick) {
+                        let tick = self.tick;
+                        let stage = self.seat_stage;
+                        self.emit(Event::Seated {
+                            tick,
+                            stage,
+                            theta_a_urad: p.theta_a_urad,
+                            torque_unm: p.torque_unm,
+                        });
+                        let seat = self.p.seat_above_unm;
+                        if stage == 0 {
+                            self.seat = p;
+                            self.seat_stage = 1;
+                            let mid = seat.saturating_mul(2).max(self.p.delta_ta_unm / 2);
+                            self.target_unm = self.contact.torque_unm.saturating_add(mid);
+                        } else {
+                            self.seat2 = p;
+                            self.state = State::Step;
+                            self.target_unm =
+                                self.contact.torque_unm.saturating_add(self.p.delta_ta_unm);
+                        }
+                        self.phase_tick = self.tick;
+                    }
+                }
+            }
             State::Step | State::Settling => {
                 self.path_push(s);
                 self.hist.push(s);
                 if self.state == State::Step {
-                    self.check_second(hw);
-                    if let State::Fault(_) = self.state {
-                        return;
-                    }
-                    if s.torque_ref_unm >= self.target_unm {
+                    if s.torque_ref_unm == self.target_unm {
                         self.state = State::Settling;
                         self.phase_tick = self.tick;
                         let tick = self.tick;
@@ -683,12 +750,12 @@ impl Controller {
         }
     }
 
-    /// Windowed stiffness test: ΔT_ref·10⁶ ≥ K·Δθa over the last `detect_window` samples.
+    /// Measured ΔT_a and Δθa over the last `w` samples.
     fn window(&self, w: usize) -> Option<(i64, i64)> {
         let b = self.hist.back(0)?;
         let a = self.hist.back(w)?;
         Some((
-            i64::from(b.torque_ref_unm) - i64::from(a.torque_ref_unm),
+            i64::from(b.torque_unm) - i64::from(a.torque_unm),
             i64::from(b.theta_a_urad) - i64::from(a.theta_a_urad),
         ))
     }
@@ -698,13 +765,15 @@ impl Controller {
         let Some((dt, dth)) = self.window(w) else {
             return;
         };
-        if dt <= 0 {
-            return;
-        }
-        let stiff = dt.saturating_mul(1_000_000) >= self.p.detect_k_unm_per_rad.saturating_mul(dth);
+        let stiff = dt >= i64::from(self.p.detect_min_rise_unm)
+            && dt.saturating_mul(1_000_000) >= self.p.detect_k_unm_per_rad.saturating_mul(dth);
         if !stiff {
             // Free motion seen: from now on a stiff window means contact.
-            self.armed = true;
+            if dth >= i64::from(self.p.detect_arm_urad)
+                && dt.saturating_mul(1_000_000) < self.p.detect_k_unm_per_rad.saturating_mul(dth)
+            {
+                self.armed = true;
+            }
             self.stiff_count = 0;
             return;
         }
@@ -715,9 +784,34 @@ impl Controller {
         if self.stiff_count < self.p.detect_confirm {
             return;
         }
-        // Contact. Back-date: the knee is the last sample whose step still moved at least
-        // half the free-motion speed measured before the window.
-        let knee = self.knee(w).unwrap_or(s);
+        // Contact. The finger's inertia carries it past the contact point before the stiffness
+        // shows, so T_a,c is taken on the free-motion line (fitted well before the window)
+        // at the θa of the detection: the bias is K_free × the overshoot (a few mN·m).
+        // The estimator back-dates precisely from static points (estimate::contact_point).
+        let w3 = 3 * w;
+        let a = self.hist.back(w3).unwrap_or(s);
+        let b = self
+            .hist
+            .back(self.hist.len.saturating_sub(1).min(w3 + 4 * w))
+            .unwrap_or(a);
+        let dth_ab = i64::from(a.theta_a_urad) - i64::from(b.theta_a_urad);
+        let dt_ab = i64::from(a.torque_unm) - i64::from(b.torque_unm);
+        let ext = (i64::from(s.theta_a_urad) - i64::from(a.theta_a_urad)).max(0);
+        let tc = i64::from(a.torque_unm)
+            + dt_ab
+                .saturating_mul(ext)
+                .checked_div(dth_ab)
+                .unwrap_or(0)
+                .clamp(
+                    0,
+                    i64::from(s.torque_unm.saturating_sub(a.torque_unm)).max(0),
+                );
+        let knee = Sample {
+            tick: a.tick,
+            theta_a_urad: s.theta_a_urad,
+            torque_unm: sat_i32(tc),
+            torque_ref_unm: s.torque_ref_unm,
+        };
         self.contact = knee;
         self.contact_tick = self.tick;
         self.contact_hist.clear();
@@ -728,14 +822,15 @@ impl Controller {
                 let _ = self.contact_hist.push(h);
             }
         }
-        self.target_unm = knee
-            .torque_ref_unm
-            .saturating_add(self.p.delta_ta_unm)
-            .max(s.torque_ref_unm);
+        // Press gently (T_a,c + δ_seat) while the impact dies out; the first static point.
+        let seat = knee.torque_unm.saturating_add(self.p.seat_above_unm);
+        self.target_unm = seat;
+        self.t_ref_q16 = i64::from(seat) << 16;
+        self.seat_stage = 0;
         self.path.clear();
         self.path_stride = 1;
         self.path_skip = 0;
-        self.state = State::Step;
+        self.state = State::Seating;
         self.phase_tick = self.tick;
         let tick = self.tick;
         let ev = Event::ContactDetected {
@@ -743,74 +838,23 @@ impl Controller {
             contact_tick: knee.tick,
             theta_a_urad: knee.theta_a_urad,
             torque_unm: knee.torque_unm,
-            target_unm: self.target_unm,
+            target_unm: knee.torque_unm.saturating_add(self.p.delta_ta_unm),
         };
         self.emit(ev);
     }
 
-    /// The last sample (within the detection window) still moving at ≥ ½ the free speed.
-    fn knee(&self, w: usize) -> Option<Sample> {
-        let a = self.hist.back(w)?;
-        let b = self
-            .hist
-            .back(2 * w)
-            .or_else(|| self.hist.back(self.hist.len.checked_sub(1)?))?;
-        let span = (a.tick.wrapping_sub(b.tick)).max(1);
-        let v_free = i64::from(a.theta_a_urad) - i64::from(b.theta_a_urad); // per `span` ticks
-        let per = i64::from(self.p.sample_ticks);
-        let mut knee = a;
-        for i in (0..w).rev() {
-            let (Some(prev), Some(cur)) = (self.hist.back(i + 1), self.hist.back(i)) else {
-                continue;
-            };
-            let d = i64::from(cur.theta_a_urad) - i64::from(prev.theta_a_urad);
-            // d/per ≥ ½ v_free/span
-            if d.saturating_mul(2 * i64::from(span)) >= v_free.saturating_mul(per) {
-                knee = cur;
-            } else {
-                break;
-            }
-        }
-        Some(knee)
-    }
-
-    fn check_second<H: Hardware + ?Sized>(&mut self, hw: &mut H) {
-        let w = self.p.detect_window.saturating_mul(2);
-        // Only windows entirely after the contact detection.
-        let Some(a) = self.hist.back(w) else {
-            return;
-        };
-        if a.tick < self.contact_tick {
-            return;
-        }
-        let Some((dt, dth)) = self.window(w) else {
-            return;
-        };
-        if dt <= 0 {
-            return;
-        }
-        if dt.saturating_mul(1_000_000) > self.p.second_k_unm_per_rad.saturating_mul(dth.max(0)) {
-            let k = if dth > 0 {
-                sat_i32(dt.saturating_mul(1_000_000) / dth)
-            } else {
-                i32::MAX
-            };
-            self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad: k });
-        }
-    }
-
-    fn check_settled(&mut self) {
+    /// Mean (θa, T_a) over the settle window when θa stayed within the settle band and every
+    /// sample of the window is newer than `since`.
+    fn settled(&self, since: u32) -> Option<Sample> {
         let w = self.p.settle_window;
         let mut lo = i32::MAX;
         let mut hi = i32::MIN;
         let mut st = 0i64;
         let mut sth = 0i64;
         for i in 0..w {
-            let Some(s) = self.hist.back(i) else {
-                return;
-            };
-            if s.tick < self.phase_tick {
-                return;
+            let s = self.hist.back(i)?;
+            if s.tick < since {
+                return None;
             }
             lo = lo.min(s.theta_a_urad);
             hi = hi.max(s.theta_a_urad);
@@ -818,15 +862,22 @@ impl Controller {
             sth += i64::from(s.theta_a_urad);
         }
         if i64::from(hi) - i64::from(lo) > i64::from(self.p.settle_band_urad) {
-            return;
+            return None;
         }
         let n = w as i64;
-        self.end = Sample {
+        Some(Sample {
             tick: self.tick,
-            theta_a_urad: sat_i32(sth / n),
-            torque_unm: sat_i32(st / n),
+            theta_a_urad: sat_i32(sth.checked_div(n).unwrap_or(0)),
+            torque_unm: sat_i32(st.checked_div(n).unwrap_or(0)),
             torque_ref_unm: self.torque_ref_unm(),
+        })
+    }
+
+    fn check_settled(&mut self) {
+        let Some(end) = self.settled(self.phase_tick) else {
+            return;
         };
+        self.end = end;
         self.state = State::Estimating;
         self.phase_tick = self.tick;
         self.request_ready = true;

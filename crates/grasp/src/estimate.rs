@@ -8,6 +8,9 @@
 //! The request keeps the samples from contact to settle (bounded, [`PATH_CAPACITY`]) so
 //! that a whole-path estimator can be selected later without touching the tick path.
 
+// `!(x > y)` is the NaN guard: it is true for NaN, `x <= y` is not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use heapless::Vec;
 use pts::{Finger, Model, Phalanx, PtsError, Real};
 
@@ -55,8 +58,14 @@ impl Sample {
 /// Everything the estimator needs, moved out of the controller once the step settled.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct EstimateRequest {
-    /// The contact sample found by the tick-level knee scan (θa,c, T_a,c).
+    /// The contact as the tick saw it: `tick` = end of the free-motion data (before the
+    /// impact), θa at detection, T_a,c on the free-motion line there.
     pub contact: Sample,
+    /// First static point after contact, pressed at T_a,c + δ_seat: means over the settle
+    /// window (θa, T_a).
+    pub seat: Sample,
+    /// Second static point, at T_a,c + max(2δ_seat, ΔT_a/2).
+    pub seat2: Sample,
     /// Settled end point: means over the settle window (θa, T_a).
     pub end: Sample,
     /// History before and up to the detection, oldest first.
@@ -138,14 +147,11 @@ pub fn run_estimate_with<R: Real>(
     model: &Model<R>,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, PtsError> {
-    let (theta_c, ta_c) = contact_point(req);
     let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
-    let est = model.estimate_two_point(
-        conv(theta_c)?,
-        conv(ta_c)?,
-        conv(f64::from(req.end.theta_a_urad) * 1e-6)?,
-        conv(f64::from(req.end.torque_unm) * 1e-6)?,
-    )?;
+    let th2 = conv(f64::from(req.end.theta_a_urad) * 1e-6)?;
+    let t2 = conv(f64::from(req.end.torque_unm) * 1e-6)?;
+    let (theta_c, ta_c) = contact_point(req);
+    let est = model.estimate_two_point(conv(theta_c)?, conv(ta_c)?, th2, t2)?;
     let c = est.contact;
     let micro = |v: R| -> i32 { to_micro(v.to_f64()) };
     let kc = est.kc_hat.to_f64();
@@ -180,12 +186,124 @@ pub fn run_estimate_with<R: Real>(
     })
 }
 
-/// The contact point (θa,c rad, T_a,c N·m) used by the estimate.
-fn contact_point(req: &EstimateRequest) -> (f64, f64) {
-    (
-        f64::from(req.contact.theta_a_urad) * 1e-6,
-        f64::from(req.contact.torque_unm) * 1e-6,
-    )
+/// Samples on each side of the knee used for the line fits.
+const FIT_SAMPLES: usize = 12;
+
+/// The free-motion line θa = a + b·T_a (rad, N·m) before the impact: the last
+/// [`FIT_SAMPLES`] samples up to `contact.tick` (the approach runs at a limited, constant
+/// speed there, so the measured torque is the static one).
+pub fn free_line(req: &EstimateRequest) -> Option<(f64, f64)> {
+    let guard = u64::from(req.sample_ticks.max(1));
+    let kt = u64::from(req.contact.tick);
+    let before = req
+        .pre
+        .iter()
+        .filter(|s| u64::from(s.tick) <= kt + guard / 2);
+    let n_before = before.clone().count();
+    fit(before.skip(n_before.saturating_sub(FIT_SAMPLES)))
+}
+
+/// Where the line through the seated point with slope dθa/dT_a = `b` (rad/(N·m)) meets the
+/// free-motion line: (θa,c rad, T_a,c N·m). `None` when implausible (parallel, or not
+/// just before the seated point).
+pub fn back_date(req: &EstimateRequest, free: (f64, f64), b: f64) -> Option<(f64, f64)> {
+    let (af, bf) = free;
+    let t1 = f64::from(req.seat.torque_unm) * 1e-6;
+    let th1 = f64::from(req.seat.theta_a_urad) * 1e-6;
+    let ac = th1 - b * t1;
+    let db = b - bf;
+    if !(db.abs() > 1e-12) {
+        return None;
+    }
+    let t = (af - ac) / db;
+    let th = af + bf * t;
+    if !(th.is_finite() && t.is_finite()) || th > th1 + 1e-4 || th < th1 - 0.05 || t > t1 + 1e-3 {
+        return None;
+    }
+    Some((th, t))
+}
+
+/// The contact point (θa,c rad, T_a,c N·m).
+///
+/// The impact at contact (the drive's reflected inertia, J·N² ≈ 0.066 kg·m²) makes the
+/// samples right after it useless, so the contact is rebuilt from quasi-static data only:
+/// the free-motion line before the impact meets the path after contact, extrapolated back
+/// from the three static points (seated at T_a,c + δ, at T_a,c + max(2δ, ΔT_a/2), settled after
+/// ΔT_a) by the parabola θa(T_a) through them. Falls back to the straight line through the
+/// two seated points, then to the chord seated → end, then to the seated point.
+pub fn contact_point(req: &EstimateRequest) -> (f64, f64) {
+    let pt = |s: &Sample| {
+        (
+            f64::from(s.torque_unm) * 1e-6,
+            f64::from(s.theta_a_urad) * 1e-6,
+        )
+    };
+    let (t1, th1) = pt(&req.seat);
+    let (tb, thb) = pt(&req.seat2);
+    let (t2, th2) = pt(&req.end);
+    let fallback = (th1, t1);
+    let Some(free) = free_line(req) else {
+        return fallback;
+    };
+    let slope = |ta: f64, tha: f64, tb: f64, thb: f64| {
+        if tb - ta > 1e-4 {
+            Some((thb - tha) / (tb - ta))
+        } else {
+            None
+        }
+    };
+    // Parabola through the three points (Newton form), evaluated with its slope at T.
+    if let (Some(s1b), Some(sb2)) = (slope(t1, th1, tb, thb), slope(tb, thb, t2, th2)) {
+        let c2 = (sb2 - s1b) / (t2 - t1);
+        // θ(T) = th1 + s1b (T − t1) + c2 (T − t1)(T − tb); intersect with af + bf T.
+        let (af, bf) = free;
+        let mut t = t1;
+        for _ in 0..8 {
+            let g = th1 + s1b * (t - t1) + c2 * (t - t1) * (t - tb) - (af + bf * t);
+            let dg = s1b + c2 * (2.0 * t - t1 - tb) - bf;
+            if !(dg.abs() > 1e-12) {
+                break;
+            }
+            t -= g / dg;
+        }
+        let th = af + bf * t;
+        if t.is_finite() && th.is_finite() && t <= t1 + 1e-3 && t > t1 - 0.2 && th <= th1 + 1e-4 {
+            return (th, t);
+        }
+    }
+    if let Some(p) = slope(t1, th1, tb, thb).and_then(|b| back_date(req, free, b)) {
+        return p;
+    }
+    slope(t1, th1, t2, th2)
+        .and_then(|b| back_date(req, free, b))
+        .unwrap_or(fallback)
+}
+
+/// Least-squares line θ = a + b·T (rad, N·m) through the samples; `None` with fewer
+/// than three samples or no torque spread.
+fn fit<'a>(samples: impl Iterator<Item = &'a Sample> + Clone) -> Option<(f64, f64)> {
+    let n = samples.clone().count();
+    if n < 3 {
+        return None;
+    }
+    let nf = n as f64;
+    let (st, sth) = samples.clone().fold((0.0, 0.0), |(a, b), s| {
+        (
+            a + f64::from(s.torque_unm) * 1e-6,
+            b + f64::from(s.theta_a_urad) * 1e-6,
+        )
+    });
+    let (mt, mth) = (st / nf, sth / nf);
+    let (stt, stth) = samples.fold((0.0, 0.0), |(a, b), s| {
+        let dt = f64::from(s.torque_unm) * 1e-6 - mt;
+        let dth = f64::from(s.theta_a_urad) * 1e-6 - mth;
+        (a + dt * dt, b + dt * dth)
+    });
+    if !(stt > 1e-12 * nf) {
+        return None;
+    }
+    let b = stth / stt;
+    Some((mth - b * mt, b))
 }
 
 fn to_micro(v: f64) -> i32 {

@@ -47,3 +47,11 @@ pub trait Hardware {
     /// Safe state, immediately: bridge disabled (all switches off, motor coasting).
     fn bridge_off(&mut self);
 }
+
+/// [`Controller::tick`] through a trait object: one concrete, non-generic function, so the
+/// target build has a symbol to measure (instruction counts, size) and to check for
+/// soft-float calls (`crates/grasp/tests/no_float.rs`).
+#[inline(never)]
+pub fn tick_dyn(controller: &mut Controller, hw: &mut dyn Hardware) -> TickOutput {
+    controller.tick(hw)
+}

@@ -86,7 +86,13 @@ impl CurrentSense {
     /// or `Err` with it when it is further than allowed from the nominal code.
     pub fn calib_finish(&mut self, p: &Params) -> Result<i32, i32> {
         let n = i64::from(self.n.max(1));
-        let q8 = sat_i32(self.sum.saturating_mul(256).saturating_add(n / 2) / n);
+        let q8 = sat_i32(
+            self.sum
+                .saturating_mul(256)
+                .saturating_add(n / 2)
+                .checked_div(n)
+                .unwrap_or(0),
+        );
         let dev = q8
             .saturating_sub(p.adc_zero_code.saturating_mul(256))
             .saturating_abs();

@@ -1,0 +1,159 @@
+//! The per-tick path does no floating point: grasp is compiled for thumbv6m-none-eabi (no FPU,
+//! every float operation is a call into compiler-builtins) and the call graph of
+//! `grasp::tick_dyn` in the emitted assembly must not reach a soft-float routine.
+//!
+//! Uses its own target directory (`target/grasp-thumbv6m`) so it never waits on the outer
+//! build lock. Needs the thumbv6m-none-eabi target (rust-toolchain.toml installs it).
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
+use std::process::Command;
+
+fn workspace_root() -> PathBuf {
+    let here = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+    here.parent()
+        .and_then(|p| p.parent())
+        .map(PathBuf::from)
+        .unwrap_or(here)
+}
+
+fn is_soft_float(sym: &str) -> bool {
+    // ARM EABI helpers (__aeabi_fadd, __aeabi_dmul, __aeabi_i2f, __aeabi_f2iz, __aeabi_l2d, ...)
+    // and the generic compiler-builtins names (__addsf3, __muldf3, __floatsisf, __fixdfsi, ...).
+    let s = sym.trim_start_matches('_');
+    if let Some(rest) = sym.strip_prefix("__aeabi_") {
+        return rest.starts_with('f')
+            || rest.starts_with('d')
+            || rest.contains("2f")
+            || rest.contains("2d");
+    }
+    s.ends_with("sf3")
+        || s.ends_with("df3")
+        || s.ends_with("sf2")
+        || s.ends_with("df2")
+        || s.starts_with("float")
+        || s.starts_with("fix")
+        || s.starts_with("extendsfdf")
+        || s.starts_with("truncdfsf")
+}
+
+/// Function label → called symbols (bl/b/blx to a non-local label), from GNU assembly.
+fn call_graph(asm: &str) -> BTreeMap<String, BTreeSet<String>> {
+    let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    let mut cur: Option<String> = None;
+    for line in asm.lines() {
+        let t = line.trim();
+        if let Some(label) = t.strip_suffix(':') {
+            if !label.starts_with('.') && !label.contains(' ') && !label.starts_with('$') {
+                cur = Some(label.trim_matches('"').to_string());
+                g.entry(label.trim_matches('"').to_string()).or_default();
+            }
+            continue;
+        }
+        let mut parts = t.split_whitespace();
+        let (Some(op), Some(arg)) = (parts.next(), parts.next()) else {
+            continue;
+        };
+        let is_call = matches!(op, "bl" | "b" | "b.w" | "blx" | "bl.w");
+        if !is_call || arg.starts_with(".L") || arg.starts_with('r') || arg == "lr" {
+            continue;
+        }
+        if let Some(c) = &cur {
+            g.entry(c.clone())
+                .or_default()
+                .insert(arg.trim_matches('"').to_string());
+        }
+    }
+    g
+}
+
+#[test]
+fn tick_path_calls_no_soft_float_on_thumbv6m() {
+    let root = workspace_root();
+    let target_dir = root.join("target").join("grasp-thumbv6m");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let status = Command::new(&cargo)
+        .current_dir(&root)
+        .args([
+            "rustc",
+            "-q",
+            "-p",
+            "grasp",
+            "--lib",
+            "--release",
+            "--target",
+            "thumbv6m-none-eabi",
+            "--target-dir",
+        ])
+        .arg(&target_dir)
+        .args([
+            "--",
+            "--emit=asm",
+            "-C",
+            "codegen-units=1",
+            "-C",
+            "debuginfo=0",
+        ])
+        .status()
+        .expect("run cargo");
+    assert!(
+        status.success(),
+        "cargo rustc for thumbv6m-none-eabi failed"
+    );
+    let deps = target_dir.join("thumbv6m-none-eabi/release/deps");
+    let asm_path = std::fs::read_dir(&deps)
+        .expect("deps dir")
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.extension().is_some_and(|e| e == "s")
+                && p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with("grasp-"))
+        })
+        .max_by_key(|p| p.metadata().and_then(|m| m.modified()).ok())
+        .expect("grasp-*.s emitted");
+    let asm = std::fs::read_to_string(&asm_path).expect("read asm");
+    let g = call_graph(&asm);
+    let root_fn = g
+        .keys()
+        .find(|k| k.contains("tick_dyn"))
+        .cloned()
+        .expect("tick_dyn in the assembly");
+    // Sanity: the checker does see soft float where there is some (the config conversion).
+    let all_soft: BTreeSet<&String> = g.values().flatten().filter(|s| is_soft_float(s)).collect();
+    assert!(
+        !all_soft.is_empty(),
+        "the crate has float code (config); the checker must see it"
+    );
+    let mut seen = BTreeSet::new();
+    let mut stack = vec![root_fn.clone()];
+    let mut external = BTreeSet::new();
+    while let Some(f) = stack.pop() {
+        if !seen.insert(f.clone()) {
+            continue;
+        }
+        match g.get(&f) {
+            Some(callees) => stack.extend(callees.iter().cloned()),
+            None => {
+                external.insert(f);
+            }
+        }
+    }
+    let soft: Vec<&String> = seen.iter().filter(|s| is_soft_float(s)).collect();
+    println!(
+        "tick path: {} functions in grasp, external callees: {:?}",
+        seen.len() - external.len(),
+        external
+    );
+    assert!(
+        soft.is_empty(),
+        "soft-float routines reachable from tick_dyn: {soft:?}"
+    );
+    // Nothing panics: no panic routine is reachable either (release build, so this is
+    // about division by zero, bounds checks and explicit panics, not overflow checks).
+    let panics: Vec<&String> = external.iter().filter(|s| s.contains("panic")).collect();
+    assert!(
+        panics.is_empty(),
+        "panic paths reachable from tick_dyn: {panics:?}"
+    );
+}

@@ -1,0 +1,216 @@
+//! Shared harness of the closed-loop tests: the real `grasp::Controller` against `plant::Plant`.
+#![allow(dead_code)]
+
+use grasp::{
+    run_estimate, Controller, ControllerConfig, DriveConfig, EstimateResult, Event, Hardware,
+    State, DUTY_MAX,
+};
+use plant::{EventKind, Plant, Scene, Truth};
+
+/// Length of the distal phalanx (m), MODEL.md Table 1.
+pub const L2: f64 = 0.075;
+
+/// `grasp::Hardware` on top of the simulated finger. The controller's duty (or bridge off)
+/// is applied for the next control period by [`PlantHw::advance`].
+pub struct PlantHw {
+    /// The plant.
+    pub plant: Plant,
+    duty: f64,
+    off: bool,
+    /// Calls of `bridge_off`.
+    pub bridge_off_calls: u32,
+}
+
+impl PlantHw {
+    /// Wraps a plant (bridge off until the first `set_duty`).
+    pub fn new(plant: Plant) -> Self {
+        Self {
+            plant,
+            duty: 0.0,
+            off: true,
+            bridge_off_calls: 0,
+        }
+    }
+    /// One control period with what the controller commanded.
+    pub fn advance(&mut self) {
+        if self.off {
+            self.plant.step_off();
+        } else {
+            self.plant.step(self.duty);
+        }
+    }
+    /// Whether the bridge is off now.
+    pub fn is_off(&self) -> bool {
+        self.off
+    }
+}
+
+impl Hardware for PlantHw {
+    fn encoder_count(&mut self) -> u16 {
+        self.plant.encoder_count()
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.plant.current_adc()
+    }
+    fn set_duty(&mut self, duty: i16) {
+        assert!(duty.abs() <= DUTY_MAX, "duty {duty} out of range");
+        self.off = false;
+        self.duty = f64::from(duty) / f64::from(DUTY_MAX);
+    }
+    fn bridge_off(&mut self) {
+        self.off = true;
+        self.duty = 0.0;
+        self.bridge_off_calls += 1;
+    }
+}
+
+/// The controller's view of a scene's drive and sensors: the nominal constants a firmware
+/// would be built with (no error terms: gain and offset errors stay unknown to it).
+pub fn drive_config(scene: &Scene) -> DriveConfig {
+    let d = &scene.drive;
+    let s = &scene.sensors;
+    DriveConfig {
+        dt_s: scene.dt_s,
+        gear_ratio: d.gear_ratio,
+        efficiency: d.eff_drive,
+        kt_nm_per_a: d.kt_nm_per_a,
+        resistance_ohm: d.r_ohm,
+        bus_v: d.supply_v,
+        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
+        amps_per_code: 1.0 / s.codes_per_amp(),
+        adc_zero_code: s.zero_code(),
+        theta_a_rest_rad: -0.850_360_8,
+    }
+}
+
+/// The default controller configuration for a scene, with ΔT_a (N·m).
+pub fn config(scene: &Scene, delta_ta_nm: f64) -> ControllerConfig {
+    ControllerConfig {
+        drive: drive_config(scene),
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(delta_ta_nm)
+}
+
+/// What one closed-loop grasp produced.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    /// Final controller state.
+    pub state: State,
+    /// The delivered estimate (or the solver's refusal).
+    pub estimate: Option<Result<EstimateResult, pts::PtsError>>,
+    /// The estimate request (when the grasp got that far).
+    pub request: Option<grasp::EstimateRequest>,
+    /// Plant truth when the controller reported "settled".
+    pub truth_settled: Option<Truth>,
+    /// Plant time of the first contact (s) and its location (m).
+    pub first_contact: Option<(f64, f64)>,
+    /// Plant time of the controller's contact detection (s).
+    pub detected_s: Option<f64>,
+    /// Plant time of a second contact (s).
+    pub second_contact_s: Option<f64>,
+    /// Controller events, in order.
+    pub events: Vec<Event>,
+    /// Plant events, in order.
+    pub plant_events: Vec<plant::Event>,
+    /// Bridge off at the end.
+    pub bridge_off: bool,
+    /// Simulated time at the end (s).
+    pub t_end_s: f64,
+}
+
+/// Runs one grasp: ticks the controller against the plant until it holds, finishes or
+/// faults (plus `extra_s` of simulated time after that), at most `max_s`.
+/// `inject` is called before every tick with the plant time and the controller state.
+pub fn run(
+    scene: &Scene,
+    cfg: ControllerConfig,
+    max_s: f64,
+    extra_s: f64,
+    mut inject: impl FnMut(f64, State, &mut Plant),
+) -> Outcome {
+    let plant = Plant::new(scene).expect("scene builds");
+    let mut hw = PlantHw::new(plant);
+    let mut c = Controller::new(cfg).expect("config valid");
+    let mut out = Outcome {
+        state: State::Init,
+        estimate: None,
+        request: None,
+        truth_settled: None,
+        first_contact: None,
+        detected_s: None,
+        second_contact_s: None,
+        events: Vec::new(),
+        plant_events: Vec::new(),
+        bridge_off: true,
+        t_end_s: 0.0,
+    };
+    let dt = scene.dt_s;
+    let max_ticks = (max_s / dt) as u64;
+    let extra_ticks = (extra_s / dt) as u64;
+    let mut stop_at: Option<u64> = None;
+    let trace: u64 = std::env::var("GRASP_TRACE")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    for n in 0..max_ticks {
+        let t = hw.plant.truth().t_s;
+        inject(t, c.state(), &mut hw.plant);
+        let o = grasp::tick_dyn(&mut c, &mut hw);
+        if trace > 0 && n % trace == 0 {
+            let tr = hw.plant.truth();
+            eprintln!(
+                "t {t:.4} {:?} th {} T {} Tref {} duty {} | true th {:.5} T {:.4} i {:.4} w {:.1} {:?}",
+                o.state, o.theta_a_urad, o.torque_unm, o.torque_ref_unm, o.duty,
+                tr.theta_a_rad, tr.torque_a_nm, tr.current_a, tr.motor_speed_rad_s, tr.contact
+            );
+        }
+        if o.estimate_ready {
+            out.truth_settled = Some(hw.plant.truth());
+            if let Some(req) = c.take_request() {
+                let r = run_estimate(&req);
+                out.estimate = Some(r);
+                out.request = Some(req);
+                c.deliver(&mut hw, r);
+            }
+        }
+        while let Some(e) = c.poll_event() {
+            if let Event::ContactDetected { .. } = e {
+                out.detected_s = Some(t);
+            }
+            out.events.push(e);
+        }
+        hw.advance();
+        while let Some(e) = hw.plant.poll_event() {
+            match e.kind {
+                EventKind::FirstContact { k_m, .. } if out.first_contact.is_none() => {
+                    out.first_contact = Some((e.t_s, k_m));
+                }
+                EventKind::SecondContact { .. } if out.second_contact_s.is_none() => {
+                    out.second_contact_s = Some(e.t_s);
+                }
+                _ => {}
+            }
+            out.plant_events.push(e);
+        }
+        if stop_at.is_none() && matches!(c.state(), State::Holding | State::Done | State::Fault(_))
+        {
+            stop_at = Some(n + extra_ticks);
+        }
+        if stop_at.is_some_and(|s| n >= s) {
+            break;
+        }
+    }
+    out.state = c.state();
+    out.bridge_off = hw.is_off();
+    out.t_end_s = hw.plant.truth().t_s;
+    out
+}
+
+/// k2 of a delivered distal estimate (m).
+pub fn k2_hat(o: &Outcome) -> Option<f64> {
+    match o.estimate {
+        Some(Ok(r)) => r.k2_um.map(|k| f64::from(k) * 1e-6),
+        _ => None,
+    }
+}

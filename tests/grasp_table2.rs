@@ -1,0 +1,64 @@
+//! The paper's Table 2 scene closed loop: the real controller against the plant.
+mod common;
+
+use common::*;
+use grasp::{DriveConfig, Located, State};
+
+/// MODEL.md: the quasi-static two-point result for Table 2 with ΔT_a = 0.8 N·m.
+const K2_HAT_MODEL: f64 = 0.041529;
+
+#[test]
+fn table2_ideal_matches_the_model_two_point_result() {
+    let scene = plant::scenes::by_name("table2_ideal").expect("scene");
+    let o = run(&scene, config(&scene, 0.8), 10.0, 0.0, |_, _, _| {});
+    assert_eq!(o.state, State::Holding, "events {:?}", o.events);
+    let r = o.estimate.unwrap().unwrap();
+    let k2 = k2_hat(&o).unwrap();
+    let (tc, kc) = o.first_contact.unwrap();
+    println!(
+        "table2 ideal: k2_hat {k2:.6} m (model {K2_HAT_MODEL}), err {:.3} % of l2; {r:?}; \
+         contact at {tc:.4} s k2 {kc:.5}, detected at {:.4} s",
+        (k2 - K2_HAT_MODEL) / L2 * 100.0,
+        o.detected_s.unwrap()
+    );
+    assert_eq!(r.located, Located::Distal);
+    assert!(
+        (k2 - K2_HAT_MODEL).abs() <= 0.005 * L2,
+        "k2_hat {k2} vs {K2_HAT_MODEL}"
+    );
+    // The torque step actually applied is ΔT_a within 2 %.
+    let dta = f64::from(r.delta_ta_unm) * 1e-6;
+    assert!((dta - 0.8).abs() < 0.016, "ΔT_a applied {dta}");
+}
+
+#[test]
+fn drive_constants_agree_with_the_plant() {
+    let scene = plant::Scene::DEFAULT;
+    let mine = DriveConfig::DEFAULT;
+    let plant_view = drive_config(&scene);
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+    assert!(close(mine.dt_s, plant_view.dt_s), "dt");
+    assert!(close(mine.gear_ratio, plant_view.gear_ratio), "ratio");
+    assert!(close(mine.efficiency, plant_view.efficiency), "efficiency");
+    assert!(close(mine.kt_nm_per_a, plant_view.kt_nm_per_a), "kt");
+    assert!(close(mine.resistance_ohm, plant_view.resistance_ohm), "R");
+    assert!(close(mine.bus_v, plant_view.bus_v), "bus");
+    assert!(
+        close(
+            mine.encoder_counts_per_rev,
+            plant_view.encoder_counts_per_rev
+        ),
+        "counts/rev"
+    );
+    assert!(
+        close(mine.amps_per_code, plant_view.amps_per_code),
+        "A/code"
+    );
+    assert!(
+        close(mine.adc_zero_code, plant_view.adc_zero_code),
+        "zero code"
+    );
+    // θa at rest: the plant's own rest pose.
+    let p = plant::Plant::new(&scene).unwrap();
+    assert!((mine.theta_a_rest_rad - p.theta_a_rest_rad()).abs() < 1e-6);
+}
