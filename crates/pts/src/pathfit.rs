@@ -31,7 +31,7 @@
 pub mod path;
 
 use crate::{Config, Model, PtsError, Real};
-use path::{Cursor, PathFail, PathModel};
+use path::{PathFail, PathModel};
 
 /// Largest number of θa bins.
 pub const MAX_BINS: usize = 12;
@@ -40,6 +40,9 @@ pub const MIN_BINS: usize = 4;
 /// Torque scale of the fit's statistics: residuals, columns and variances are kept in
 /// mN·m so that their squares stay well inside fixed point's resolution (2⁻³² for Fx32).
 const TSCALE: f64 = 1000.0;
+
+/// Gauss–Newton steps below this (fraction of l2) end the fit without evaluating them.
+const STEP_TOL: f64 = 2e-4;
 
 /// Budget of path evaluations (each: ≤ [`MAX_BINS`] path points) over the whole fit.
 pub const MAX_EVALS: usize = 24;
@@ -274,6 +277,19 @@ struct Work<R> {
     w_prior: R,
     /// [`TSCALE`] in the back end.
     ks: R,
+    /// The last solved point of each bin, to warm-start the next hypothesis.
+    prev: [Option<Prev<R>>; MAX_BINS],
+}
+
+/// A solved path point kept for warm starts: hypothesis, configuration, sensitivities.
+#[derive(Clone, Copy, Debug)]
+struct Prev<R> {
+    k2c: R,
+    radius: R,
+    dphi: R,
+    d2: R,
+    sens_k: (R, R),
+    sens_r: (R, R),
 }
 
 /// Result of one path evaluation at the bins.
@@ -313,6 +329,7 @@ impl<R: Real> Work<R> {
             tf_prior: z,
             w_prior: z,
             ks: R::from_f64(TSCALE),
+            prev: [None; MAX_BINS],
         }
     }
 }
@@ -366,7 +383,7 @@ where
     // Initial k2,c from the chord stiffness of the first half of the bins, inverted at the
     // contact configuration (the two-point estimate on the early path).
     let contact_config = {
-        let mut c = model.free_from_theta_a(theta_a_c_rad)?;
+        let mut c = pm.contact;
         c.ta = pm.tac;
         c
     };
@@ -673,7 +690,7 @@ fn evaluate<R: Real>(
     w.evals += 1;
     let l2 = pm.l2();
     let z = R::zero();
-    let mut cur = Cursor::start();
+    let mut prev_pt: Option<(R, R, R, (R, R))> = None;
     let mut a = [[z; 3]; 3];
     let mut g = [z; 3];
     // First pass: residuals r = T_meas − T_path (T_f not yet removed) and the columns.
@@ -685,7 +702,37 @@ fn evaluate<R: Real>(
     let mut jk = [z; MAX_BINS];
     let mut jr = [z; MAX_BINS];
     for (i, b) in w.bins.iter().take(w.nb).enumerate() {
-        let pt = pm.point(model, k2c, radius, b.dta, &mut cur)?;
+        // Warm start: this bin's point of the previous hypothesis moved by its sensitivities,
+        // else the previous bin's point moved along its tangent, else the tangent at contact.
+        let guess = match (w.prev.get(i).copied().flatten(), prev_pt) {
+            (Some(p), _) => {
+                let (dk, dr) = (k2c - p.k2c, radius - p.radius);
+                (
+                    p.dphi + p.sens_k.0 * dk + p.sens_r.0 * dr,
+                    p.d2 + p.sens_k.1 * dk + p.sens_r.1 * dr,
+                )
+            }
+            (None, Some((dta0, dphi0, d20, t))) => {
+                let step = b.dta - dta0;
+                (dphi0 + t.0 * step, d20 + t.1 * step)
+            }
+            (None, None) => {
+                let t = pm.tangent(model, k2c, radius, z, z)?;
+                (t.0 * b.dta, t.1 * b.dta)
+            }
+        };
+        let pt = pm.point(model, k2c, radius, b.dta, guess)?;
+        prev_pt = Some((b.dta, pt.dphi, pt.d2, pt.tangent));
+        if let Some(slot) = w.prev.get_mut(i) {
+            *slot = Some(Prev {
+                k2c,
+                radius,
+                dphi: pt.dphi,
+                d2: pt.d2,
+                sens_k: pt.sens_k,
+                sens_r: pt.sens_r,
+            });
+        }
         if i == 0 {
             k_first = pt.stiffness;
         }
@@ -752,6 +799,7 @@ fn lm<R: Real>(
     let z = R::zero();
     let lo = l2 * R::from_f64(0.01);
     let mut best = evaluate_or_shrink(pm, model, w, &mut p[0], z, lo, l2)?;
+    let step_tol = R::from_f64(STEP_TOL);
     let mut mu = R::from_f64(1e-3);
     let mut iter = 0usize;
     while iter < 8 && w.evals < MAX_EVALS / 2 {
@@ -764,6 +812,10 @@ fn lm<R: Real>(
             break;
         };
         let dk = -(c[0][0] * best.g[0] + c[0][1] * best.g[2]);
+        // Converged: the Gauss–Newton step is below 2e-4 l2; do not pay for evaluating it.
+        if dk.abs() < step_tol {
+            break;
+        }
         let trial = (p[0] + dk * l2).max(lo).min(l2);
         match evaluate(pm, model, w, trial, z) {
             Ok(e) if e.sse <= best.sse => {
@@ -829,6 +881,7 @@ fn lm3<R: Real>(
             evaluate_or_shrink(pm, model, w, &mut p[0], z, lo, l2)?
         }
     };
+    let step_tol = R::from_f64(STEP_TOL);
     let mut mu = R::from_f64(1e-3);
     let mut iter = 0usize;
     while iter < 10 && w.evals < MAX_EVALS {
@@ -843,6 +896,9 @@ fn lm3<R: Real>(
         let g = best.g;
         let dk = -(c[0][0] * g[0] + c[0][1] * g[1] + c[0][2] * g[2]) * l2;
         let dr = -(c[1][0] * g[0] + c[1][1] * g[1] + c[1][2] * g[2]) * l2;
+        if dk.abs() < step_tol * l2 && dr.abs() < step_tol * l2 {
+            break;
+        }
         let tk = (p[0] + dk).max(lo).min(l2);
         let tr = (p[1] + dr).max(z).min(rmax);
         match evaluate(pm, model, w, tk, tr) {

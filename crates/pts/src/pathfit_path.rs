@@ -21,7 +21,7 @@
 //! cubic Hermite interpolation between nodes [`NODE_STEP`] apart. So a path evaluation costs
 //! multiplications and a few divisions, no library trigonometry.
 
-use crate::{Model, PtsError, Real};
+use crate::{Config, Model, PtsError, Real};
 
 /// Spacing of the closure table nodes in θ2 (rad). A power of two: exact in fixed point.
 pub const NODE_STEP: f64 = 0.125;
@@ -31,22 +31,23 @@ const NODES_BELOW: usize = 2;
 pub const NODES: usize = 14;
 /// Largest |δφ|, |δ2| (rad) the polynomials and the table accept along a path.
 pub const MAX_DELTA: f64 = 1.25;
-/// Newton iterations per path point (a warm-started solve needs 2–3).
+/// Newton iterations per path point (a warm-started solve needs 1–2).
 pub const MAX_PATH_NEWTON: usize = 8;
+/// A Newton step below this (rad) ends the solve; it is applied to the outputs to first order.
+pub const ACCEPT_STEP: f64 = 3e-5;
 
-/// sin and cos of a small angle |x| ≤ 1.3 rad by Taylor polynomials (error < 3e-9).
+/// sin and cos of a small angle |x| ≤ [`MAX_DELTA`] by Taylor polynomials (error < 3e-7 at
+/// 1.25 rad, < 1e-10 below 0.5 rad).
 pub fn sin_cos_small<R: Real>(x: R, c: &PolyConsts<R>) -> (R, R) {
     let x2 = x * x;
-    // sin: x (1 − x²/6 (1 − x²/20 (1 − x²/42 (1 − x²/72 (1 − x²/110)))))
-    let s = R::one() - x2 * c.inv110;
-    let s = R::one() - x2 * c.inv72 * s;
+    // sin: x (1 − x²/6 (1 − x²/20 (1 − x²/42 (1 − x²/72))))
+    let s = R::one() - x2 * c.inv72;
     let s = R::one() - x2 * c.inv42 * s;
     let s = R::one() - x2 * c.inv20 * s;
     let s = R::one() - x2 * c.inv6 * s;
     let s = x * s;
-    // cos: 1 − x²/2 (1 − x²/12 (1 − x²/30 (1 − x²/56 (1 − x²/90 (1 − x²/132)))))
-    let k = R::one() - x2 * c.inv132;
-    let k = R::one() - x2 * c.inv90 * k;
+    // cos: 1 − x²/2 (1 − x²/12 (1 − x²/30 (1 − x²/56 (1 − x²/90))))
+    let k = R::one() - x2 * c.inv90;
     let k = R::one() - x2 * c.inv56 * k;
     let k = R::one() - x2 * c.inv30 * k;
     let k = R::one() - x2 * c.inv12 * k;
@@ -66,8 +67,6 @@ pub struct PolyConsts<R> {
     inv56: R,
     inv72: R,
     inv90: R,
-    inv110: R,
-    inv132: R,
 }
 
 impl<R: Real> PolyConsts<R> {
@@ -84,8 +83,6 @@ impl<R: Real> PolyConsts<R> {
             inv56: f(56.0),
             inv72: f(72.0),
             inv90: f(90.0),
-            inv110: f(110.0),
-            inv132: f(132.0),
         }
     }
 }
@@ -107,6 +104,8 @@ struct Node<R> {
 /// The contact configuration and everything a path evaluation needs, built once per contact.
 #[derive(Clone, Copy, Debug)]
 pub struct PathModel<R> {
+    /// The free-motion configuration at θa,c (the contact configuration).
+    pub contact: Config<R>,
     /// θ1 at contact (rad).
     pub theta1c: R,
     /// θ2 at contact (rad).
@@ -126,7 +125,14 @@ pub struct PathModel<R> {
     h: R,
     inv_h: R,
     max_delta: R,
-    tol: R,
+    accept: R,
+    eps_det: R,
+    eps_den: R,
+    eps_force: R,
+    two: R,
+    three: R,
+    four: R,
+    six: R,
     nodes: [Option<Node<R>>; NODES],
     /// Closure evaluations done so far (cost accounting).
     pub closures: u16,
@@ -154,6 +160,12 @@ pub struct PathPoint<R> {
     pub dta_dr: R,
     /// dT_a/dθa along the path (N·m/rad).
     pub stiffness: R,
+    /// dδφ/dθa, dδ2/dθa along the path.
+    pub tangent: (R, R),
+    /// ∂(δφ, δ2)/∂k2,c at fixed θa (rad/m).
+    pub sens_k: (R, R),
+    /// ∂(δφ, δ2)/∂R at fixed θa (rad/m).
+    pub sens_r: (R, R),
 }
 
 /// Why a path point cannot be computed.
@@ -179,51 +191,30 @@ impl From<PtsError> for PathFail {
     }
 }
 
-/// Warm-start state: the last solved point and its tangent dδ/dθa.
-#[derive(Clone, Copy, Debug)]
-pub struct Cursor<R> {
-    dta: R,
-    dphi: R,
-    d2: R,
-    tphi: R,
-    t2: R,
-}
-
-impl<R: Real> Cursor<R> {
-    /// The contact point itself, tangent unknown (zero).
-    pub fn start() -> Self {
-        Self {
-            dta: R::zero(),
-            dphi: R::zero(),
-            d2: R::zero(),
-            tphi: R::zero(),
-            t2: R::zero(),
-        }
-    }
-}
-
 impl<R: Real> PathModel<R> {
     /// Builds the path model at the contact configuration found by free motion from θa,c.
     pub fn new(model: &Model<R>, theta_a_c: R) -> Result<Self, PtsError> {
         let cfg = model.free_from_theta_a(theta_a_c)?;
         let f = model.finger;
         let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
-        let cl = model.closure(cfg.theta2)?;
+        // γ at contact from θa = θ1 + θ2 − φ2 − γ: no closure needed.
+        let gamma_c = cfg.theta1 + cfg.theta2 - conv(f.phi2)? - theta_a_c;
         let mut nodes = [None; NODES];
         if let Some(slot) = nodes.get_mut(NODES_BELOW) {
             *slot = Some(Node {
-                gamma: cl.gamma,
-                x2: cl.x2,
-                dx2: cl.dx2,
+                gamma: gamma_c,
+                x2: cfg.x2,
+                dx2: cfg.dx2,
             });
         }
         Ok(Self {
+            contact: cfg,
             theta1c: cfg.theta1,
             theta2c: cfg.theta2,
             tac: cfg.ta,
             s2c: cfg.theta2.sin(),
             c2c: cfg.theta2.cos(),
-            gamma_c: cl.gamma,
+            gamma_c,
             d1c: cfg.theta1 - conv(f.theta01)?,
             d2c: cfg.theta2 - conv(f.theta02)?,
             l1: conv(f.l1)?,
@@ -234,9 +225,16 @@ impl<R: Real> PathModel<R> {
             h: conv(NODE_STEP)?,
             inv_h: conv(1.0 / NODE_STEP)?,
             max_delta: conv(MAX_DELTA)?,
-            tol: conv(R::TOL.max(1e-12) * 8.0)?,
+            accept: conv(ACCEPT_STEP)?,
+            eps_det: conv(1e-6)?,
+            eps_den: conv(1e-9)?,
+            eps_force: conv(1e-6)?,
+            two: conv(2.0)?,
+            three: conv(3.0)?,
+            four: conv(4.0)?,
+            six: conv(6.0)?,
             nodes,
-            closures: 1,
+            closures: 0,
             newton_iters: 0,
             pc: PolyConsts::new(),
         })
@@ -295,15 +293,12 @@ impl<R: Real> PathModel<R> {
         let t = (d2 - lo) * self.inv_h;
         let t2 = t * t;
         let t3 = t2 * t;
-        let two = R::from_f64(2.0);
-        let three = R::from_f64(3.0);
+        let (two, three, four, six) = (self.two, self.three, self.four, self.six);
         let h00 = two * t3 - three * t2 + R::one();
         let h10 = t3 - two * t2 + t;
         let h01 = three * t2 - two * t3;
         let h11 = t3 - t2;
         // Derivatives of the basis with respect to t.
-        let six = R::from_f64(6.0);
-        let four = R::from_f64(4.0);
         let g00 = six * t2 - six * t;
         let g10 = three * t2 - four * t + R::one();
         let g11 = three * t2 - two * t;
@@ -314,30 +309,36 @@ impl<R: Real> PathModel<R> {
         Ok((gamma - self.gamma_c, x2, dx2))
     }
 
+    /// The tangent of the path at (δφ, δ2) for (k2,c, R): dδ/dθa (rad/rad).
+    pub fn tangent(
+        &mut self,
+        model: &Model<R>,
+        k2c: R,
+        radius: R,
+        dphi: R,
+        d2: R,
+    ) -> Result<(R, R), PathFail> {
+        let st = self.eval(model, k2c, radius, dphi, d2)?;
+        if !(st.det.abs() > self.eps_det) {
+            return Err(PathFail::OutOfRange);
+        }
+        let inv = R::one() / st.det;
+        Ok((-st.a12 * inv, st.a11 * inv))
+    }
+
     /// Solves the path point at actuator displacement Δθa = `dta` (rad) since contact for the
-    /// hypothesis (k2,c, R) (m), warm-started from `cur`, which it advances.
+    /// hypothesis (k2,c, R) (m), by Newton from the guess (δφ, δ2). The last Newton step, once
+    /// below [`ACCEPT_STEP`] rad, is applied to the outputs to first order instead of paying
+    /// one more evaluation (its second-order remainder is below 1e-8 rad).
     pub fn point(
         &mut self,
         model: &Model<R>,
         k2c: R,
         radius: R,
         dta: R,
-        cur: &mut Cursor<R>,
+        guess: (R, R),
     ) -> Result<PathPoint<R>, PathFail> {
-        let step = dta - cur.dta;
-        if cur.tphi == R::zero() && cur.t2 == R::zero() {
-            // No tangent yet: the linearised path at the cursor, J t = (0, 1).
-            let st = self.eval(model, k2c, radius, cur.dphi, cur.d2)?;
-            if !(st.det.abs() > R::from_f64(1e-6)) {
-                return Err(PathFail::OutOfRange);
-            }
-            let inv = R::one() / st.det;
-            cur.tphi = -st.a12 * inv;
-            cur.t2 = st.a11 * inv;
-        }
-        let mut dphi = cur.dphi + cur.tphi * step;
-        let mut d2 = cur.d2 + cur.t2 * step;
-        let mut converged = false;
+        let (mut dphi, mut d2) = guess;
         let mut it = 0usize;
         while it < MAX_PATH_NEWTON {
             it += 1;
@@ -345,34 +346,47 @@ impl<R: Real> PathModel<R> {
             let st = self.eval(model, k2c, radius, dphi, d2)?;
             let e1 = st.s2 - st.s2p - (k2c * st.sp + radius * (R::one() - st.cp)) * self.inv_l1;
             let e2 = dphi - st.dgamma - dta;
-            if !(st.det.abs() > R::from_f64(1e-6)) {
+            if !(st.det.abs() > self.eps_det) {
                 return Err(PathFail::OutOfRange);
             }
             // [a11 a12; a21 a22] [dδφ; dδ2] = −[e1; e2]
             let inv = R::one() / st.det;
             let sphi = -(st.a22 * e1 - st.a12 * e2) * inv;
             let s2 = -(st.a11 * e2 - st.a21 * e1) * inv;
+            if sphi.abs() <= self.accept && s2.abs() <= self.accept {
+                return self.outputs(k2c, radius, dphi, d2, &st, inv, (sphi, s2));
+            }
             dphi = dphi + sphi;
             d2 = d2 + s2;
             if !dphi.is_finite() || dphi.abs() > self.max_delta {
                 return Err(PathFail::OutOfRange);
             }
-            if sphi.abs() <= self.tol && s2.abs() <= self.tol {
-                converged = true;
-                break;
-            }
         }
-        if !converged {
-            return Err(PathFail::NoConvergence);
-        }
-        // Re-evaluate at the converged point for the outputs (one more closure lookup).
-        let st = self.eval(model, k2c, radius, dphi, d2)?;
+        Err(PathFail::NoConvergence)
+    }
+
+    /// Outputs at the evaluated point (δφ, δ2) moved by the final Newton step `fin` to first
+    /// order.
+    #[allow(clippy::too_many_arguments)]
+    fn outputs(
+        &self,
+        k2c: R,
+        radius: R,
+        dphi: R,
+        d2: R,
+        st: &EvalState<R>,
+        inv: R,
+        fin: (R, R),
+    ) -> Result<PathPoint<R>, PathFail> {
         let lc = self.l1 * st.c2;
+        let dk2_dphi = -self.l1 * st.s2p - k2c * st.sp + radius * st.cp;
+        let dk2_d2 = self.l1 * st.s2;
         let k2 = self.l1 * (st.c2p - st.c2) + k2c * st.cp + radius * st.sp;
-        if k2 > self.l2 {
+        let k2_fin = k2 + dk2_dphi * fin.0 + dk2_d2 * fin.1;
+        if k2_fin > self.l2 {
             return Err(PathFail::PastTip);
         }
-        if !(k2 > R::zero()) {
+        if !(k2_fin > R::zero()) {
             return Err(PathFail::PastJoint);
         }
         let l = lc + k2;
@@ -380,18 +394,12 @@ impl<R: Real> PathModel<R> {
         let dd2 = self.d2c + d2;
         let num = self.k1 * d1 * k2 - self.k2 * dd2 * l;
         let den = k2 - st.x2 * l;
-        if !(den.abs() > R::from_f64(1e-9)) {
+        if !(den.abs() > self.eps_den) {
             return Err(PathFail::OutOfRange);
         }
         let inv_den = R::one() / den;
         let ta = num * inv_den;
-        let fk2 = ta * st.x2 - self.k2 * dd2;
-        if fk2 < -R::from_f64(1e-6) {
-            return Err(PathFail::ContactOpens);
-        }
         // Total derivative of T_a for a direction (dδφ, dδ2, dk2c, dR).
-        let dk2_dphi = -self.l1 * st.s2p - k2c * st.sp + radius * st.cp;
-        let dk2_d2 = self.l1 * st.s2;
         let dt = |xphi: R, x2d: R, xk: R, xr: R| -> R {
             let dk2 = dk2_dphi * xphi + dk2_d2 * x2d + st.cp * xk + st.sp * xr;
             let dl = -self.l1 * st.s2 * x2d + dk2;
@@ -400,7 +408,11 @@ impl<R: Real> PathModel<R> {
             let dden = dk2 - st.x2 * dl - l * st.dx2 * x2d;
             (dn - ta * dden) * inv_den
         };
-        let inv = R::one() / st.det;
+        let ta_fin = ta + dt(fin.0, fin.1, R::zero(), R::zero());
+        let fk2 = ta * st.x2 - self.k2 * dd2;
+        if fk2 < -self.eps_force {
+            return Err(PathFail::ContactOpens);
+        }
         // Tangent along the path: J t = (0, 1).
         let tphi = -st.a12 * inv;
         let t2 = st.a11 * inv;
@@ -414,22 +426,18 @@ impl<R: Real> PathModel<R> {
         let d2_r = (st.a21 * e1r) * inv;
         let dta_dk2c = dt(dphi_k, d2_k, R::one(), R::zero());
         let dta_dr = dt(dphi_r, d2_r, R::zero(), R::one());
-        *cur = Cursor {
-            dta,
-            dphi,
-            d2,
-            tphi,
-            t2,
-        };
         let out = PathPoint {
-            dphi,
-            d2,
-            k2,
-            ta,
+            dphi: dphi + fin.0,
+            d2: d2 + fin.1,
+            k2: k2_fin,
+            ta: ta_fin,
             fk2,
             dta_dk2c,
             dta_dr,
             stiffness,
+            tangent: (tphi, t2),
+            sens_k: (dphi_k, d2_k),
+            sens_r: (dphi_r, d2_r),
         };
         if !out.ta.is_finite() || out.ta.is_saturated() || out.dta_dk2c.is_saturated() {
             return Err(PathFail::Model(PtsError::Overflow));

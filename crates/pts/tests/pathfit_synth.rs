@@ -197,6 +197,7 @@ struct Stats {
     wrong_refusals: Vec<String>,
     errs: Vec<f64>,
     errs_2p: Vec<f64>,
+    evals: Vec<u8>,
     within3: usize,
     radius_ok: usize,
     radius_claims: usize,
@@ -218,6 +219,7 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
         wrong_refusals: vec![],
         errs: vec![],
         errs_2p: vec![],
+        evals: vec![],
         within3: 0,
         radius_ok: 0,
         radius_claims: 0,
@@ -297,6 +299,7 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
                                 );
                             }
                             st.errs.push(e);
+                            st.evals.push(fit.path_evals);
                             row_max[j] = row_max[j].max(e);
                             if (fit.k2_contact_m - k2c).abs() <= 3.0 * fit.sigma_k2_m {
                                 st.within3 += 1;
@@ -362,6 +365,11 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
             st.errs.len(),
             st.radius_claims,
             st.radius_ok
+        );
+        println!(
+            "path evaluations per fit: mean {:.1} max {}",
+            st.evals.iter().map(|&e| e as f64).sum::<f64>() / st.evals.len().max(1) as f64,
+            st.evals.iter().max().copied().unwrap_or(0)
         );
         println!(
             "fixed point ({}) vs f64: max |Δk2| {:.4} % l2, accept/refuse disagreements {}",
@@ -431,4 +439,59 @@ fn refuses_garbage_without_panicking() {
         })
         .collect();
     assert!(fit_path(&m, &cfg, th, None, flat.iter().copied()).is_err());
+}
+
+/// One realistic case decimated to the controller's buffer size (128 averaged samples):
+/// the fit must locate it within 2 % l2 in f64 and in fixed point. With `PATHFIT_DUMP=file`
+/// the samples are written out for the target instruction count (see pathfit.rs docs).
+#[test]
+fn table2_like_case_decimated_to_128_samples() {
+    let m = Model::<f64>::paper().unwrap();
+    let ta_c = 0.6895 * (1.2797 - core::f64::consts::FRAC_PI_4);
+    let theta_a_c = m.free_from_torque(ta_c).unwrap().theta_a;
+    let (k2c, r, dta) = (0.02927, 0.05, 0.8);
+    let p = reference_path(&m, theta_a_c, k2c, r, dta, 400);
+    let (tc_meas, raw, _, _) = board_samples(&p, dta, REALISTIC, 7, 512, 256);
+    let samples: Vec<PathSample<f64>> = raw
+        .chunks(6)
+        .map(|c| PathSample {
+            theta_a_rad: c.iter().map(|s| s.theta_a_rad).sum::<f64>() / c.len() as f64,
+            torque_nm: c.iter().map(|s| s.torque_nm).sum::<f64>() / c.len() as f64,
+        })
+        .collect();
+    assert_eq!(samples.len(), 128);
+    let cfg = PathFitConfig::DEFAULT;
+    let f = fit_path(&m, &cfg, theta_a_c, Some(tc_meas), samples.iter().copied()).unwrap();
+    assert!((f.k2_contact_m - k2c).abs() < 0.02 * L2, "{f:?}");
+    let mfx = Model::<pts::FirmwareReal>::paper().unwrap();
+    let fx = |v: f64| <pts::FirmwareReal as pts::Real>::from_f64(v);
+    let g = fit_path(
+        &mfx,
+        &cfg,
+        fx(theta_a_c),
+        Some(fx(tc_meas)),
+        samples.iter().map(|s| PathSample {
+            theta_a_rad: fx(s.theta_a_rad),
+            torque_nm: fx(s.torque_nm),
+        }),
+    )
+    .unwrap();
+    assert!((pts::Real::to_f64(g.k2_contact_m) - f.k2_contact_m).abs() < 1e-3 * L2);
+    println!(
+        "128-sample case: k2 {:.5} σ {:.5} R {:.4} ({:?}) evals {} newton {} closures {}",
+        f.k2_contact_m,
+        f.sigma_k2_m,
+        f.radius_m,
+        f.object,
+        f.path_evals,
+        f.newton_iters,
+        f.closures
+    );
+    if let Ok(path) = std::env::var("PATHFIT_DUMP") {
+        let mut out = format!("{theta_a_c:.12} {tc_meas:.12}\n");
+        for s in &samples {
+            out += &format!("{:.12} {:.12}\n", s.theta_a_rad, s.torque_nm);
+        }
+        std::fs::write(path, out).unwrap();
+    }
 }
