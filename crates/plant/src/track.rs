@@ -31,6 +31,12 @@ pub enum EventKind {
         phalanx: Phalanx,
     },
     /// The contact point passed behind the lower joint of its phalanx (k < 0).
+    ///
+    /// Detected and bisected like [`EventKind::BeyondTip`], but for this kinematic class it
+    /// cannot be reached quasi-statically from a free-motion contact: along a distal contact
+    /// `dk2 = dθ2·[l1 sin θ2·s + R(1 − s)]` with `s = k2/(l1 cos θ2 + k2)`, which for a vertex is
+    /// proportional to k2 (k2 → 0 only asymptotically) and for a cylinder is positive; a
+    /// proximal contact keeps θ1, hence k1, fixed. No built-in scene triggers it.
     BehindJoint {
         /// Which phalanx.
         phalanx: Phalanx,
