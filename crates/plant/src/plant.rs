@@ -124,12 +124,38 @@ impl Plant {
         scene.validate()?;
         let object = scene.resolve_object()?;
         let kin = Kin::new(scene.finger, object);
-        let tracker = Tracker::new(kin)?;
+        let mut tracker = Tracker::new(kin)?;
         let rest = tracker.pose.theta_a_rad;
+        let mut drive = DriveState::default();
+        if let Some(start) = scene.start_theta_a_rad {
+            let bad = PlantError::Invalid("start_theta_a_rad");
+            let pose = kin
+                .solve(start, Active::None, tracker.pose.theta2_rad)
+                .map_err(|_| bad)?;
+            for c in Constraint::ALL {
+                if kin
+                    .gap(c, pose.theta1_rad, pose.theta2_rad)
+                    .is_some_and(|g| g.gap < 0.0)
+                {
+                    return Err(bad);
+                }
+            }
+            tracker = Tracker::at(kin, pose);
+            let d = &scene.drive;
+            let half = 0.5 * d.backlash_rad;
+            let gear = if start >= rest {
+                start + half
+            } else {
+                start - half
+            };
+            drive.angle_rad = (gear - rest) * d.gear_ratio;
+            drive.current_a = pose.torque_nm / (d.gear_ratio * d.eff_drive * d.kt_nm_per_a);
+            drive.stuck = true;
+        }
         let mut p = Plant {
             scene: *scene,
             tracker,
-            drive: DriveState::default(),
+            drive,
             theta_a_rest_rad: rest,
             k_loc: 0.5,
             t_s: 0.0,

@@ -121,6 +121,11 @@ pub struct Scene {
     pub dt_s: f64,
     /// Suggested run length (s).
     pub duration_s: f64,
+    /// Start the finger in free motion at this θa (rad) instead of at rest — an approach
+    /// shortcut for slow (QEMU, soft-float) runs. The encoder still counts from the rest pose
+    /// (as if the motor had driven there), the gear sits on its flexion flank and the winding
+    /// carries the current that holds the finger, T_a/(N·η·kt). `None`: start at rest.
+    pub start_theta_a_rad: Option<f64>,
 }
 
 impl Scene {
@@ -135,6 +140,7 @@ impl Scene {
         faults: FaultSpec::NONE,
         dt_s: 100e-6,
         duration_s: 2.0,
+        start_theta_a_rad: None,
     };
 
     /// This scene with friction, backlash, gear losses and sensor errors/noise switched off.
@@ -156,6 +162,11 @@ impl Scene {
         }
         if !(self.duration_s.is_finite() && self.duration_s >= 0.0 && self.duration_s <= 1e5) {
             return Err(PlantError::Invalid("duration_s"));
+        }
+        if let Some(t) = self.start_theta_a_rad {
+            if !(t.is_finite() && t.abs() <= core::f64::consts::TAU) {
+                return Err(PlantError::Invalid("start_theta_a_rad"));
+            }
         }
         let c = &self.command;
         let lim = match c.mode {

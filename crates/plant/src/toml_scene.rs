@@ -6,6 +6,7 @@
 //! dt_s = 1e-4            # control period (s)
 //! duration_s = 5.0       # suggested run length (s)
 //! ideal = false          # true: friction, backlash, gear losses and sensor errors off
+//! start_theta_a_rad = -0.3  # optional: start in free motion there (approach shortcut)
 //!
 //! [object]               # kind = "none" | "vertex" | "cylinder"
 //! kind = "cylinder"
@@ -143,6 +144,7 @@ struct SceneT {
     name: Option<String>,
     dt_s: Option<f64>,
     duration_s: Option<f64>,
+    start_theta_a_rad: Option<f64>,
     ideal: Option<bool>,
     finger: Option<FingerT>,
     object: Option<ObjectT>,
@@ -194,6 +196,7 @@ pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
     if let Some(v) = t.duration_s {
         s.duration_s = v;
     }
+    s.start_theta_a_rad = t.start_theta_a_rad;
     if let Some(f) = t.finger {
         let g = &mut s.finger;
         macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = f.$k { g.$k = v; } )* } }
@@ -356,9 +359,13 @@ pub fn to_toml_string(s: &Scene) -> String {
     let fl = &s.faults;
     let _ = writeln!(
         o,
-        "name = \"{}\"\ndt_s = {:?}\nduration_s = {:?}\n",
+        "name = \"{}\"\ndt_s = {:?}\nduration_s = {:?}",
         s.name, s.dt_s, s.duration_s
     );
+    if let Some(v) = s.start_theta_a_rad {
+        let _ = writeln!(o, "start_theta_a_rad = {v:?}");
+    }
+    o.push('\n');
     match s.object {
         ObjectSpec::None => {
             let _ = writeln!(o, "[object]\nkind = \"none\"\n");
@@ -435,4 +442,72 @@ pub fn to_toml_string(s: &Scene) -> String {
         fl.short_r_ohm, t(fl.remove_object_at_s), fl.over_current_a
     );
     o
+}
+
+fn rust_f64(v: f64) -> String {
+    if v.is_nan() {
+        "f64::NAN".to_string()
+    } else if v == f64::INFINITY {
+        "f64::INFINITY".to_string()
+    } else if v == f64::NEG_INFINITY {
+        "f64::NEG_INFINITY".to_string()
+    } else {
+        // `{:?}` always prints a decimal point or exponent: a valid f64 literal.
+        format!("{v:?}")
+    }
+}
+
+/// A Rust constant expression of type `plant::Scene` equal to `s`, with full paths, for build
+/// scripts that turn a TOML scene into `const` data for the firmware (no parsing on target).
+/// (`{:?}` of a scene is not valid Rust: infinite fault times print as `inf`.)
+pub fn to_rust_expr(s: &Scene) -> String {
+    let f = &s.finger;
+    let d = &s.drive;
+    let x = &s.sensors;
+    let c = &s.command;
+    let fl = &s.faults;
+    let r = rust_f64;
+    let object = match s.object {
+        ObjectSpec::None => "plant::scene::ObjectSpec::None".to_string(),
+        ObjectSpec::At(o) => format!(
+            "plant::scene::ObjectSpec::At(plant::Object {{ x_m: {}, y_m: {}, radius_m: {} }})",
+            r(o.x_m),
+            r(o.y_m),
+            r(o.radius_m)
+        ),
+        ObjectSpec::Touching(sp) => format!(
+            "plant::scene::ObjectSpec::Touching(plant::ContactSpec {{ theta1_c_rad: {}, phalanx: plant::Phalanx::{:?}, k_c_m: {}, radius_m: {} }})",
+            r(sp.theta1_c_rad),
+            sp.phalanx,
+            r(sp.k_c_m),
+            r(sp.radius_m)
+        ),
+    };
+    let start = match s.start_theta_a_rad {
+        None => "None".to_string(),
+        Some(v) => format!("Some({})", r(v)),
+    };
+    format!(
+        "plant::Scene {{ name: {:?}, \
+         finger: plant::FingerGeom {{ l1_m: {}, l2_m: {}, a_m: {}, b_m: {}, c_m: {}, phi2_rad: {}, theta01_rad: {}, theta02_rad: {}, k1_nm_per_rad: {}, k2_nm_per_rad: {}, theta1_min_rad: {}, theta1_max_rad: {}, theta2_min_rad: {}, theta2_max_rad: {}, k_lock_nm_per_rad: {} }}, \
+         object: {object}, \
+         drive: plant::drive::DriveParams {{ supply_v: {}, r_ohm: {}, l_h: {}, kt_nm_per_a: {}, rotor_inertia_kgm2: {}, gear_ratio: {}, eff_drive: {}, eff_back: {}, backlash_rad: {}, coulomb_nm: {}, stiction_nm: {}, viscous_nm_s_per_rad: {}, stick_speed_rad_s: {}, substeps: {} }}, \
+         sensors: plant::sensors::SensorParams {{ encoder_cpt: {}, shunt_ohm: {}, amp_gain: {}, offset_v: {}, offset_error_v: {}, gain_error: {}, noise_v_rms: {}, adc_vref_v: {}, adc_bits: {}, seed: {} }}, \
+         command: plant::scene::CommandProfile {{ mode: plant::scene::CommandMode::{:?}, from: {}, to: {}, t_start_s: {}, ramp_s: {} }}, \
+         faults: plant::scene::FaultSpec {{ encoder_stuck_at_s: {}, encoder_jump_at_s: {}, encoder_jump_counts: {}, short_at_s: {}, short_r_ohm: {}, remove_object_at_s: {}, over_current_a: {} }}, \
+         dt_s: {}, duration_s: {}, start_theta_a_rad: {start} }}",
+        s.name,
+        r(f.l1_m), r(f.l2_m), r(f.a_m), r(f.b_m), r(f.c_m), r(f.phi2_rad), r(f.theta01_rad),
+        r(f.theta02_rad), r(f.k1_nm_per_rad), r(f.k2_nm_per_rad), r(f.theta1_min_rad),
+        r(f.theta1_max_rad), r(f.theta2_min_rad), r(f.theta2_max_rad), r(f.k_lock_nm_per_rad),
+        r(d.supply_v), r(d.r_ohm), r(d.l_h), r(d.kt_nm_per_a), r(d.rotor_inertia_kgm2),
+        r(d.gear_ratio), r(d.eff_drive), r(d.eff_back), r(d.backlash_rad), r(d.coulomb_nm),
+        r(d.stiction_nm), r(d.viscous_nm_s_per_rad), r(d.stick_speed_rad_s), d.substeps,
+        x.encoder_cpt, r(x.shunt_ohm), r(x.amp_gain), r(x.offset_v), r(x.offset_error_v),
+        r(x.gain_error), r(x.noise_v_rms), r(x.adc_vref_v), x.adc_bits, x.seed,
+        c.mode, r(c.from), r(c.to), r(c.t_start_s), r(c.ramp_s),
+        r(fl.encoder_stuck_at_s), r(fl.encoder_jump_at_s), fl.encoder_jump_counts,
+        r(fl.short_at_s), r(fl.short_r_ohm), r(fl.remove_object_at_s), r(fl.over_current_a),
+        r(s.dt_s), r(s.duration_s)
+    )
 }

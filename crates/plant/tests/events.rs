@@ -205,3 +205,42 @@ fn placement_spec_round_trip() {
     assert!((h - 0.05).abs() < 1e-12 && (k - 0.02927).abs() < 1e-12);
     assert!((pose.theta2_rad - 0.209_196).abs() < 1e-6);
 }
+
+/// The approach shortcut: starting at θa = −0.3 rad (free motion) the encoder reads as if the
+/// motor had driven there from rest, and the first contact is still at MODEL.md's θa,c.
+#[test]
+fn start_pose_shortcut() {
+    let s = Scene {
+        start_theta_a_rad: Some(-0.3),
+        ..ideal("table2")
+    };
+    let mut p = Plant::new(&s).unwrap();
+    let t = p.truth();
+    assert!((t.theta_a_rad - -0.3).abs() < 1e-12);
+    // Free motion there: T_a = K1(θ1 − π/4) with θa = θ1 + closure(θ2) (independent closure).
+    assert!((theta_a(t.theta1_rad, t.theta2_rad) - -0.3).abs() < 1e-10);
+    assert!((t.torque_a_nm - K1 * (t.theta1_rad - TH01)).abs() < 1e-12);
+    let rest = -0.850_360_8;
+    let counts = (-0.3 - rest) * 3072.0 * 64.0 / std::f64::consts::TAU;
+    assert!((p.encoder_count_unwrapped() as f64 - counts).abs() <= 1.0);
+    assert!((p.measured_theta_a_rad() - -0.3).abs() < 1e-4);
+    let ev = run(&mut p, 20_000, |_, _| Input::Duty(1.0));
+    let e = find(&ev, "first_contact");
+    assert!((e.theta_a_rad - THETA_A_C).abs() < 2e-6);
+    assert!(
+        e.t_s < 0.5,
+        "the shortcut saves the approach: contact at {} s",
+        e.t_s
+    );
+    // A start inside the object or past a stop is rejected by key.
+    for bad in [0.5, -2.0, f64::NAN] {
+        let s = Scene {
+            start_theta_a_rad: Some(bad),
+            ..ideal("table2")
+        };
+        assert_eq!(
+            Plant::new(&s).err(),
+            Some(plant::PlantError::Invalid("start_theta_a_rad"))
+        );
+    }
+}

@@ -163,3 +163,46 @@ fn larger_cylinders_slide_farther() {
     };
     assert!(k(0.0) < k(0.01) && k(0.01) < k(0.05) && k(0.05) < k(0.0975));
 }
+
+/// The time-stepped plant (ideal drive, slow current ramp) against MODEL.md: where its true
+/// T_a reaches T_a,c + 0.8 N·m, θa − θa,c = 0.08028 rad; and at every contact step the truth
+/// satisfies the independent balance and contact constraint.
+#[test]
+fn time_stepped_plant_follows_the_table2_path() {
+    use plant::drive::Input;
+    let s = plant::Scene {
+        start_theta_a_rad: Some(-0.26),
+        ..plant::scenes::table2().ideal()
+    };
+    let obj = s.resolve_object().unwrap().unwrap();
+    let mut p = plant::Plant::new(&s).unwrap();
+    let target = 0.340_821 + 0.8;
+    let mut prev = p.truth();
+    let mut hit = None;
+    let mut checked = 0;
+    for k in 0..200_000 {
+        // Ramp the current slowly (quasi-static): 0.025 A → 0.1 A over 15 s.
+        let i = 0.025 + 0.075 * (k as f64 / 150_000.0).min(1.0);
+        p.step_input(Input::Current(i));
+        let t = p.truth();
+        if t.contact == plant::ContactState::Distal {
+            let (h, kk) = line_dist(2, t.theta1_rad, t.theta2_rad, obj.x_m, obj.y_m);
+            assert!((h - 0.05).abs() < 1e-9);
+            let j = jac(2, t.theta1_rad, t.theta2_rad, kk);
+            let e1 = t.torque_a_nm - K1 * (t.theta1_rad - TH01) - t.force * j[0];
+            let e2 = t.torque_a_nm * x2(t.theta2_rad) - K2 * t.theta2_rad - t.force * j[1];
+            assert!(e1.abs() < 1e-7 && e2.abs() < 1e-7, "{e1} {e2}");
+            checked += 1;
+        }
+        if prev.torque_a_nm < target && t.torque_a_nm >= target {
+            let f = (target - prev.torque_a_nm) / (t.torque_a_nm - prev.torque_a_nm);
+            hit = Some(prev.theta_a_rad + f * (t.theta_a_rad - prev.theta_a_rad));
+            break;
+        }
+        prev = t;
+    }
+    let th = hit.expect("torque never reached T_a,c + 0.8");
+    assert!(checked > 1000);
+    let dth = th - -0.223_771_185;
+    assert!(rel(dth, 0.080_281_4) < 1e-4, "Δθa = {dth}");
+}

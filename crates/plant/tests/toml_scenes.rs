@@ -80,3 +80,15 @@ fn csv_trace_has_the_columns_and_the_contact() {
     // The scene still builds a plant after the round trip through the file format.
     Plant::new(&s).unwrap();
 }
+
+#[test]
+fn start_pose_in_toml() {
+    let s = from_toml_str("start_theta_a_rad = -0.3\n[object]\nkind = \"none\"").unwrap();
+    assert_eq!(s.start_theta_a_rad, Some(-0.3));
+    assert_eq!(from_toml_str(&to_toml_string(&s)).unwrap(), s);
+    let e = from_toml_str("start_theta_a_rad = inf").unwrap_err();
+    assert_eq!(e.key, "start_theta_a_rad");
+    // The Rust-expression export has no `inf` (not a Rust literal).
+    let expr = plant::toml_scene::to_rust_expr(&scenes::by_name("fault_short").unwrap());
+    assert!(expr.contains("f64::INFINITY") && !expr.contains(" inf"));
+}
