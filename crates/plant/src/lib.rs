@@ -37,6 +37,6 @@ pub use error::PlantError;
 pub use geom::FingerGeom;
 pub use kin::{Object, Phalanx};
 pub use path::{quasi_static_path, quasi_static_path_with, ContactSpec, PathResult, PathSample};
-pub use plant::{ContactState, Plant, Truth};
+pub use plant::{ContactState, Fault, Plant, Truth};
 pub use scene::Scene;
 pub use track::{Event, EventKind, EVENT_TOL_RAD};

@@ -237,11 +237,19 @@ impl Plant {
         // A finger that did not move (stall, dead band, stiction) needs no new solve.
         if !self.failed && theta_a != pose.theta_a_rad {
             let t = self.t_s;
+            let (th0, th1) = (pose.theta_a_rad, theta_a);
             let mut buf: [Option<Event>; 8] = [None; 8];
             let mut nb = 0usize;
             let res = self.tracker.advance(theta_a, &mut |e| {
+                // Time of the event inside the period, interpolated on θa (the motor moves
+                // smoothly over one period); clamped to the period.
+                let frac = ((e.theta_a_rad - th0) / (th1 - th0)).clamp(0.0, 1.0);
+                let frac = if frac.is_finite() { frac } else { 1.0 };
                 if let Some(slot) = buf.get_mut(nb) {
-                    *slot = Some(Event { t_s: t, ..e });
+                    *slot = Some(Event {
+                        t_s: t - dt * (1.0 - frac),
+                        ..e
+                    });
                     nb += 1;
                 }
             });

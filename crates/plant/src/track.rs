@@ -90,7 +90,7 @@ impl EventKind {
 /// An event with where it happened.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Event {
-    /// Simulated time (s); 0 for quasi-static paths.
+    /// Simulated time (s), interpolated inside the control period on θa; 0 for quasi-static paths.
     pub t_s: f64,
     /// θa at the event (rad), bisected to [`EVENT_TOL_RAD`].
     pub theta_a_rad: f64,
