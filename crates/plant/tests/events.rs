@@ -244,3 +244,41 @@ fn start_pose_shortcut() {
         );
     }
 }
+
+/// Leaving the extension stops again: unlocked at the lock angle, then θ1 leaves its stop
+/// where its stop torque is zero, i.e. at T_a = K1(θ1,min − π/4) in free motion.
+#[test]
+fn leaving_the_stops() {
+    let s = Scene {
+        object: ObjectSpec::None,
+        ..ideal("free")
+    };
+    let mut p = Plant::new(&s).unwrap();
+    let ev = run(&mut p, 30_000, |i, _| {
+        Input::Duty(if i < 10_000 { -0.3 } else { 0.3 })
+    });
+    let names: Vec<_> = ev.iter().map(|e| e.kind.name()).collect();
+    assert_eq!(
+        names,
+        ["joint_limit", "joint_limit", "unlocked", "limit_released"],
+        "{ev:?}"
+    );
+    let lock = ev[1];
+    assert!((ev[2].theta_a_rad - lock.theta_a_rad).abs() < 1e-12);
+    // Unlocking releases the stop that locked second (θ2); θ1 then leaves its stop where its
+    // stop torque vanishes, at T_a = K1(θ1,min − π/4).
+    let th1 = ev
+        .iter()
+        .find(|e| {
+            matches!(
+                e.kind,
+                EventKind::LimitReleased {
+                    constraint: Constraint::Theta1Min
+                }
+            )
+        })
+        .unwrap();
+    assert!((th1.theta1_rad - (TH01 - 0.05)).abs() < 1e-8);
+    assert!((th1.torque_nm - K1 * -0.05).abs() < 1e-6, "{th1:?}");
+    assert_eq!(p.truth().contact, ContactState::Free);
+}
