@@ -80,6 +80,40 @@ fn finger_consts(src: &mut String) {
     let f = file.finger;
     let _ = writeln!(
         src,
+        "/// Drive, motor, encoder and current-sense constants of a finger file (board build).\n\
+         #[derive(Clone, Copy, Debug)]\n\
+         pub struct DriveConsts {{ pub gear_ratio: f64, pub efficiency: f64, pub kt_nm_per_a: f64, \
+         pub resistance_ohm: f64, pub supply_v: f64, pub counts_per_rev: f64, \
+         pub amps_per_count: f64, pub zero_count: f64 }}"
+    );
+    if env::var("FINGER_TOML")
+        .map(|p| !p.is_empty())
+        .unwrap_or(false)
+    {
+        let _ = writeln!(
+            src,
+            "/// From the finger file given at build time.\n\
+             pub const FINGER_DRIVE: Option<DriveConsts> = Some(DriveConsts {{ gear_ratio: {:?}, \
+             efficiency: {:?}, kt_nm_per_a: {:?}, resistance_ohm: {:?}, supply_v: {:?}, \
+             counts_per_rev: {:?}, amps_per_count: {:?}, zero_count: {:?} }});",
+            file.drive.gear_ratio,
+            file.drive.efficiency,
+            file.motor.kt_nm_per_a,
+            file.motor.resistance_ohm,
+            file.motor.supply_v,
+            f64::from(file.encoder.counts_per_rev),
+            file.current_sense.amps_per_count,
+            f64::from(file.current_sense.zero_count)
+        );
+    } else {
+        let _ = writeln!(
+            src,
+            "/// No finger file: the controller's default drive.\n\
+             pub const FINGER_DRIVE: Option<DriveConsts> = None;"
+        );
+    }
+    let _ = writeln!(
+        src,
         "/// Name of the finger description this firmware was built for.\n\
          pub const FINGER_NAME: &str = {:?};",
         file.name
@@ -93,6 +127,12 @@ fn finger_consts(src: &mut String) {
     );
 }
 
+/// A scene file turned into a Rust expression of `plant::Scene` (its Debug form is valid Rust
+/// with the plant's types in scope).
+fn scene_file_const(path: &str) -> String {
+    panic!("FINGER_FW_SCENE={path}: scene files need plant's TOML reader, which is not there yet; use a built-in scene name")
+}
+
 fn scene_consts(src: &mut String) {
     let scene = env::var("FINGER_FW_SCENE")
         .ok()
@@ -103,4 +143,23 @@ fn scene_consts(src: &mut String) {
         "/// The QEMU build's scene (name or file), chosen at build time by FINGER_FW_SCENE.\n\
          pub const SCENE: &str = {scene:?};"
     );
+    if scene.ends_with(".toml") {
+        println!("cargo:rerun-if-changed={scene}");
+        let code = scene_file_const(&scene);
+        let _ = writeln!(
+            src,
+            "/// The scene file, as const data.\npub const SCENE_CONST: Option<plant::Scene> = Some({code});"
+        );
+    } else {
+        if !plant::scenes::NAMES.contains(&scene.as_str()) {
+            panic!(
+                "FINGER_FW_SCENE={scene}: no such scene; built-in scenes: {}",
+                plant::scenes::NAMES.join(", ")
+            );
+        }
+        let _ = writeln!(
+            src,
+            "/// A built-in scene (by name).\npub const SCENE_CONST: Option<plant::Scene> = None;"
+        );
+    }
 }

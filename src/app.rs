@@ -1,14 +1,14 @@
 //! The RTIC application: three priorities, one job each.
 //!
-//! | prio | task        | kind                      | work                                             |
-//! |------|-------------|---------------------------|--------------------------------------------------|
-//! | 3    | `sample`    | hardware (ADC EOC; QEMU: pended by SysTick), 1 kHz | read encoder + current, `Controller::tick`, set the duty; forward the estimate request and events |
-//! | 2    | `estimate`  | software (async)          | `run_estimate` on the settled step, `deliver` it |
-//! | 1    | `telemetry` | software (async)          | defmt: every event, θa/T_a/state decimated ×20   |
+//! | prio | task        | kind                    | work                                                  |
+//! |------|-------------|-------------------------|-------------------------------------------------------|
+//! | 3    | `sample`    | hardware, `ADC` line, 10 kHz | read encoder + current, `Controller::tick`, set the duty, forward events |
+//! | 2    | `estimate`  | software (async)        | `take_request`, `run_estimate`, `deliver`             |
+//! | 1    | `telemetry` | software (async)        | defmt: every event, θa/T_a/state decimated to 50 Hz   |
 //!
 //! The control task never waits: it hands data on with `try_send` and counts what a full
-//! queue drops. The controller is the only shared resource (the estimate task locks it for
-//! `deliver`, a few dozen instructions).
+//! queue drops. Controller and board are shared with the estimate task only, which locks them
+//! for `take_request` and `deliver` (a copy of the request, a few hundred cycles).
 
 #[cfg_attr(
     feature = "qemu",
@@ -21,132 +21,188 @@
 mod app {
     use core::sync::atomic::Ordering;
 
+    use grasp::{Controller, State};
     use rtic_sync::channel::{Receiver, Sender};
     use rtic_sync::make_channel;
 
-    use crate::ctl::{self, Controller, EstimateRequest, Hardware};
+    use crate::ctl;
     use crate::platform::{self, Board};
-    use crate::telemetry::{self as tm, Done, Msg, DECIMATION, QUEUE};
-
-    const EST_QUEUE: usize = 2;
+    use crate::telemetry::{self as tm, Done, Msg, QUEUE};
 
     #[shared]
     struct Shared {
         ctrl: Controller,
+        board: Board,
     }
 
     #[local]
     struct Local {
-        board: Board,
-        est_tx: Sender<'static, EstimateRequest, EST_QUEUE>,
         tel_tx: Sender<'static, Msg, QUEUE>,
         tel_tx_est: Sender<'static, Msg, QUEUE>,
+        decimation: u32,
     }
 
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
-        let (est_tx, est_rx) = make_channel!(EstimateRequest, EST_QUEUE);
         let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
         let tel_tx_est = tel_tx.clone();
         #[cfg(feature = "qemu")]
-        let board = platform::init(cx.core);
+        let (board, cfg) = platform::init(cx.core);
         #[cfg(not(feature = "qemu"))]
-        let board = platform::init(cx.core, cx.device);
+        let (board, cfg) = platform::init(cx.core, cx.device);
         defmt::info!(
-            "BOOT finger={=str} scene={=str} board={=str}",
+            "BOOT finger={=str} scene={=str} board={=str} dt_us={=u32}",
             crate::config::FINGER_NAME,
             crate::config::SCENE,
-            platform::NAME
+            platform::NAME,
+            (cfg.drive.dt_s * 1e6) as u32
         );
-        estimate::spawn(est_rx).ok();
+        let decimation = ctl::decimation(&cfg.drive);
+        let ctrl = match Controller::new(cfg) {
+            Ok(c) => c,
+            Err(_) => {
+                defmt::error!("CONFIG rejected by grasp: bridge stays off");
+                platform::safe_state();
+                platform::halt(4)
+            }
+        };
         telemetry::spawn(tel_rx).ok();
         (
-            Shared {
-                ctrl: ctl::new_controller(),
-            },
+            Shared { ctrl, board },
             Local {
-                board,
-                est_tx,
                 tel_tx,
                 tel_tx_est,
+                decimation,
             },
         )
     }
 
-    /// The sampling + torque loop, 1 kHz. Board: the ADC end-of-conversion interrupt of the
-    /// current sample triggered by the PWM timer at the centre of every 20th PWM period.
-    /// QEMU: the same interrupt line, pended by SysTick (src/sim).
-    #[task(binds = ADC, priority = 3, shared = [ctrl], local = [board, est_tx, tel_tx, done: bool = false])]
-    fn sample(cx: sample::Context) {
-        let l = cx.local;
-        sample_body(cx.shared.ctrl, l.board, l.est_tx, l.tel_tx, l.done);
+    /// Sleep between interrupts (on QEMU with `-icount sleep=off` the virtual clock then jumps
+    /// straight to the next SysTick instead of executing an idle loop).
+    #[idle]
+    fn idle(_cx: idle::Context) -> ! {
+        loop {
+            cortex_m::asm::wfi();
+        }
     }
 
-    /// One control period (both boards).
-    fn sample_body(
-        mut ctrl: impl rtic::Mutex<T = Controller>,
-        board: &mut Board,
-        est: &mut Sender<'static, EstimateRequest, EST_QUEUE>,
-        tel: &mut Sender<'static, Msg, QUEUE>,
-        done: &mut bool,
-    ) {
-        board.ack_sample();
-        if *done {
-            board.bridge_off();
-            platform::stop_sampling();
-            return;
-        }
-        let tick = tm::TICKS.fetch_add(1, Ordering::Relaxed) + 1;
-        let (out, finished) = ctrl.lock(|ctrl| {
-            let out = ctrl.tick(board);
-            while let Some(ev) = ctrl.poll_event() {
-                if tel.try_send(Msg::Event(ev)).is_err() {
-                    tm::dropped();
+    /// The sampling + torque loop, 10 kHz (the controller's `dt_s`). Board: the ADC
+    /// end-of-conversion of the current sample triggered by the PWM timer in the middle of
+    /// every other 20 kHz PWM period. QEMU: the same line, pended by SysTick (src/sim).
+    #[task(binds = ADC, priority = 3, shared = [ctrl, board], local = [tel_tx, decimation, done: bool = false])]
+    fn sample(cx: sample::Context) {
+        let t0 = platform::stamp();
+        let tel = cx.local.tel_tx;
+        let done = cx.local.done;
+        let decimation = *cx.local.decimation;
+        let mut ctrl = cx.shared.ctrl;
+        let mut board = cx.shared.board;
+        // Highest priority: these locks are free (no other task of this priority).
+        board.lock(|board| {
+            board.ack_sample();
+            if *done {
+                board_off(board);
+                platform::stop_sampling();
+                return;
+            }
+            let tick = tm::TICKS.fetch_add(1, Ordering::Relaxed) + 1;
+            let out = ctrl.lock(|ctrl| {
+                let out = ctrl.tick(board);
+                while let Some(ev) = ctrl.poll_event() {
+                    let settled = matches!(ev, grasp::Event::Settled { .. });
+                    send(tel, Msg::Event(ev));
+                    if settled {
+                        if let Some(t) = board.truth("settled") {
+                            send(tel, Msg::Truth(t));
+                        }
+                    }
+                }
+                out
+            });
+            let t_ctrl = platform::stamp();
+            tm::record_max(&tm::WORK_MAX, t_ctrl.wrapping_sub(t0));
+            if out.estimate_ready && estimate::spawn().is_err() {
+                tm::dropped();
+            }
+            let finished = ctl::finished(out.state);
+            if tick % decimation == 0 || finished {
+                // Samples are best effort: a full queue keeps its room for events.
+                if !tel.is_full() {
+                    let _ = tel.try_send(Msg::Sample {
+                        tick,
+                        theta_a_urad: out.theta_a_urad,
+                        torque_unm: out.torque_unm,
+                        torque_ref_unm: out.torque_ref_unm,
+                        duty: out.duty,
+                        state: out.state,
+                    });
                 }
             }
-            (out, ctl::finished(ctrl.state()))
+            board.advance();
+            while let Some(p) = board.poll_plant_event() {
+                send(tel, Msg::Plant(p));
+            }
+            if finished {
+                *done = true;
+                if let Some(t) = board.truth("end") {
+                    send(tel, Msg::Truth(t));
+                }
+                send(
+                    tel,
+                    Msg::Done(Done {
+                        status: ctl::status(out.state),
+                        state: out.state,
+                        bridge_safe: board_safe(board, out.state),
+                        ticks: tick,
+                    }),
+                );
+            }
         });
-        if let Some(req) = out.estimate_request {
-            if est.try_send(req).is_err() {
-                tm::dropped();
-            }
-        }
-        if tick % DECIMATION == 0 || finished {
-            // Samples are best effort: a full queue keeps its room for events.
-            let _ = tel.try_send(Msg::Sample {
-                tick,
-                theta_a_urad: out.theta_a_urad,
-                ta_unm: out.ta_unm,
-                state: out.state,
-            });
-        }
-        board.advance();
-        if finished {
-            *done = true;
-            board.bridge_off();
-            let done = Done {
-                status: if out.state == ctl::State::Fault { 2 } else { 0 },
-                state: out.state,
-                bridge_safe: board.is_safe(),
-                truth_theta_a_urad: board.truth_theta_a_urad(),
-                t_us: tick.saturating_mul(1000),
-            };
-            if tel.try_send(Msg::Done(done)).is_err() {
-                tm::dropped();
-            }
-        }
         platform::rearm_sampling();
+        tm::PREEMPT.fetch_add(platform::stamp().wrapping_sub(t0), Ordering::Relaxed);
     }
 
-    #[task(priority = 2, shared = [ctrl], local = [tel_tx_est])]
-    async fn estimate(
-        mut cx: estimate::Context,
-        mut rx: Receiver<'static, EstimateRequest, EST_QUEUE>,
-    ) {
-        while let Ok(req) = rx.recv().await {
-            let result = ctl::run_estimate(&req);
-            cx.shared.ctrl.lock(|ctrl| ctrl.deliver(result));
+    fn send(tel: &mut Sender<'static, Msg, QUEUE>, msg: Msg) {
+        if tel.try_send(msg).is_err() {
+            tm::dropped();
         }
+    }
+
+    /// At the end of a run the bridge goes off whatever the final state.
+    fn board_off(board: &mut Board) {
+        use grasp::Hardware;
+        board.bridge_off();
+    }
+
+    /// What the END line reports as the bridge state: after a fault the controller must have
+    /// switched it off itself.
+    fn board_safe(board: &Board, state: State) -> bool {
+        match state {
+            State::Fault(_) | State::Done => board.is_safe(),
+            _ => true,
+        }
+    }
+
+    /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample`.
+    #[task(priority = 2, shared = [ctrl, board], local = [tel_tx_est])]
+    async fn estimate(cx: estimate::Context) {
+        let mut ctrl = cx.shared.ctrl;
+        let mut board = cx.shared.board;
+        let t0 = platform::stamp();
+        let p0 = tm::PREEMPT.load(Ordering::Relaxed);
+        let Some(req) = ctrl.lock(|c| c.take_request()) else {
+            return;
+        };
+        let result = ctl::run_estimate(&req);
+        let work = platform::stamp()
+            .wrapping_sub(t0)
+            .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
+        tm::record_max(&tm::EST_WORK_MAX, work);
+        if result.is_err() {
+            // The controller logs the refusal as a Fault event with the reason.
+            let _ = cx.local.tel_tx_est;
+        }
+        (&mut ctrl, &mut board).lock(|c, b| c.deliver(b, result));
     }
 
     #[task(priority = 1)]

@@ -1,22 +1,82 @@
-//! The one place that names the controller and the simulated plant the app runs.
-pub use crate::standin::{
-    run_estimate, Controller, EstimateRequest, Event, Hardware, State, DUTY_MAX,
-};
+//! The controller this firmware runs (crates/grasp) and how it is configured: the one place
+//! that knows where the drive constants come from.
+//!
+//! * board: [`grasp::DriveConfig::DEFAULT`] (the prototype drive), with the drive, motor,
+//!   encoder and current-sense values of the finger file when `FINGER_TOML` was given at build
+//!   time (build.rs turns them into `config::FINGER_DRIVE`);
+//! * simulated board (QEMU and the host runner): the nominal constants of the scene's drive and
+//!   sensors, exactly what a firmware for that hardware would be built with (the plant's error
+//!   terms stay unknown to it).
 
-/// The simulated finger (QEMU board and host runner).
-pub type Plant = crate::standin::ToyPlant;
+pub use grasp::{run_estimate, ControllerConfig, DriveConfig, State};
 
-/// The plant of the scene chosen at build time.
-pub fn new_plant() -> Plant {
-    crate::standin::ToyPlant::new()
-}
-
-/// The controller, configured for the finger and drive of this build.
-pub fn new_controller() -> Controller {
-    Controller::new()
-}
-
-/// True once the grasp has nothing left to do (estimate delivered and holding, or faulted).
+/// True once the grasp has nothing left to do: estimate delivered (holding or released) or
+/// the safe state.
 pub fn finished(state: State) -> bool {
-    matches!(state, State::Hold | State::Fault)
+    matches!(state, State::Holding | State::Done | State::Fault(_))
+}
+
+/// Exit status of a finished run: 0 estimate delivered, 2 controller fault (bridge off).
+pub fn status(state: State) -> i32 {
+    match state {
+        State::Fault(_) => 2,
+        _ => 0,
+    }
+}
+
+/// Drive constants for the real board.
+#[allow(dead_code)]
+pub fn board_drive() -> DriveConfig {
+    let mut d = DriveConfig::DEFAULT;
+    if let Some(f) = crate::config::FINGER_DRIVE {
+        d.gear_ratio = f.gear_ratio;
+        d.efficiency = f.efficiency;
+        d.kt_nm_per_a = f.kt_nm_per_a;
+        d.resistance_ohm = f.resistance_ohm;
+        d.bus_v = f.supply_v;
+        d.encoder_counts_per_rev = f.counts_per_rev;
+        d.amps_per_code = f.amps_per_count;
+        d.adc_zero_code = f.zero_count;
+    }
+    d
+}
+
+/// The controller's view of a simulated scene's drive and sensors (nominal constants).
+pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
+    let d = &scene.drive;
+    let s = &scene.sensors;
+    DriveConfig {
+        dt_s: scene.dt_s,
+        gear_ratio: d.gear_ratio,
+        efficiency: d.eff_drive,
+        kt_nm_per_a: d.kt_nm_per_a,
+        resistance_ohm: d.r_ohm,
+        bus_v: d.supply_v,
+        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
+        amps_per_code: 1.0 / s.codes_per_amp(),
+        adc_zero_code: s.zero_code(),
+        theta_a_rest_rad: DriveConfig::DEFAULT.theta_a_rest_rad,
+    }
+}
+
+/// The controller configuration for a drive: grasp's defaults otherwise.
+pub fn config(drive: DriveConfig) -> ControllerConfig {
+    ControllerConfig {
+        drive,
+        ..ControllerConfig::DEFAULT
+    }
+}
+
+/// The scene of this build (`FINGER_FW_SCENE` at build time; build.rs checked the name).
+pub fn scene() -> Option<plant::Scene> {
+    match crate::config::SCENE_CONST {
+        Some(s) => Some(s),
+        None => plant::scenes::by_name(crate::config::SCENE),
+    }
+}
+
+/// Control ticks between two telemetry samples: 50 Hz whatever the loop rate.
+pub fn decimation(drive: &DriveConfig) -> u32 {
+    let n = (0.02 / drive.dt_s) as u32;
+    n.max(1)
 }

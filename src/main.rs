@@ -21,14 +21,11 @@ mod config {
 mod app;
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod board;
-#[cfg(target_os = "none")]
 mod ctl;
 #[cfg(target_os = "none")]
 mod fault;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 mod sim;
-#[cfg(target_os = "none")]
-mod standin;
 #[cfg(target_os = "none")]
 mod telemetry;
 
@@ -37,13 +34,26 @@ use board as platform;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 use sim as platform;
 
-#[cfg(all(target_os = "none", feature = "qemu"))]
-use defmt_semihosting as _;
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 use defmt_rtt as _;
+#[cfg(all(target_os = "none", feature = "qemu"))]
+use defmt_semihosting as _;
 
 #[cfg(not(target_os = "none"))]
-fn main() {
+mod host;
+
+#[cfg(not(target_os = "none"))]
+fn main() -> std::process::ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("simulate") {
+        return match host::simulate(&args[1..]) {
+            Ok(code) => std::process::ExitCode::from(code.clamp(0, 255) as u8),
+            Err(e) => {
+                eprintln!("error: {e}");
+                std::process::ExitCode::FAILURE
+            }
+        };
+    }
     println!(
         "finger-fw {} (finger {:?}): this is the firmware package; build it for the target:\n  \
          cargo build --release --target thumbv7em-none-eabihf            (board)\n  \
@@ -51,4 +61,6 @@ fn main() {
         env!("CARGO_PKG_VERSION"),
         config::FINGER_NAME
     );
+    println!("  finger-fw simulate [--scene NAME]                              (same control path on the host)");
+    std::process::ExitCode::SUCCESS
 }

@@ -1,44 +1,92 @@
 //! Messages from the control and estimate tasks to the telemetry task (lowest priority).
-//! The producers only ever `try_send`: a full queue drops the message and counts it, the
-//! control loop never waits for the logger.
+//! Producers only ever `try_send`: a full queue drops the message and counts it, the control
+//! loop never waits for the logger. The log lines are the interface of `cargo xtask demo/test`
+//! (xtask/src/log.rs parses them): keep the prefixes and `key=value` names stable.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use crate::ctl::{Event, State};
+use grasp::{Event, State};
 
-/// Control ticks between two telemetry samples (1 kHz loop → 50 Hz θa/T_a/state stream).
-pub const DECIMATION: u32 = 20;
 /// Depth of the telemetry queue (messages).
 pub const QUEUE: usize = 32;
 
-/// Control ticks since reset: the defmt timestamp (ms of control time at 1 kHz).
+/// Control ticks since reset: the defmt timestamp.
 pub static TICKS: AtomicU32 = AtomicU32::new(0);
 /// Messages dropped because the queue was full.
 pub static DROPPED: AtomicU32 = AtomicU32::new(0);
+/// Worst sampling-task work seen so far, in the board's cycle-counter units
+/// (board: CPU cycles from DWT; QEMU with `-icount shift=0`: SysTick ticks of 40 instructions).
+pub static WORK_MAX: AtomicU32 = AtomicU32::new(0);
+/// Total time spent in the sampling task (stamp units), so a preempted task can subtract it.
+pub static PREEMPT: AtomicU32 = AtomicU32::new(0);
+/// Worst estimate-task work, same units.
+pub static EST_WORK_MAX: AtomicU32 = AtomicU32::new(0);
 
-defmt::timestamp!("{=u32:010}", TICKS.load(Ordering::Relaxed));
+defmt::timestamp!("{=u32}", TICKS.load(Ordering::Relaxed));
+
+/// A plant event (simulated board only), in integers.
+#[derive(Clone, Copy, Debug)]
+pub struct PlantEvent {
+    /// snake_case name of the event kind.
+    pub kind: &'static str,
+    /// Simulated time (µs).
+    pub t_us: u32,
+    /// θa (µrad).
+    pub theta_a_urad: i32,
+    /// T_a (µN·m).
+    pub torque_unm: i32,
+    /// Contact location on the phalanx (µm), when the event has one.
+    pub k_um: i32,
+    /// Phalanx name, when the event has one ("" otherwise).
+    pub phalanx: &'static str,
+}
+
+/// The plant's truth (simulated board only).
+#[derive(Clone, Copy, Debug)]
+pub struct Truth {
+    /// Where it was taken ("settled", "end").
+    pub at: &'static str,
+    /// Simulated time (µs).
+    pub t_us: u32,
+    /// True θa (µrad).
+    pub theta_a_urad: i32,
+    /// True T_a (µN·m).
+    pub torque_unm: i32,
+    /// Contact state name.
+    pub contact: &'static str,
+    /// True contact location on its phalanx (µm).
+    pub k_um: i32,
+}
 
 /// One telemetry message.
 #[derive(Clone, Copy, Debug)]
 pub enum Msg {
-    /// Decimated sample: tick, θa (µrad), T_a (µN·m), state.
+    /// Decimated sample.
     Sample {
         /// Control tick.
         tick: u32,
         /// θa (µrad).
         theta_a_urad: i32,
-        /// T_a (µN·m).
-        ta_unm: i32,
+        /// Measured T_a (µN·m).
+        torque_unm: i32,
+        /// Torque reference (µN·m).
+        torque_ref_unm: i32,
+        /// Duty (±10 000).
+        duty: i16,
         /// State after the tick.
         state: State,
     },
     /// A controller event, as it happened.
     Event(Event),
-    /// The run is over (QEMU: exit with this status after logging it).
+    /// A plant event (simulated board).
+    Plant(PlantEvent),
+    /// Plant truth (simulated board).
+    Truth(Truth),
+    /// The run is over.
     Done(Done),
 }
 
-/// End of a run: final state and, on the simulated board, the plant's truth.
+/// End of a run.
 #[derive(Clone, Copy, Debug)]
 pub struct Done {
     /// Exit status: 0 estimate delivered, 2 controller fault (bridge off).
@@ -47,15 +95,20 @@ pub struct Done {
     pub state: State,
     /// Bridge in the safe state.
     pub bridge_safe: bool,
-    /// Plant truth: θa (µrad).
-    pub truth_theta_a_urad: i32,
-    /// Simulated time (µs).
-    pub t_us: u32,
+    /// Control ticks run.
+    pub ticks: u32,
 }
 
 /// Counts one dropped message.
 pub fn dropped() {
     DROPPED.fetch_add(1, Ordering::Relaxed);
+}
+
+/// Keeps the maximum of a work counter.
+pub fn record_max(slot: &AtomicU32, v: u32) {
+    if v > slot.load(Ordering::Relaxed) {
+        slot.store(v, Ordering::Relaxed);
+    }
 }
 
 /// Logs one message (runs in the telemetry task).
@@ -64,24 +117,47 @@ pub fn log(msg: &Msg) {
         Msg::Sample {
             tick,
             theta_a_urad,
-            ta_unm,
+            torque_unm,
+            torque_ref_unm,
+            duty,
             state,
         } => defmt::info!(
-            "S tick={=u32} theta_a_urad={=i32} ta_unm={=i32} state={}",
+            "S tick={=u32} theta_a_urad={=i32} torque_unm={=i32} ref_unm={=i32} duty={=i16} state={}",
             tick,
             theta_a_urad,
-            ta_unm,
+            torque_unm,
+            torque_ref_unm,
+            duty,
             state
         ),
         Msg::Event(ev) => defmt::info!("E {}", ev),
+        Msg::Plant(p) => defmt::info!(
+            "P {=str} t_us={=u32} theta_a_urad={=i32} torque_unm={=i32} phalanx={=str} k_um={=i32}",
+            p.kind,
+            p.t_us,
+            p.theta_a_urad,
+            p.torque_unm,
+            p.phalanx,
+            p.k_um
+        ),
+        Msg::Truth(t) => defmt::info!(
+            "TRUTH at={=str} t_us={=u32} theta_a_urad={=i32} torque_unm={=i32} contact={=str} k_um={=i32}",
+            t.at,
+            t.t_us,
+            t.theta_a_urad,
+            t.torque_unm,
+            t.contact,
+            t.k_um
+        ),
         Msg::Done(d) => defmt::info!(
-            "END status={=i32} state={} bridge_safe={=bool} truth_theta_a_urad={=i32} t_us={=u32} dropped={=u32}",
+            "END status={=i32} state={} bridge_safe={=bool} ticks={=u32} dropped={=u32} work_max={=u32} est_work_max={=u32}",
             d.status,
             d.state,
             d.bridge_safe,
-            d.truth_theta_a_urad,
-            d.t_us,
-            DROPPED.load(Ordering::Relaxed)
+            d.ticks,
+            DROPPED.load(Ordering::Relaxed),
+            WORK_MAX.load(Ordering::Relaxed),
+            EST_WORK_MAX.load(Ordering::Relaxed)
         ),
     }
 }

@@ -1,57 +1,142 @@
-//! The simulated board for QEMU (mps2-an386): the finger plant runs inside the firmware.
+//! The simulated board for QEMU (mps2-an386): the finger plant (crates/plant) runs inside the
+//! firmware and stands in for the motor, the encoder and the current ADC.
 //!
-//! The sampling task is driven by SysTick. Each period the controller reads the plant's
-//! encoder and ADC codes, sets a duty, and the plant is advanced by one control period of
-//! *simulated* time. A plant step costs far more instructions than the real loop (the M4 FPU is
-//! single precision, the plant is f64), so SysTick is restarted at the end of every sample:
-//! the next sample comes one full period after this one ends, which leaves the lower-priority
-//! tasks their share however long the plant takes. Wall time never enters the simulation.
+//! SysTick plays the PWM timer + ADC of the real board: it pends the `ADC` line the sampling
+//! task is bound to. Each period the controller reads the plant's encoder and ADC codes and
+//! sets a duty, then the plant is advanced by one control period of *simulated* time
+//! (`scene.dt_s`). A plant step costs far more than the real loop (the M4 FPU is single
+//! precision, the plant is f64), so SysTick is restarted at the end of every sample: the next
+//! one comes a full period after this one ends, which leaves the lower-priority tasks their
+//! share however long the plant takes. Wall time never enters the simulation.
+//!
+//! CMSDK APB TIMER0 (0x4000_0000) runs free as the cycle stamp for the work measurements: with
+//! `qemu-system-arm -icount shift=0` one 25 MHz tick is exactly 40 instructions.
 
 pub mod pac;
 
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::peripheral::{syst::SystClkSource, SCB, SYST};
 
-use crate::ctl::{Hardware, DUTY_MAX};
+use grasp::{Hardware, DUTY_MAX};
 
-/// SysTick reload: 25 MHz processor clock of the AN386 image / 25 000 = 1 ms of QEMU virtual time
-/// between the end of one sample and the next (simulated time is the plant's own clock).
+use crate::telemetry::{PlantEvent, Truth};
+
+/// Name of this board in the log.
+pub const NAME: &str = "qemu-mps2-an386";
+
+/// SysTick reload: 25 MHz processor clock / 25 000 = 1 ms of QEMU virtual time between the end
+/// of one sample and the next (1 M instructions at `-icount shift=0`). Simulated time is the
+/// plant's own clock, so this only sets how much room the lower priorities get.
 const SYSTICK_RELOAD: u32 = 25_000 - 1;
 
-/// Set by [`safe_state`]; once set the plant sees zero duty whatever the controller asks.
+/// CMSDK APB timer 0 registers (CTRL, VALUE, RELOAD).
+const TIMER0_CTRL: *mut u32 = 0x4000_0000 as *mut u32;
+const TIMER0_VALUE: *mut u32 = 0x4000_0004 as *mut u32;
+const TIMER0_RELOAD: *mut u32 = 0x4000_0008 as *mut u32;
+
+/// Set by [`safe_state`]; once set the plant sees the bridge off whatever the controller asks.
 static BRIDGE_SAFE: AtomicBool = AtomicBool::new(false);
+
+/// The board: the simulated plant.
+pub type Board = SimBoard;
 
 /// The simulated board.
 pub struct SimBoard {
-    plant: crate::ctl::Plant,
-    duty: i16,
-    bridge_off: bool,
+    plant: plant::Plant,
+    duty: f64,
+    off: bool,
+}
+
+/// Brings up the simulated board for the build's scene and starts the sampling interrupt.
+pub fn init(core: rtic::export::Peripherals) -> (Board, grasp::ControllerConfig) {
+    let Some(scene) = crate::ctl::scene() else {
+        defmt::error!("SCENE {=str} unknown", crate::config::SCENE);
+        exit(3)
+    };
+    let plant = match plant::Plant::new(&scene) {
+        Ok(p) => p,
+        Err(_) => {
+            defmt::error!("SCENE {=str} does not build a plant", crate::config::SCENE);
+            exit(3)
+        }
+    };
+    // SAFETY: TIMER0 is not used by anything else; free-running down-counter from 2³²−1.
+    unsafe {
+        TIMER0_RELOAD.write_volatile(u32::MAX);
+        TIMER0_VALUE.write_volatile(u32::MAX);
+        TIMER0_CTRL.write_volatile(1);
+    }
+    start_sampling(core.SYST);
+    let cfg = crate::ctl::config(crate::ctl::scene_drive(&scene));
+    (
+        SimBoard {
+            plant,
+            duty: 0.0,
+            off: true,
+        },
+        cfg,
+    )
 }
 
 impl SimBoard {
-    /// The plant of the scene chosen at build time.
-    pub fn new() -> Self {
-        Self {
-            plant: crate::ctl::new_plant(),
-            duty: 0,
-            bridge_off: false,
+    /// Nothing to acknowledge: SysTick pended the line.
+    pub fn ack_sample(&mut self) {}
+
+    /// Advances the plant by one control period with what the controller commanded.
+    pub fn advance(&mut self) {
+        if self.off || BRIDGE_SAFE.load(Ordering::Relaxed) {
+            self.plant.step_off();
+        } else {
+            self.plant.step(self.duty);
         }
     }
 
-    /// Advances the plant by one control period with the duty last set.
-    pub fn advance(&mut self) {
-        let off = self.bridge_off || BRIDGE_SAFE.load(Ordering::Relaxed);
-        let duty = if off {
-            0.0
-        } else {
-            f64::from(self.duty) / f64::from(DUTY_MAX)
-        };
-        self.plant.step(duty);
+    /// True when the bridge is off.
+    pub fn is_safe(&self) -> bool {
+        self.off || BRIDGE_SAFE.load(Ordering::Relaxed)
     }
 
-    /// True once the bridge was switched off.
-    pub fn is_safe(&self) -> bool {
-        self.bridge_off || BRIDGE_SAFE.load(Ordering::Relaxed)
+    /// The plant's truth now.
+    pub fn truth(&self, at: &'static str) -> Option<Truth> {
+        let t = self.plant.truth();
+        Some(Truth {
+            at,
+            t_us: (t.t_s * 1e6) as u32,
+            theta_a_urad: micro(t.theta_a_rad),
+            torque_unm: micro(t.torque_a_nm),
+            contact: t.contact.name(),
+            k_um: micro(t.k_m),
+        })
+    }
+
+    /// The next plant event (first contact, loss, second contact, joint limit, ...).
+    pub fn poll_plant_event(&mut self) -> Option<PlantEvent> {
+        use plant::EventKind as K;
+        let e = self.plant.poll_event()?;
+        let (phalanx, k_m) = match e.kind {
+            K::FirstContact { phalanx, k_m }
+            | K::LossOfContact { phalanx, k_m }
+            | K::SecondContact { phalanx, k_m } => (phalanx.name(), k_m),
+            K::BeyondTip { phalanx } | K::BehindJoint { phalanx } => (phalanx.name(), 0.0),
+            _ => ("", 0.0),
+        };
+        Some(PlantEvent {
+            kind: e.kind.name(),
+            t_us: (e.t_s * 1e6) as u32,
+            theta_a_urad: micro(e.theta_a_rad),
+            torque_unm: micro(e.torque_nm),
+            k_um: micro(k_m),
+            phalanx,
+        })
+    }
+}
+
+fn micro(v: f64) -> i32 {
+    let x = v * 1e6;
+    if x.is_nan() {
+        0
+    } else {
+        x.clamp(i32::MIN as f64, i32::MAX as f64) as i32
     }
 }
 
@@ -63,11 +148,12 @@ impl Hardware for SimBoard {
         self.plant.current_adc()
     }
     fn set_duty(&mut self, duty: i16) {
-        self.duty = duty.clamp(-DUTY_MAX, DUTY_MAX);
+        self.off = false;
+        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
     }
     fn bridge_off(&mut self) {
-        self.duty = 0;
-        self.bridge_off = true;
+        self.off = true;
+        self.duty = 0.0;
     }
 }
 
@@ -78,8 +164,7 @@ fn SysTick() {
     cortex_m::peripheral::NVIC::pend(pac::Interrupt::ADC);
 }
 
-/// Starts the sampling interrupt (SysTick).
-pub fn start_sampling(mut syst: SYST) {
+fn start_sampling(mut syst: SYST) {
     syst.set_clock_source(SystClkSource::Core);
     syst.set_reload(SYSTICK_RELOAD);
     syst.clear_current();
@@ -97,44 +182,25 @@ pub fn rearm_sampling() {
         (*SYST::PTR).cvr.write(0);
         (*SCB::PTR).icsr.write(1 << 25);
     }
-}
-
-/// Bridge to the safe state from any context (panic, HardFault): the plant sees zero duty.
-pub fn safe_state() {
-    BRIDGE_SAFE.store(true, Ordering::SeqCst);
-}
-
-/// Ends the QEMU run with this status (semihosting SYS_EXIT_EXTENDED).
-pub fn exit(code: i32) -> ! {
-    semihosting::process::exit(code)
-}
-
-/// Name of this board in the log.
-pub const NAME: &str = "qemu-mps2-an386";
-
-/// The board: the simulated plant.
-pub type Board = SimBoard;
-
-/// Brings up the simulated board and starts the sampling interrupt.
-pub fn init(core: rtic::export::Peripherals) -> Board {
-    start_sampling(core.SYST);
-    SimBoard::new()
-}
-
-impl SimBoard {
-    /// Nothing to acknowledge: SysTick clears itself.
-    pub fn ack_sample(&mut self) {}
-
-    /// The plant's true θa (µrad).
-    pub fn truth_theta_a_urad(&mut self) -> i32 {
-        (self.plant.theta_a() * 1e6) as i32
-    }
+    cortex_m::peripheral::NVIC::unpend(pac::Interrupt::ADC);
 }
 
 /// Stops the sampling interrupt (the run is over).
 pub fn stop_sampling() {
     // SAFETY: clears SysTick's enable bits; no other user.
     unsafe { (*SYST::PTR).csr.write(0) };
+}
+
+/// A free-running cycle stamp (TIMER0 ticks, 40 instructions each at `-icount shift=0`).
+#[inline(always)]
+pub fn stamp() -> u32 {
+    // SAFETY: read of a timer value register.
+    !unsafe { TIMER0_VALUE.read_volatile() }
+}
+
+/// Bridge to the safe state from any context (panic, HardFault): the plant sees it off.
+pub fn safe_state() {
+    BRIDGE_SAFE.store(true, Ordering::SeqCst);
 }
 
 /// End of the run: exit QEMU with the firmware's status.
@@ -145,4 +211,9 @@ pub fn finish(status: i32) -> ! {
 /// After a panic or HardFault (bridge already safe): exit QEMU with this status.
 pub fn halt(status: i32) -> ! {
     exit(status)
+}
+
+/// Ends the QEMU run with this status (semihosting SYS_EXIT_EXTENDED).
+pub fn exit(code: i32) -> ! {
+    semihosting::process::exit(code)
 }

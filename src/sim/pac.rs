@@ -83,7 +83,9 @@ pub static __INTERRUPTS: [Vector; 17] = [
     Vector { _handler: GPIO1 },
     Vector { _handler: TIMER0 },
     Vector { _handler: TIMER1 },
-    Vector { _handler: DUALTIMER },
+    Vector {
+        _handler: DUALTIMER,
+    },
     Vector { _handler: SPI0 },
     Vector { _reserved: 0 },
     Vector { _reserved: 0 },

@@ -1,0 +1,1 @@
+//! The STM32F411 board (drivers land next).

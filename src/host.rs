@@ -1,0 +1,143 @@
+//! The host build of the firmware package: the same control path as the QEMU firmware
+//! (grasp controller + simulated board, same configuration, same order of tick → plant step
+//! → estimate delivery) on the host's ISA, printing the firmware's log lines. `cargo xtask
+//! test` compares its estimate with the QEMU run's (same numbers on both ISAs).
+//!
+//! `finger-fw simulate [--scene NAME]` (default: the scene of this build, FINGER_FW_SCENE).
+
+use grasp::{Controller, Hardware, DUTY_MAX};
+
+use crate::ctl;
+
+/// The simulated board on the host (mirrors src/sim without the interrupt plumbing).
+struct HostBoard {
+    plant: plant::Plant,
+    duty: f64,
+    off: bool,
+}
+
+impl Hardware for HostBoard {
+    fn encoder_count(&mut self) -> u16 {
+        self.plant.encoder_count()
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.plant.current_adc()
+    }
+    fn set_duty(&mut self, duty: i16) {
+        self.off = false;
+        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
+    }
+    fn bridge_off(&mut self) {
+        self.off = true;
+        self.duty = 0.0;
+    }
+}
+
+impl HostBoard {
+    fn advance(&mut self) {
+        if self.off {
+            self.plant.step_off();
+        } else {
+            self.plant.step(self.duty);
+        }
+    }
+    fn truth(&self, at: &str) -> String {
+        let t = self.plant.truth();
+        format!(
+            "TRUTH at={at} t_us={} theta_a_urad={} torque_unm={} contact={} k_um={}",
+            (t.t_s * 1e6) as u32,
+            micro(t.theta_a_rad),
+            micro(t.torque_a_nm),
+            t.contact.name(),
+            micro(t.k_m)
+        )
+    }
+}
+
+fn micro(v: f64) -> i32 {
+    let x = v * 1e6;
+    if x.is_nan() {
+        0
+    } else {
+        x.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+    }
+}
+
+/// Runs one scene to the end; prints the log lines; returns the firmware's exit status.
+pub fn simulate(args: &[String]) -> Result<i32, String> {
+    let mut name = None;
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        match a.as_str() {
+            "--scene" => name = it.next().cloned(),
+            other => return Err(format!("unknown argument {other}")),
+        }
+    }
+    let scene = match &name {
+        Some(n) => plant::scenes::by_name(n).ok_or_else(|| format!("no scene {n}"))?,
+        None => ctl::scene().ok_or("the build's scene is unknown")?,
+    };
+    let plant = plant::Plant::new(&scene).map_err(|e| format!("scene: {e:?}"))?;
+    let cfg = ctl::config(ctl::scene_drive(&scene));
+    let decimation = ctl::decimation(&cfg.drive);
+    let mut ctrl = Controller::new(cfg).map_err(|e| format!("config: {e:?}"))?;
+    let mut board = HostBoard {
+        plant,
+        duty: 0.0,
+        off: true,
+    };
+    println!(
+        "BOOT finger={} scene={} board=host dt_us={}",
+        crate::config::FINGER_NAME,
+        name.as_deref().unwrap_or(crate::config::SCENE),
+        (cfg.drive.dt_s * 1e6) as u32
+    );
+    // Bound: 60 s of simulated time.
+    let max_ticks = (60.0 / cfg.drive.dt_s) as u32;
+    for tick in 1..=max_ticks {
+        let out = ctrl.tick(&mut board);
+        while let Some(ev) = ctrl.poll_event() {
+            println!("E {ev:?}");
+            if matches!(ev, grasp::Event::Settled { .. }) {
+                println!("{}", board.truth("settled"));
+            }
+        }
+        let finished = ctl::finished(out.state);
+        if tick % decimation == 0 || finished {
+            println!(
+                "S tick={tick} theta_a_urad={} torque_unm={} ref_unm={} duty={} state={:?}",
+                out.theta_a_urad, out.torque_unm, out.torque_ref_unm, out.duty, out.state
+            );
+        }
+        board.advance();
+        while let Some(e) = board.plant.poll_event() {
+            println!("P {} t_us={}", e.kind.name(), (e.t_s * 1e6) as u32);
+        }
+        if out.estimate_ready {
+            if let Some(req) = ctrl.take_request() {
+                let result = ctl::run_estimate(&req);
+                ctrl.deliver(&mut board, result);
+                while let Some(ev) = ctrl.poll_event() {
+                    println!("E {ev:?}");
+                }
+            }
+        }
+        let state = ctrl.state();
+        if finished || ctl::finished(state) {
+            if !finished {
+                continue;
+            }
+            board.bridge_off();
+            println!("{}", board.truth("end"));
+            println!(
+                "END status={} state={:?} bridge_safe={} ticks={tick}",
+                ctl::status(out.state),
+                out.state,
+                board.off
+            );
+            return Ok(ctl::status(out.state));
+        }
+    }
+    println!("END status=3 state={:?} timeout", ctrl.state());
+    Ok(3)
+}

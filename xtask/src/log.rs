@@ -1,0 +1,71 @@
+//! The firmware's log lines (src/telemetry.rs) parsed back: `S` samples, `E` controller events,
+//! `P` plant events, `TRUTH`, `END`.
+
+use crate::qemu::Frame;
+
+/// One line for the terminal.
+pub fn show(f: &Frame) -> String {
+    match f.ts {
+        Some(ts) => format!("{ts:>8} {:<5} {}", f.level, f.msg),
+        None => format!("{:<5} {}", f.level, f.msg),
+    }
+}
+
+/// The value of `key=N` or `key: N` in a message.
+pub fn int(msg: &str, key: &str) -> Option<i64> {
+    for sep in ["=", ": "] {
+        let pat = format!("{key}{sep}");
+        let mut from = 0;
+        while let Some(pos) = msg[from..].find(&pat) {
+            let at = from + pos;
+            let before_ok = at == 0
+                || !msg.as_bytes()[at - 1].is_ascii_alphanumeric()
+                    && msg.as_bytes()[at - 1] != b'_';
+            let rest = &msg[at + pat.len()..];
+            let rest = rest.strip_prefix("Some(").unwrap_or(rest);
+            let num: String = rest
+                .chars()
+                .take_while(|c| c.is_ascii_digit() || *c == '-')
+                .collect();
+            if before_ok {
+                if let Ok(v) = num.parse() {
+                    return Some(v);
+                }
+            }
+            from = at + pat.len();
+        }
+    }
+    None
+}
+
+/// The word after `key=` (up to a space).
+pub fn word<'a>(msg: &'a str, key: &str) -> Option<&'a str> {
+    let pat = format!("{key}=");
+    let at = msg.find(&pat)?;
+    let rest = &msg[at + pat.len()..];
+    Some(rest.split(' ').next().unwrap_or(rest))
+}
+
+/// Controller event names (`E Name { .. }`), in order.
+pub fn events(frames: &[Frame]) -> Vec<String> {
+    frames
+        .iter()
+        .filter_map(|f| f.msg.strip_prefix("E "))
+        .map(|m| {
+            m.split(|c: char| !c.is_ascii_alphanumeric() && c != '_')
+                .next()
+                .unwrap_or("")
+                .to_string()
+        })
+        .collect()
+}
+
+/// The first frame whose message starts with `prefix`.
+pub fn first<'a>(frames: &'a [Frame], prefix: &str) -> Option<&'a Frame> {
+    frames.iter().find(|f| f.msg.starts_with(prefix))
+}
+
+/// The last frame whose message starts with `prefix`.
+pub fn last<'a>(frames: &'a [Frame], prefix: &str) -> Option<&'a Frame> {
+    frames.iter().rev().find(|f| f.msg.starts_with(prefix))
+}

@@ -1,0 +1,71 @@
+//! Small process helpers: every command is echoed before it runs and fails loudly.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitStatus};
+
+/// Result of an xtask step: `Err` carries a message for the user.
+pub type Res<T = ()> = Result<T, String>;
+
+/// The workspace root (the parent of xtask/).
+pub fn root() -> PathBuf {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    here.parent().unwrap_or(here).to_path_buf()
+}
+
+/// `cargo` (the one running this xtask when available), in the workspace root.
+pub fn cargo() -> Command {
+    let mut c = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
+    c.current_dir(root());
+    c
+}
+
+/// Shows a command the way a user would type it.
+pub fn show(cmd: &Command) -> String {
+    let mut s = String::new();
+    for (k, v) in cmd.get_envs() {
+        if let Some(v) = v {
+            s.push_str(&format!("{}={} ", k.to_string_lossy(), v.to_string_lossy()));
+        }
+    }
+    s.push_str(&cmd.get_program().to_string_lossy());
+    for a in cmd.get_args() {
+        s.push(' ');
+        s.push_str(&a.to_string_lossy());
+    }
+    s
+}
+
+/// Runs a command with inherited stdio; `Err` unless it exits 0.
+pub fn run(cmd: &mut Command) -> Res {
+    eprintln!("$ {}", show(cmd));
+    let status = cmd
+        .status()
+        .map_err(|e| format!("cannot start `{}`: {e}", show(cmd)))?;
+    check(cmd, status)
+}
+
+/// Runs a command and captures stdout; stderr is inherited. `Err` unless it exits 0.
+pub fn output(cmd: &mut Command) -> Res<String> {
+    eprintln!("$ {}", show(cmd));
+    let out = cmd
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .map_err(|e| format!("cannot start `{}`: {e}", show(cmd)))?;
+    check(cmd, out.status)?;
+    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn check(cmd: &Command, status: ExitStatus) -> Res {
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("`{}` failed ({status})", show(cmd)))
+    }
+}
+
+/// True when `prog` is on PATH.
+pub fn on_path(prog: &str) -> bool {
+    std::env::var_os("PATH")
+        .map(|p| std::env::split_paths(&p).any(|d| d.join(prog).is_file()))
+        .unwrap_or(false)
+}
