@@ -33,6 +33,14 @@ pub mod path;
 use crate::{Config, Model, PtsError, Real};
 use path::{PathFail, PathModel};
 
+/// Parameter indices of the fit: k2,c/l2, R/l2, T_f (N·m), θa,c (rad).
+const K: usize = 0;
+const RAD: usize = 1;
+const TF: usize = 2;
+const TC: usize = 3;
+/// Number of parameters.
+const NP: usize = 4;
+
 /// Largest number of θa bins.
 pub const MAX_BINS: usize = 12;
 /// Fewest bins with data the fit accepts.
@@ -50,6 +58,8 @@ pub const MAX_EVALS: usize = 24;
 /// One measurement: actuator angle and torque at the same instant.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PathSample<R> {
+    /// Time of the sample (s), any origin, increasing (used for the inertial correction).
+    pub time_s: R,
     /// θa, absolute model angle (rad).
     pub theta_a_rad: R,
     /// T_a at the actuator (N·m).
@@ -103,6 +113,16 @@ pub struct PathFitConfig {
     pub friction_prior_sigma_nm: f64,
     /// Refuse when the fitted contact ends within this fraction of l2 of the tip.
     pub tip_margin_frac_l2: f64,
+    /// Fit θa,c too, with this prior σ (rad) around the given value; ≤ 0 keeps θa,c fixed.
+    /// The finger's inertia carries it past the contact and the detection sees the kink
+    /// late, so the contact angle a controller reports can be off by several mrad; the
+    /// loading path, the free-motion curve and the friction prior pin it down.
+    pub contact_angle_sigma_rad: f64,
+    /// Drive inertia reflected to the actuator (kg·m²): rotor inertia × gear ratio². The
+    /// measured (current) torque also accelerates it, T_meas = T_path + J θ̈a + T_f, and the
+    /// finger on its contact stiffness is a slow oscillator (≈ 2 Hz for the paper's finger on
+    /// an RE10 with 3072:1), so θ̈a from the samples' second differences is removed. 0: off.
+    pub inertia_kgm2: f64,
 }
 
 impl PathFitConfig {
@@ -122,6 +142,8 @@ impl PathFitConfig {
         sigma_inflation: 1.5,
         friction_prior_sigma_nm: 0.003,
         tip_margin_frac_l2: 0.02,
+        contact_angle_sigma_rad: 0.02,
+        inertia_kgm2: 7.0e-9 * 3072.0 * 3072.0,
     };
 }
 
@@ -177,8 +199,12 @@ pub struct PathFit<R> {
     pub newton_iters: u32,
     /// Exact four-bar closures evaluated.
     pub closures: u16,
-    /// Configuration at contact (free motion from θa,c).
+    /// Configuration at contact (free motion from the fitted θa,c).
     pub contact_config: Config<R>,
+    /// The fitted actuator angle at contact (rad).
+    pub theta_a_c_rad: R,
+    /// σ of the fitted θa,c (rad).
+    pub sigma_theta_a_c_rad: R,
 }
 
 /// Why the path fit refused to answer.
@@ -253,32 +279,12 @@ impl std::error::Error for PathFitError {}
 #[derive(Clone, Copy, Debug)]
 struct Bin<R> {
     n: u32,
-    /// Mean Δθa since contact (rad).
+    /// Mean θa − θa,c (given) (rad).
     dta: R,
     /// Mean measured T_a (N·m).
     t: R,
     /// Normalised weight n / N.
     w: R,
-}
-
-/// The working state of one fit: bins and constants (≈ 0.6 KB with Fx32, see the README).
-struct Work<R> {
-    bins: [Bin<R>; MAX_BINS],
-    nb: usize,
-    /// Pooled within-bin variance of one sample (N·m²).
-    var_sample: R,
-    /// Total samples used.
-    n_total: u32,
-    /// 1 / N.
-    inv_n: R,
-    evals: usize,
-    /// Friction offset read from the approach (N·m) and its weight (0: no prior).
-    tf_prior: R,
-    w_prior: R,
-    /// [`TSCALE`] in the back end.
-    ks: R,
-    /// The last solved point of each bin, to warm-start the next hypothesis.
-    prev: [Option<Prev<R>>; MAX_BINS],
 }
 
 /// A solved path point kept for warm starts: hypothesis, configuration, sensitivities.
@@ -292,27 +298,30 @@ struct Prev<R> {
     sens_r: (R, R),
 }
 
-/// Result of one path evaluation at the bins.
-#[derive(Clone, Copy, Debug)]
-struct Eval<R> {
-    /// Normal matrix JᵀWJ for (k2c/l2, R/l2, T_f) (symmetric, upper part used).
-    a: [[R; 3]; 3],
-    /// JᵀW r.
-    g: [R; 3],
-    /// Σ w r² at the optimal T_f for these (k2c, R) (N·m²).
-    sse: R,
-    /// Weighted mean of (T_meas − T_path): the optimal friction offset (N·m).
-    tf: R,
-    /// Contact location at the last bin (m).
-    k2_last: R,
-    /// Path stiffness at the first point (N·m/rad).
-    k_first: R,
-    /// δφ, δ2 at the last bin (rad).
-    last: (R, R),
+/// The working state of one fit (bins, priors, warm starts); see the README for its size.
+struct Work<R> {
+    bins: [Bin<R>; MAX_BINS],
+    nb: usize,
+    /// Pooled within-bin variance of one sample ((mN·m)²).
+    var_sample: R,
+    /// Total samples used.
+    n_total: u32,
+    /// 1 / N.
+    inv_n: R,
+    evals: usize,
+    /// [`TSCALE`] in the back end.
+    ks: R,
+    /// Prior value and weight of each parameter (weight 0: none). T_f in N·m, θa,c in rad.
+    prior: [R; NP],
+    prior_w: [R; NP],
+    /// θa,c the bins are measured from (rad).
+    theta_a_c0: R,
+    /// The last solved point of each bin, to warm-start the next hypothesis.
+    prev: [Option<Prev<R>>; MAX_BINS],
 }
 
 impl<R: Real> Work<R> {
-    fn new() -> Self {
+    fn new(theta_a_c0: R) -> Self {
         let z = R::zero();
         Self {
             bins: [Bin {
@@ -326,12 +335,32 @@ impl<R: Real> Work<R> {
             n_total: 0,
             inv_n: z,
             evals: 0,
-            tf_prior: z,
-            w_prior: z,
             ks: R::from_f64(TSCALE),
+            prior: [z; NP],
+            prior_w: [z; NP],
+            theta_a_c0,
             prev: [None; MAX_BINS],
         }
     }
+}
+
+/// Result of one path evaluation at the bins.
+#[derive(Clone, Copy, Debug)]
+struct Eval<R> {
+    /// Normal matrix JᵀWJ (+ priors) for (k2c/l2, R/l2, T_f, θa,c), in (mN·m)² units.
+    a: [[R; NP]; NP],
+    /// Gradient of ½ Σ w r² (+ priors).
+    g: [R; NP],
+    /// Σ w r² at the optimal T_f, priors included ((mN·m)²).
+    sse: R,
+    /// Optimal friction offset (N·m).
+    tf: R,
+    /// Contact location at the last bin (m).
+    k2_last: R,
+    /// Path stiffness at the first bin (N·m/rad).
+    k_first: R,
+    /// δφ, δ2 at the last bin (rad).
+    last: (R, R),
 }
 
 /// Converts a small count to the back end without going through f64 arithmetic at run time.
@@ -351,12 +380,16 @@ fn from_count<R: Real>(n: u32) -> R {
 
 /// Fits the contact path.
 ///
-/// `theta_a_c_rad` is the actuator angle at contact (absolute model angle),
-/// `approach_torque_nm` the torque measured while the finger still moved freely just before
-/// contact (`None` if unknown: the friction offset is then fitted from the path alone), and
+/// `theta_a_c_rad` is the actuator angle at contact (absolute model angle) as the controller
+/// found it (refined by the fit when [`PathFitConfig::contact_angle_sigma_rad`] > 0),
+/// `approach_torque_nm` the torque measured on the free-motion (approach) line at that angle
+/// (`None` if unknown: the friction offset is then fitted from the path alone), and
 /// `samples` every (θa, T_a) from contact to the end of the step in time order (loading):
-/// any cloneable iterator (a slice's `iter().copied()`, or a map over the controller's own
-/// sample buffer, so no copy is needed). It is traversed three times.
+/// any cloneable, double-ended iterator (a slice's `iter().copied()`, or a map over the
+/// controller's own buffer, so no copy is needed). It is traversed backwards three times:
+/// a sample counts only while θa stays below every later sample (the lower envelope in
+/// time), which drops the inertial overshoot after impact and keeps one sample per
+/// stiction plateau.
 /// Returns the initial and final contact locations with σ, or why the path cannot determine
 /// them.
 pub fn fit_path<R: Real, I>(
@@ -368,88 +401,107 @@ pub fn fit_path<R: Real, I>(
 ) -> Result<PathFit<R>, PathFitError>
 where
     I: IntoIterator<Item = PathSample<R>>,
-    I::IntoIter: Clone,
+    I::IntoIter: Clone + DoubleEndedIterator,
 {
     let samples = samples.into_iter();
     if !theta_a_c_rad.is_finite() {
         return Err(PathFitError::Model(PtsError::NonFinite));
     }
     let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
+    let zero = R::zero();
     let mut pm = PathModel::new(model, theta_a_c_rad)?;
     let l2 = pm.l2();
-    let mut w = Work::new();
+    let mut w = Work::new(theta_a_c_rad);
     bin_samples(&mut w, cfg, theta_a_c_rad, samples)?;
 
-    // Initial k2,c from the chord stiffness of the first half of the bins, inverted at the
-    // contact configuration (the two-point estimate on the early path).
-    let contact_config = {
-        let mut c = pm.contact;
-        c.ta = pm.tac;
-        c
-    };
-    let k2_init = initial_k2(model, &contact_config, &w, l2);
     let noise_w = conv(cfg.torque_noise_floor_nm)?;
     let noise_s = noise_w * w.ks;
     let s2_bins = (w.var_sample * w.inv_n).max(noise_s * noise_s * w.inv_n);
+    let mut n_priors = 0u32;
     if let Some(tac) = approach_torque_nm {
         let sp = conv(cfg.friction_prior_sigma_nm)?;
         if !tac.is_finite() {
             return Err(PathFitError::Model(PtsError::NonFinite));
         }
-        if sp > R::zero() {
-            w.tf_prior = tac - pm.tac;
+        if sp > zero {
+            w.prior[TF] = tac - pm.tac;
             let sps = sp * w.ks;
-            w.w_prior = s2_bins / (sps * sps);
+            w.prior_w[TF] = s2_bins / (sps * sps);
+            n_priors += 1;
         }
     }
+    let sc = conv(cfg.contact_angle_sigma_rad)?;
+    let fit_contact = sc > zero;
+    if fit_contact {
+        w.prior[TC] = theta_a_c_rad;
+        w.prior_w[TC] = s2_bins / (sc * sc);
+        n_priors += 1;
+    }
 
-    let zero = R::zero();
+    // Initial k2,c from the chord stiffness of the first half of the bins, inverted at the
+    // contact configuration (the two-point estimate on the early path).
+    let k2_init = initial_k2(model, &pm.contact, &w, l2);
     let rmax = conv(cfg.max_radius_m)?;
-    // Vertex fit on (k2c, T_f).
-    let mut p = [k2_init, zero];
-    let vertex = lm(&mut pm, model, &mut w, &mut p)?;
-    let mut fit = vertex;
-    let mut k2c = p[0];
-    let mut radius = zero;
-    let mut object = FittedObject::Vertex;
+    let bounds = Bounds {
+        k_lo: l2 * R::from_f64(0.01),
+        l2,
+        rmax,
+        tc_lo: theta_a_c_rad - sc * R::from_f64(3.0),
+        tc_hi: theta_a_c_rad + sc * R::from_f64(3.0),
+    };
 
-    // Noise per unit weight: the larger of residual scatter and within-bin scatter.
+    // Vertex fit on (k2c, T_f[, θa,c]).
+    let mut p = [k2_init, zero, zero, theta_a_c_rad];
+    let vset = [true, false, true, fit_contact];
+    let vertex = lm(&mut pm, model, &mut w, &mut p, &vset, &bounds, 8)?;
+    let p_vertex = p;
+    let mut fit = vertex;
+    let mut pfit = p;
+    let mut object = FittedObject::Vertex;
+    let mut set = vset;
+
     let nb_r = from_count::<R>(w.nb as u32);
     let s2_of = |sse: R, npar: u32| -> R {
-        let dof = nb_r - from_count::<R>(npar);
-        let dof = dof.max(R::one());
+        let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
         (sse / dof).max(s2_bins)
     };
+    let count = |s: &[bool; NP]| s.iter().filter(|&&b| b).count() as u32;
 
-    // Marginal σ(R) at the vertex solution, from the 3-parameter normal matrix.
-    let s2v = s2_of(vertex.sse, 2);
-    let cov3 = invert3(&vertex.a);
-    let sigma_r_lin = match cov3 {
-        Some(c) => (c[1][1] * s2v).sqrt() * l2,
-        None => rmax,
+    // At the vertex solution: marginal σ(R) and the linearised step with R free.
+    let s2v = s2_of(vertex.sse, count(&vset));
+    let cset = [true, true, true, fit_contact];
+    let cov_c = invert_spd(&vertex.a, &cset);
+    let (sigma_r_lin, dk_lin, dr_lin) = match cov_c {
+        Some(c) => {
+            let step = |i: usize| -> R {
+                let mut acc = zero;
+                for (j, on) in cset.iter().enumerate() {
+                    if *on {
+                        acc = acc - c[i][j] * vertex.g[j];
+                    }
+                }
+                acc * l2
+            };
+            (
+                (c[RAD][RAD] * s2v).max(zero).sqrt() * l2,
+                step(K),
+                step(RAD),
+            )
+        }
+        None => (rmax, zero, zero),
     };
-    // What an unseen radius could do to k2c: regress the R column on (k2c, T_f) at the vertex
-    // solution (δk2c = per_r · R), for any R the data allow (≤ 3σ(R), ≤ Rmax).
-    let (sigma_kv, per_r) = match invert2(&[
-        [vertex.a[0][0], vertex.a[0][2]],
-        [vertex.a[2][0], vertex.a[2][2]],
-    ]) {
-        Some(c2) => (
-            (c2[0][0] * s2v).max(zero).sqrt() * l2,
-            -(c2[0][0] * vertex.a[0][1] + c2[0][1] * vertex.a[2][1]),
-        ),
-        None => return Err(PathFitError::NotDetermined),
-    };
+    // What an unseen radius could do to k2c: regress the R column on the vertex parameters
+    // (δk2c = per_r · R), for any R the data allow (≤ 3σ(R), ≤ Rmax).
+    let cov_v = invert_spd(&vertex.a, &vset).ok_or(PathFitError::NotDetermined)?;
+    let sigma_kv = (cov_v[K][K] * s2v).max(zero).sqrt() * l2;
+    let mut per_r = zero;
+    for (j, on) in vset.iter().enumerate() {
+        if *on {
+            per_r = per_r - cov_v[K][j] * vertex.a[j][RAD];
+        }
+    }
     let r_allowed = (sigma_r_lin * R::from_f64(3.0)).min(rmax);
     let bias_pot = (per_r * r_allowed).abs();
-    // The linearised (k2c, R, T_f) step off the vertex: does the data ask for a radius?
-    let (dk_lin, dr_lin) = match cov3 {
-        Some(c) => (
-            -(c[0][0] * vertex.g[0] + c[0][1] * vertex.g[1] + c[0][2] * vertex.g[2]) * l2,
-            -(c[1][0] * vertex.g[0] + c[1][1] * vertex.g[1] + c[1][2] * vertex.g[2]) * l2,
-        ),
-        None => (zero, zero),
-    };
     let want_radius = match cfg.object {
         ObjectModel::Vertex => false,
         ObjectModel::Cylinder => true,
@@ -460,43 +512,40 @@ where
             bias_pot > sigma_kv * R::from_f64(0.5) && dr_lin > sigma_r_lin && dr_lin > zero
         }
     };
-    let mut bias_k = zero;
+    let mut bias_k = bias_pot;
     if want_radius {
-        let mut pr = [
-            (k2c + dk_lin).max(l2 * R::from_f64(0.02)).min(l2),
-            dr_lin.max(zero).min(rmax),
-        ];
-        match lm3(&mut pm, model, &mut w, &mut pr, rmax) {
+        let mut pc = p_vertex;
+        pc[K] = (pc[K] + dk_lin).max(bounds.k_lo).min(l2);
+        pc[RAD] = dr_lin.max(zero).min(rmax);
+        match lm(&mut pm, model, &mut w, &mut pc, &cset, &bounds, 10) {
             Ok(e) if e.sse <= vertex.sse => {
                 fit = e;
-                k2c = pr[0];
-                radius = pr[1];
+                pfit = pc;
                 object = FittedObject::Cylinder;
+                set = cset;
+                bias_k = zero;
             }
             // The cylinder fit failed or is no better: keep the vertex, with the bias.
-            _ => bias_k = bias_pot,
+            _ => {
+                if fit_contact {
+                    pm.set_contact(model, p_vertex[TC])?;
+                }
+            }
         }
-    } else {
-        bias_k = bias_pot;
     }
+    let k2c = pfit[K];
+    let radius = pfit[RAD];
 
-    let npar = if object == FittedObject::Cylinder {
-        3
-    } else {
-        2
-    };
+    let npar = count(&set);
     let s2 = s2_of(fit.sse, npar);
-    let (var_k, var_r) = if object == FittedObject::Cylinder {
-        match invert3(&fit.a) {
-            Some(c) => (c[0][0] * s2, c[1][1] * s2),
-            None => return Err(PathFitError::NotDetermined),
-        }
+    let cov = invert_spd(&fit.a, &set).ok_or(PathFitError::NotDetermined)?;
+    let var_k = cov[K][K] * s2;
+    let var_r = if object == FittedObject::Cylinder {
+        cov[RAD][RAD] * s2
     } else {
-        match invert2(&[[fit.a[0][0], fit.a[0][2]], [fit.a[2][0], fit.a[2][2]]]) {
-            Some(c) => (c[0][0] * s2, sigma_r_lin * sigma_r_lin / (l2 * l2)),
-            None => return Err(PathFitError::NotDetermined),
-        }
+        sigma_r_lin * sigma_r_lin / (l2 * l2)
     };
+    let var_tc = if fit_contact { cov[TC][TC] * s2 } else { zero };
     let infl = conv(cfg.sigma_inflation)?;
     let floor = conv(cfg.sigma_floor_m)?;
     let sig_stat = var_k.max(zero).sqrt() * l2 * infl;
@@ -506,7 +555,7 @@ where
     let sigma_r = var_r.max(zero).sqrt() * l2;
     let chi2 = s2_of(fit.sse, npar) / s2_bins;
     let chi2_raw = {
-        let dof = (nb_r - from_count::<R>(npar)).max(R::one());
+        let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
         fit.sse / dof / s2_bins
     };
 
@@ -552,11 +601,89 @@ where
         path_evals: w.evals as u8,
         newton_iters: pm.newton_iters,
         closures: pm.closures,
-        contact_config,
+        contact_config: pm.contact,
+        theta_a_c_rad: pfit[TC],
+        sigma_theta_a_c_rad: var_tc.max(zero).sqrt(),
     })
 }
 
-fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone>(
+/// The samples backwards in time with the inertial torque J θ̈a removed (θ̈a from the
+/// second difference over each sample's neighbours; the end samples are left as they are).
+struct Corrected<R, I> {
+    it: I,
+    inertia: R,
+    /// The later sample and the current one (reverse order: `next` was seen first).
+    next: Option<PathSample<R>>,
+    cur: Option<PathSample<R>>,
+    done: bool,
+}
+
+impl<R: Real, I: Iterator<Item = PathSample<R>>> Iterator for Corrected<R, I> {
+    type Item = PathSample<R>;
+    fn next(&mut self) -> Option<PathSample<R>> {
+        loop {
+            if self.done {
+                // Flush the earliest sample uncorrected.
+                return self.cur.take();
+            }
+            let Some(prev) = self.it.next() else {
+                self.done = true;
+                continue;
+            };
+            let out = match (self.next, self.cur) {
+                (Some(n), Some(c)) => {
+                    let (dt1, dt2) = (c.time_s - prev.time_s, n.time_s - c.time_s);
+                    let span = n.time_s - prev.time_s;
+                    let mut s = c;
+                    if dt1 > R::zero() && dt2 > R::zero() && self.inertia > R::zero() {
+                        let v1 = (c.theta_a_rad - prev.theta_a_rad) / dt1;
+                        let v2 = (n.theta_a_rad - c.theta_a_rad) / dt2;
+                        let acc = (v2 - v1) * R::from_f64(2.0) / span;
+                        s.torque_nm = c.torque_nm - self.inertia * acc;
+                    }
+                    Some(s)
+                }
+                (None, Some(c)) => Some(c),
+                _ => None,
+            };
+            self.next = self.cur;
+            self.cur = Some(prev);
+            if out.is_some() {
+                return out;
+            }
+        }
+    }
+}
+
+fn corrected_rev<R: Real, I: DoubleEndedIterator<Item = PathSample<R>>>(
+    samples: I,
+    inertia: R,
+) -> Corrected<R, core::iter::Rev<I>> {
+    Corrected {
+        it: samples.rev(),
+        inertia,
+        next: None,
+        cur: None,
+        done: false,
+    }
+}
+
+/// The lower envelope in time of samples given backwards: a sample is kept when its θa is
+/// below every later sample's.
+fn envelope<R: Real, I: Iterator<Item = PathSample<R>>>(
+    samples: I,
+) -> impl Iterator<Item = PathSample<R>> {
+    let mut min: Option<R> = None;
+    samples.filter(move |s| {
+        let keep = min.is_none_or(|m| s.theta_a_rad < m);
+        if keep {
+            min = Some(s.theta_a_rad);
+        }
+        keep
+    })
+}
+
+fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedIterator>(
     w: &mut Work<R>,
     cfg: &PathFitConfig,
     theta_a_c: R,
@@ -578,20 +705,24 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone>(
     }
     let lo = theta_a_c + dead + travel * conv(cfg.skip_fraction)?;
     let width = (hi - lo) / from_count::<R>(nbins as u32);
-    // Half a bin of margin at the top so the final settled samples fall in the last bin.
-    let mut sum_t = [R::zero(); MAX_BINS];
-    let mut sum_th = [R::zero(); MAX_BINS];
-    let mut cnt = [0u32; MAX_BINS];
-    for s in samples.clone() {
-        if s.theta_a_rad < lo {
-            continue;
-        }
+    let bin_of = |th: R| -> usize {
         let mut edge = lo + width;
         let mut i = 0usize;
-        while i + 1 < nbins && s.theta_a_rad >= edge {
+        while i + 1 < nbins && th >= edge {
             edge = edge + width;
             i += 1;
         }
+        i
+    };
+    let mut sum_t = [R::zero(); MAX_BINS];
+    let mut sum_th = [R::zero(); MAX_BINS];
+    let mut cnt = [0u32; MAX_BINS];
+    let inertia = conv(cfg.inertia_kgm2)?;
+    for s in envelope(corrected_rev(samples.clone(), inertia)) {
+        if s.theta_a_rad < lo {
+            continue;
+        }
+        let i = bin_of(s.theta_a_rad);
         if let (Some(st), Some(sh), Some(c)) = (sum_t.get_mut(i), sum_th.get_mut(i), cnt.get_mut(i))
         {
             *st = *st + s.torque_nm;
@@ -599,7 +730,6 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone>(
             *c = c.saturating_add(1);
         }
     }
-    // Means, then a second pass for the within-bin variance (about the bin mean).
     let mut nb = 0usize;
     let mut total = 0u32;
     let mut idx_map = [usize::MAX; MAX_BINS];
@@ -626,20 +756,16 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone>(
     if nb < MIN_BINS {
         return Err(PathFitError::TooFewSamples);
     }
+    // Within-bin scatter about the bin mean (over-estimates the noise by the trend a little).
     let mut ss = R::zero();
-    for s in samples {
+    for s in envelope(corrected_rev(samples, inertia)) {
         if s.theta_a_rad < lo {
             continue;
         }
-        let mut edge = lo + width;
-        let mut i = 0usize;
-        while i + 1 < nbins && s.theta_a_rad >= edge {
-            edge = edge + width;
-            i += 1;
-        }
-        if let Some(b) = idx_map.get(i).and_then(|&j| w.bins.get(j)) {
-            // Remove the bin's trend: the local slope between neighbours is not known yet,
-            // so use the deviation from the bin mean (over-estimates the noise a little).
+        if let Some(b) = idx_map
+            .get(bin_of(s.theta_a_rad))
+            .and_then(|&j| w.bins.get(j))
+        {
             let d = (s.torque_nm - b.t) * w.ks;
             ss = ss + d * d;
         }
@@ -679,50 +805,57 @@ fn initial_k2<R: Real>(model: &Model<R>, cfg: &Config<R>, w: &Work<R>, l2: R) ->
     }
 }
 
-/// Evaluates the path at every bin for (k2c, R) and accumulates the normal equations.
+/// Evaluates the path at every bin for p = (k2c, R, ·, θa,c) (m, m, ·, rad) and accumulates
+/// the normal equations.
 fn evaluate<R: Real>(
     pm: &mut PathModel<R>,
     model: &Model<R>,
     w: &mut Work<R>,
-    k2c: R,
-    radius: R,
+    p: &[R; NP],
 ) -> Result<Eval<R>, PathFail> {
     w.evals += 1;
+    let (k2c, radius, tc) = (p[K], p[RAD], p[TC]);
+    if tc != pm.theta_a_c {
+        pm.set_contact(model, tc)?;
+        w.prev = [None; MAX_BINS];
+    }
+    let shift = tc - w.theta_a_c0;
     let l2 = pm.l2();
     let z = R::zero();
+    let ks = w.ks;
     let mut prev_pt: Option<(R, R, R, (R, R))> = None;
-    let mut a = [[z; 3]; 3];
-    let mut g = [z; 3];
-    // First pass: residuals r = T_meas − T_path (T_f not yet removed) and the columns.
     let mut tf = z;
     let mut k_first = z;
     let mut k2_last = z;
     let mut last = (z, z);
     let mut res = [z; MAX_BINS];
-    let mut jk = [z; MAX_BINS];
-    let mut jr = [z; MAX_BINS];
+    let mut cols = [[z; NP]; MAX_BINS];
     for (i, b) in w.bins.iter().take(w.nb).enumerate() {
+        let dta = b.dta - shift;
+        if !(dta > R::from_f64(1e-6)) {
+            return Err(PathFail::OutOfRange);
+        }
         // Warm start: this bin's point of the previous hypothesis moved by its sensitivities,
         // else the previous bin's point moved along its tangent, else the tangent at contact.
         let guess = match (w.prev.get(i).copied().flatten(), prev_pt) {
-            (Some(p), _) => {
-                let (dk, dr) = (k2c - p.k2c, radius - p.radius);
+            (Some(q), _) => {
+                let (dk, dr) = (k2c - q.k2c, radius - q.radius);
                 (
-                    p.dphi + p.sens_k.0 * dk + p.sens_r.0 * dr,
-                    p.d2 + p.sens_k.1 * dk + p.sens_r.1 * dr,
+                    q.dphi + q.sens_k.0 * dk + q.sens_r.0 * dr,
+                    q.d2 + q.sens_k.1 * dk + q.sens_r.1 * dr,
                 )
             }
             (None, Some((dta0, dphi0, d20, t))) => {
-                let step = b.dta - dta0;
+                let step = dta - dta0;
                 (dphi0 + t.0 * step, d20 + t.1 * step)
             }
             (None, None) => {
                 let t = pm.tangent(model, k2c, radius, z, z)?;
-                (t.0 * b.dta, t.1 * b.dta)
+                (t.0 * dta, t.1 * dta)
             }
         };
-        let pt = pm.point(model, k2c, radius, b.dta, guess)?;
-        prev_pt = Some((b.dta, pt.dphi, pt.d2, pt.tangent));
+        let pt = pm.point(model, k2c, radius, dta, guess)?;
+        prev_pt = Some((dta, pt.dphi, pt.d2, pt.tangent));
         if let Some(slot) = w.prev.get_mut(i) {
             *slot = Some(Prev {
                 k2c,
@@ -740,39 +873,39 @@ fn evaluate<R: Real>(
         last = (pt.dphi, pt.d2);
         let r = b.t - pt.ta;
         tf = tf + b.w * r;
-        if let (Some(x), Some(y), Some(q)) = (res.get_mut(i), jk.get_mut(i), jr.get_mut(i)) {
+        if let (Some(x), Some(c)) = (res.get_mut(i), cols.get_mut(i)) {
             *x = r;
-            // Jacobian of the model T (residual Jacobian is its negative), per unit l2.
-            *y = pt.dta_dk2c * l2;
-            *q = pt.dta_dr * l2;
+            // ∂T_model/∂p, in mN·m per (l2, l2, N·m, rad).
+            *c = [
+                pt.dta_dk2c * l2 * ks,
+                pt.dta_dr * l2 * ks,
+                ks,
+                (pm.kfree - pt.stiffness) * ks,
+            ];
         }
     }
     // Optimal offset with the approach prior: (Σ w r + w_p T_f,prior)/(1 + w_p) (Σ w = 1).
-    tf = (tf + w.w_prior * w.tf_prior) / (R::one() + w.w_prior);
-    let ks = w.ks;
-    let dp = (w.tf_prior - tf) * ks;
-    let mut sse = w.w_prior * dp * dp;
-    if let Some(row) = a.get_mut(2) {
-        if let Some(x) = row.get_mut(2) {
-            *x = *x + w.w_prior * ks * ks;
-        }
-    }
-    if let Some(x) = g.get_mut(2) {
-        *x = *x - w.w_prior * ks * dp;
-    }
-    for (i, b) in w.bins.iter().take(w.nb).enumerate() {
-        let (Some(&r0), Some(&y), Some(&q)) = (res.get(i), jk.get(i), jr.get(i)) else {
-            continue;
-        };
+    let wp = w.prior_w[TF];
+    tf = (tf + wp * w.prior[TF]) / (R::one() + wp);
+    let mut a = [[z; NP]; NP];
+    let mut g = [z; NP];
+    let dp = (w.prior[TF] - tf) * ks;
+    let mut sse = wp * dp * dp;
+    a[TF][TF] = wp * ks * ks;
+    g[TF] = -wp * ks * dp;
+    let wc = w.prior_w[TC];
+    let dc = w.prior[TC] - tc;
+    sse = sse + wc * dc * dc;
+    a[TC][TC] = wc;
+    g[TC] = -wc * dc;
+    for ((b, &r0), col) in w.bins.iter().take(w.nb).zip(res.iter()).zip(cols.iter()) {
         let r = (r0 - tf) * ks;
         sse = sse + b.w * r * r;
-        let col = [y * ks, q * ks, ks];
         for (ri, ci) in a.iter_mut().zip(col.iter()) {
             for (aij, cj) in ri.iter_mut().zip(col.iter()) {
                 *aij = *aij + b.w * *ci * *cj;
             }
         }
-        // g = −Jᵀ W r with J = −col: the step solves A δ = Σ w col r.
         for (gi, ci) in g.iter_mut().zip(col.iter()) {
             *gi = *gi - b.w * *ci * r;
         }
@@ -788,103 +921,47 @@ fn evaluate<R: Real>(
     })
 }
 
-/// Levenberg–Marquardt on (k2c, T_f) with R = 0 (`p = [k2c, unused]`).
+/// Parameter bounds of the fit.
+struct Bounds<R> {
+    k_lo: R,
+    l2: R,
+    rmax: R,
+    tc_lo: R,
+    tc_hi: R,
+}
+
+/// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
+/// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
+/// the global [`MAX_EVALS`].
 fn lm<R: Real>(
     pm: &mut PathModel<R>,
     model: &Model<R>,
     w: &mut Work<R>,
-    p: &mut [R; 2],
+    p: &mut [R; NP],
+    set: &[bool; NP],
+    b: &Bounds<R>,
+    iters: usize,
 ) -> Result<Eval<R>, PathFitError> {
-    let l2 = pm.l2();
     let z = R::zero();
-    let lo = l2 * R::from_f64(0.01);
-    let mut best = evaluate_or_shrink(pm, model, w, &mut p[0], z, lo, l2)?;
-    let step_tol = R::from_f64(STEP_TOL);
-    let mut mu = R::from_f64(1e-3);
-    let mut iter = 0usize;
-    while iter < 8 && w.evals < MAX_EVALS / 2 {
-        iter += 1;
-        // 2×2 on (k, T_f); T_f is eliminated in evaluate() but keep the coupling term.
-        let a00 = best.a[0][0] * (R::one() + mu);
-        let a02 = best.a[0][2];
-        let a22 = best.a[2][2] * (R::one() + mu);
-        let Some(c) = invert2(&[[a00, a02], [a02, a22]]) else {
-            break;
-        };
-        let dk = -(c[0][0] * best.g[0] + c[0][1] * best.g[2]);
-        // Converged: the Gauss–Newton step is below 2e-4 l2; do not pay for evaluating it.
-        if dk.abs() < step_tol {
-            break;
-        }
-        let trial = (p[0] + dk * l2).max(lo).min(l2);
-        match evaluate(pm, model, w, trial, z) {
-            Ok(e) if e.sse <= best.sse => {
-                let moved = (trial - p[0]).abs();
-                p[0] = trial;
-                best = e;
-                mu = (mu * R::from_f64(0.3)).max(R::from_f64(1e-6));
-                if moved < l2 * R::from_f64(1e-6) {
-                    break;
-                }
-            }
-            _ => {
-                mu = mu * R::from_f64(10.0);
-                if mu > R::from_f64(1e4) {
-                    break;
-                }
-            }
-        }
-    }
-    Ok(best)
-}
-
-/// Evaluates at k2c; when the path fails (past the tip, say), moves k2c toward the middle.
-fn evaluate_or_shrink<R: Real>(
-    pm: &mut PathModel<R>,
-    model: &Model<R>,
-    w: &mut Work<R>,
-    k2c: &mut R,
-    radius: R,
-    lo: R,
-    hi: R,
-) -> Result<Eval<R>, PathFitError> {
+    // First evaluation; a hypothesis whose path leaves the phalanx moves k2c inward.
     let mut tries = 0;
-    loop {
-        match evaluate(pm, model, w, *k2c, radius) {
-            Ok(e) => return Ok(e),
+    let mut best = loop {
+        match evaluate(pm, model, w, p) {
+            Ok(e) => break e,
             Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
-            Err(PathFail::PastTip) => *k2c = (*k2c + lo) * R::from_f64(0.5),
-            Err(_) => *k2c = (*k2c + hi) * R::from_f64(0.5),
+            Err(PathFail::PastTip) => p[K] = (p[K] + b.k_lo) * R::from_f64(0.5),
+            Err(_) => p[K] = (p[K] + b.l2) * R::from_f64(0.5),
         }
         tries += 1;
-        if tries >= 4 {
+        if tries >= 4 || w.evals >= MAX_EVALS {
             return Err(PathFitError::PastTip);
-        }
-    }
-}
-
-/// Levenberg–Marquardt on (k2c, R, T_f) (`p = [k2c, R]`), R clamped to [0, Rmax].
-fn lm3<R: Real>(
-    pm: &mut PathModel<R>,
-    model: &Model<R>,
-    w: &mut Work<R>,
-    p: &mut [R; 2],
-    rmax: R,
-) -> Result<Eval<R>, PathFitError> {
-    let l2 = pm.l2();
-    let z = R::zero();
-    let lo = l2 * R::from_f64(0.01);
-    let mut best = match evaluate(pm, model, w, p[0], p[1]) {
-        Ok(e) => e,
-        Err(_) => {
-            p[1] = z;
-            evaluate_or_shrink(pm, model, w, &mut p[0], z, lo, l2)?
         }
     };
     let step_tol = R::from_f64(STEP_TOL);
+    let tc_tol = R::from_f64(1e-5);
     let mut mu = R::from_f64(1e-3);
     let mut iter = 0usize;
-    while iter < 10 && w.evals < MAX_EVALS {
+    while iter < iters && w.evals < MAX_EVALS {
         iter += 1;
         let mut a = best.a;
         for (i, row) in a.iter_mut().enumerate() {
@@ -892,26 +969,31 @@ fn lm3<R: Real>(
                 *d = *d * (R::one() + mu);
             }
         }
-        let Some(c) = invert3(&a) else { break };
-        let g = best.g;
-        let dk = -(c[0][0] * g[0] + c[0][1] * g[1] + c[0][2] * g[2]) * l2;
-        let dr = -(c[1][0] * g[0] + c[1][1] * g[1] + c[1][2] * g[2]) * l2;
-        if dk.abs() < step_tol * l2 && dr.abs() < step_tol * l2 {
-            break;
-        }
-        let tk = (p[0] + dk).max(lo).min(l2);
-        let tr = (p[1] + dr).max(z).min(rmax);
-        match evaluate(pm, model, w, tk, tr) {
-            Ok(e) if e.sse <= best.sse => {
-                let moved = (tk - p[0]).abs() + (tr - p[1]).abs();
-                p[0] = tk;
-                p[1] = tr;
-                best = e;
-                mu = (mu * R::from_f64(0.3)).max(R::from_f64(1e-6));
-                if moved < l2 * R::from_f64(1e-6) {
-                    break;
+        let Some(c) = invert_spd(&a, set) else { break };
+        let mut d = [z; NP];
+        for (i, di) in d.iter_mut().enumerate() {
+            if set[i] {
+                for (j, on) in set.iter().enumerate() {
+                    if *on {
+                        *di = *di - c[i][j] * best.g[j];
+                    }
                 }
             }
+        }
+        if d[K].abs() < step_tol && d[RAD].abs() < step_tol && d[TC].abs() < tc_tol {
+            break;
+        }
+        let mut trial = *p;
+        trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
+        trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
+        trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
+        match evaluate(pm, model, w, &trial) {
+            Ok(e) if e.sse <= best.sse => {
+                *p = trial;
+                best = e;
+                mu = (mu * R::from_f64(0.3)).max(R::from_f64(1e-6));
+            }
+            Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
             _ => {
                 mu = mu * R::from_f64(10.0);
                 if mu > R::from_f64(1e4) {
@@ -920,67 +1002,73 @@ fn lm3<R: Real>(
             }
         }
     }
+    // Leave the path model at the accepted contact (a rejected trial may have moved it).
+    if p[TC] != pm.theta_a_c {
+        pm.set_contact(model, p[TC])?;
+        w.prev = [None; MAX_BINS];
+    }
     Ok(best)
 }
 
-/// Inverse of a symmetric positive 2×2 matrix, Jacobi-scaled (unit diagonal) first so that
-/// fixed point neither overflows nor loses the determinant.
-fn invert2<R: Real>(a: &[[R; 2]; 2]) -> Option<[[R; 2]; 2]> {
-    if !(a[0][0] > R::zero() && a[1][1] > R::zero()) {
-        return None;
-    }
-    let d = [R::one() / a[0][0].sqrt(), R::one() / a[1][1].sqrt()];
-    let b01 = a[0][1] * d[0] * d[1];
-    let det = R::one() - b01 * b01;
-    if !(det > R::from_f64(1e-7)) || !det.is_finite() {
-        return None;
-    }
-    let inv = R::one() / det;
-    Some([
-        [inv * d[0] * d[0], -b01 * inv * d[0] * d[1]],
-        [-b01 * inv * d[0] * d[1], inv * d[1] * d[1]],
-    ])
-}
-
-/// Inverse of a symmetric positive 3×3 matrix, Jacobi-scaled first (see [`invert2`]).
-fn invert3<R: Real>(a: &[[R; 3]; 3]) -> Option<[[R; 3]; 3]> {
-    if !(a[0][0] > R::zero() && a[1][1] > R::zero() && a[2][2] > R::zero()) {
-        return None;
-    }
-    let d = [
-        R::one() / a[0][0].sqrt(),
-        R::one() / a[1][1].sqrt(),
-        R::one() / a[2][2].sqrt(),
-    ];
-    let mut b = [[R::zero(); 3]; 3];
-    for (i, row) in b.iter_mut().enumerate() {
-        for (j, x) in row.iter_mut().enumerate() {
-            *x = if i == j {
-                R::one()
-            } else {
-                a[i][j] * d[i] * d[j]
-            };
+/// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
+/// elsewhere), Jacobi-scaled to a unit diagonal first so that fixed point neither overflows
+/// nor loses the pivots; Gauss–Jordan without pivoting (positive definite).
+#[allow(clippy::needless_range_loop)]
+fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; NP]> {
+    let z = R::zero();
+    let mut idx = [0usize; NP];
+    let mut n = 0usize;
+    for (i, on) in set.iter().enumerate() {
+        if *on {
+            idx[n] = i;
+            n += 1;
         }
     }
-    let c00 = b[1][1] * b[2][2] - b[1][2] * b[2][1];
-    let c01 = b[1][2] * b[2][0] - b[1][0] * b[2][2];
-    let c02 = b[1][0] * b[2][1] - b[1][1] * b[2][0];
-    let det = b[0][0] * c00 + b[0][1] * c01 + b[0][2] * c02;
-    if !(det > R::from_f64(1e-7)) || !det.is_finite() {
-        return None;
+    let mut d = [z; NP];
+    for k in 0..n {
+        let v = a[idx[k]][idx[k]];
+        if !(v > z) {
+            return None;
+        }
+        d[k] = R::one() / v.sqrt();
     }
-    let inv = R::one() / det;
-    let c10 = b[0][2] * b[2][1] - b[0][1] * b[2][2];
-    let c11 = b[0][0] * b[2][2] - b[0][2] * b[2][0];
-    let c12 = b[0][1] * b[2][0] - b[0][0] * b[2][1];
-    let c20 = b[0][1] * b[1][2] - b[0][2] * b[1][1];
-    let c21 = b[0][2] * b[1][0] - b[0][0] * b[1][2];
-    let c22 = b[0][0] * b[1][1] - b[0][1] * b[1][0];
-    let m = [[c00, c10, c20], [c01, c11, c21], [c02, c12, c22]];
-    let mut out = [[R::zero(); 3]; 3];
-    for (i, row) in out.iter_mut().enumerate() {
-        for (j, x) in row.iter_mut().enumerate() {
-            *x = m[i][j] * inv * d[i] * d[j];
+    // [B | I] with B = D A D.
+    let mut m = [[z; NP]; NP];
+    let mut inv = [[z; NP]; NP];
+    for i in 0..n {
+        for j in 0..n {
+            m[i][j] = if i == j {
+                R::one()
+            } else {
+                a[idx[i]][idx[j]] * d[i] * d[j]
+            };
+        }
+        inv[i][i] = R::one();
+    }
+    for k in 0..n {
+        let piv = m[k][k];
+        if !(piv > R::from_f64(1e-7)) {
+            return None;
+        }
+        let ip = R::one() / piv;
+        for j in 0..n {
+            m[k][j] = m[k][j] * ip;
+            inv[k][j] = inv[k][j] * ip;
+        }
+        for i in 0..n {
+            if i != k {
+                let f = m[i][k];
+                for j in 0..n {
+                    m[i][j] = m[i][j] - f * m[k][j];
+                    inv[i][j] = inv[i][j] - f * inv[k][j];
+                }
+            }
+        }
+    }
+    let mut out = [[z; NP]; NP];
+    for i in 0..n {
+        for j in 0..n {
+            out[idx[i]][idx[j]] = inv[i][j] * d[i] * d[j];
         }
     }
     Some(out)

@@ -106,6 +106,17 @@ struct Node<R> {
 pub struct PathModel<R> {
     /// The free-motion configuration at θa,c (the contact configuration).
     pub contact: Config<R>,
+    /// θa,c of that configuration (rad).
+    pub theta_a_c: R,
+    /// Free-motion stiffness at contact (N·m/rad).
+    pub kfree: R,
+    /// θ2 of the closure table's reference node (rad).
+    theta2b: R,
+    /// θ2,c − θ2b (rad).
+    off: R,
+    phi2: R,
+    theta01: R,
+    theta02: R,
     /// θ1 at contact (rad).
     pub theta1c: R,
     /// θ2 at contact (rad).
@@ -207,8 +218,18 @@ impl<R: Real> PathModel<R> {
                 dx2: cfg.dx2,
             });
         }
+        let k2p = conv(f.k2)? - cfg.ta * cfg.dx2;
+        let k1 = conv(f.k1)?;
+        let kfree = k1 * k2p / (k2p + k1 * cfg.x2 * cfg.x2);
         Ok(Self {
             contact: cfg,
+            theta_a_c,
+            kfree,
+            theta2b: cfg.theta2,
+            off: R::zero(),
+            phi2: conv(f.phi2)?,
+            theta01: conv(f.theta01)?,
+            theta02: conv(f.theta02)?,
             theta1c: cfg.theta1,
             theta2c: cfg.theta2,
             tac: cfg.ta,
@@ -240,6 +261,25 @@ impl<R: Real> PathModel<R> {
         })
     }
 
+    /// Moves the contact to another θa,c (the closure table is kept: it is indexed by θ2).
+    pub fn set_contact(&mut self, model: &Model<R>, theta_a_c: R) -> Result<(), PtsError> {
+        let cfg = model.free_from_theta_a(theta_a_c)?;
+        self.gamma_c = cfg.theta1 + cfg.theta2 - self.phi2 - theta_a_c;
+        let k2p = self.k2 - cfg.ta * cfg.dx2;
+        self.kfree = self.k1 * k2p / (k2p + self.k1 * cfg.x2 * cfg.x2);
+        self.contact = cfg;
+        self.theta_a_c = theta_a_c;
+        self.off = cfg.theta2 - self.theta2b;
+        self.theta1c = cfg.theta1;
+        self.theta2c = cfg.theta2;
+        self.tac = cfg.ta;
+        self.s2c = cfg.theta2.sin();
+        self.c2c = cfg.theta2.cos();
+        self.d1c = cfg.theta1 - self.theta01;
+        self.d2c = cfg.theta2 - self.theta02;
+        Ok(())
+    }
+
     /// Distal phalanx length (m).
     pub fn l2(&self) -> R {
         self.l2
@@ -251,8 +291,8 @@ impl<R: Real> PathModel<R> {
             Some(None) => {}
             None => return Err(PathFail::OutOfRange),
         }
-        // θ2 of node i: θ2c + (i − NODES_BELOW) h, built by repeated addition (no int→Real).
-        let mut th = self.theta2c;
+        // θ2 of node i: θ2b + (i − NODES_BELOW) h, built by repeated addition (no int→Real).
+        let mut th = self.theta2b;
         let mut k = 0usize;
         while k < NODES_BELOW {
             th = th - self.h;
@@ -279,6 +319,7 @@ impl<R: Real> PathModel<R> {
     /// γ(θ2c+δ2) − γc, x2 and dx2/dθ2 by cubic Hermite interpolation of the table.
     fn closure_at(&mut self, model: &Model<R>, d2: R) -> Result<(R, R, R), PathFail> {
         let mut lo = -(self.h + self.h);
+        let d2 = d2 + self.off;
         if !d2.is_finite() || d2 > self.max_delta || d2 < lo {
             return Err(PathFail::OutOfRange);
         }

@@ -10,6 +10,13 @@ use pts::{Finger, Model};
 
 const L2: f64 = 0.075;
 
+/// The synthetic board is quasi-static (no drive inertia) and reports θa,c exactly.
+const SYNTH: PathFitConfig = PathFitConfig {
+    inertia_kgm2: 0.0,
+    contact_angle_sigma_rad: 0.0,
+    ..PathFitConfig::DEFAULT
+};
+
 /// Reference quasi-static path: θa and k2 at torques ta_c .. ta_c+dta (n+1 points).
 struct RefPath {
     ta: Vec<f64>,
@@ -177,6 +184,7 @@ fn board_samples(
             theta = theta.max(interp(p, cmd - b.friction_nm));
         }
         out.push(PathSample {
+            time_s: i as f64 * 1e-3,
             theta_a_rad: q(theta),
             torque_nm: cmd + b.noise_nm * rng.gauss(),
         });
@@ -211,7 +219,7 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
     let m = Model::<f64>::paper().unwrap();
     let ta_c = 0.6895 * (1.2797 - core::f64::consts::FRAC_PI_4);
     let theta_a_c = m.free_from_torque(ta_c).unwrap().theta_a;
-    let cfg = PathFitConfig::DEFAULT;
+    let cfg = SYNTH;
     let mut st = Stats {
         n: 0,
         refused: 0,
@@ -247,6 +255,7 @@ fn run_grid(board: Board, seeds: u64, print: bool) -> Stats {
                         fx(theta_a_c),
                         Some(fx(tc_meas)),
                         samples.iter().map(|s| PathSample {
+                            time_s: fx(s.time_s),
                             theta_a_rad: fx(s.theta_a_rad),
                             torque_nm: fx(s.torque_nm),
                         }),
@@ -421,19 +430,21 @@ fn realistic_grid() {
 #[test]
 fn refuses_garbage_without_panicking() {
     let m = Model::<f64>::paper().unwrap();
-    let cfg = PathFitConfig::DEFAULT;
+    let cfg = SYNTH;
     let th = -0.2;
     assert_eq!(
         fit_path(&m, &cfg, th, None, []).unwrap_err(),
         PathFitError::NoMotion
     );
     let nan = [PathSample {
+        time_s: 0.0,
         theta_a_rad: f64::NAN,
         torque_nm: 0.0,
     }];
     assert!(fit_path(&m, &cfg, th, None, nan).is_err());
     let flat: Vec<_> = (0..100)
         .map(|i| PathSample {
+            time_s: i as f64,
             theta_a_rad: th + 1e-3 * i as f64,
             torque_nm: 5.0,
         })
@@ -455,12 +466,13 @@ fn table2_like_case_decimated_to_128_samples() {
     let samples: Vec<PathSample<f64>> = raw
         .chunks(6)
         .map(|c| PathSample {
+            time_s: c[0].time_s,
             theta_a_rad: c.iter().map(|s| s.theta_a_rad).sum::<f64>() / c.len() as f64,
             torque_nm: c.iter().map(|s| s.torque_nm).sum::<f64>() / c.len() as f64,
         })
         .collect();
     assert_eq!(samples.len(), 128);
-    let cfg = PathFitConfig::DEFAULT;
+    let cfg = SYNTH;
     let f = fit_path(&m, &cfg, theta_a_c, Some(tc_meas), samples.iter().copied()).unwrap();
     assert!((f.k2_contact_m - k2c).abs() < 0.02 * L2, "{f:?}");
     let mfx = Model::<pts::FirmwareReal>::paper().unwrap();
@@ -471,6 +483,7 @@ fn table2_like_case_decimated_to_128_samples() {
         fx(theta_a_c),
         Some(fx(tc_meas)),
         samples.iter().map(|s| PathSample {
+            time_s: fx(s.time_s),
             theta_a_rad: fx(s.theta_a_rad),
             torque_nm: fx(s.torque_nm),
         }),
