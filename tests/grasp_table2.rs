@@ -62,3 +62,15 @@ fn drive_constants_agree_with_the_plant() {
     let p = plant::Plant::new(&scene).unwrap();
     assert!((mine.theta_a_rest_rad - p.theta_a_rest_rad()).abs() < 1e-6);
 }
+
+#[test]
+fn table2_realistic_prints() {
+    let scene = plant::scenes::table2();
+    for dta in [0.1, 0.2, 0.5, 0.8] {
+        let o = run(&scene, config(&scene, dta), 15.0, 0.0, |_, _, _| {});
+        println!(
+            "realistic dta {dta}: {:?} {:?} plant {:?} settled truth {:?}",
+            o.state, o.estimate, o.plant_events, o.truth_settled
+        );
+    }
+}

@@ -111,6 +111,8 @@ pub struct Outcome {
     pub second_contact_s: Option<f64>,
     /// Controller events, in order.
     pub events: Vec<Event>,
+    /// Plant truth at each controller event.
+    pub event_truth: Vec<Truth>,
     /// Plant events, in order.
     pub plant_events: Vec<plant::Event>,
     /// Bridge off at the end.
@@ -141,6 +143,7 @@ pub fn run(
         detected_s: None,
         second_contact_s: None,
         events: Vec::new(),
+        event_truth: Vec::new(),
         plant_events: Vec::new(),
         bridge_off: true,
         t_end_s: 0.0,
@@ -179,6 +182,7 @@ pub fn run(
                 out.detected_s = Some(t);
             }
             out.events.push(e);
+            out.event_truth.push(hw.plant.truth());
         }
         hw.advance();
         while let Some(e) = hw.plant.poll_event() {

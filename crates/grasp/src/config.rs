@@ -138,8 +138,9 @@ pub struct ControllerConfig {
     pub settle_timeout_s: f64,
     /// The estimate must be delivered within this time after the request (s).
     pub estimate_timeout_s: f64,
-    /// Largest stiffness of one contact (N·m/rad): above it over a window during the step,
-    /// the finger has touched a second time (it is locked).
+    /// Largest stiffness of one contact (N·m/rad): a step stiffer than this (which the
+    /// estimator also finds beyond a tip contact) means the finger touched a second time and
+    /// is locked. Between the tip stiffness and this, the estimate is out of range.
     pub second_contact_stiffness_nm_per_rad: f64,
     /// Loss of contact: θa moving beyond (T − T_c)/K_detect + this margin (rad).
     pub loss_margin_rad: f64,
@@ -168,22 +169,22 @@ impl ControllerConfig {
         calib_s: 0.02,
         calib_max_offset_codes: 200,
         approach_rate_nm_per_s: 0.15,
-        approach_speed_max_rad_s: 0.15,
+        approach_speed_max_rad_s: 0.25,
         damping_nm_s_per_rad: 1.0,
         approach_max_nm: 1.5,
         sample_s: 4e-3,
-        detect_window: 5,
+        detect_window: 10,
         detect_confirm: 2,
         detect_stiffness_nm_per_rad: 1.5,
-        detect_min_rise_nm: 0.01,
+        detect_min_rise_nm: 0.003,
         detect_arm_rad: 2e-3,
         seat_above_nm: 0.01,
         delta_ta_nm: 0.2,
         step_shape: StepShape::Ramp(1.0),
         settle_window: 25,
-        settle_band_rad: 2.0e-4,
+        settle_band_rad: 5.0e-5,
         settle_min_s: 0.05,
-        settle_timeout_s: 3.0,
+        settle_timeout_s: 6.0,
         estimate_timeout_s: 1.0,
         second_contact_stiffness_nm_per_rad: 80.0,
         loss_margin_rad: 0.02,

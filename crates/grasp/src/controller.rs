@@ -52,7 +52,8 @@ pub enum FaultReason {
     SettleTimeout,
     /// The estimate was not delivered within the timeout.
     EstimateTimeout,
-    /// A second contact: the stiffness during the step rose above that of any single contact.
+    /// A second contact: the stiffness over the second half of the step (and K̂c beyond a
+    /// tip contact) is above that of any single contact: the finger is locked.
     SecondContact {
         /// The stiffness seen (µN·m/rad).
         kc_unm_per_rad: i32,
@@ -469,18 +470,34 @@ impl Controller {
                     }
                 }
             }
-            Err(PtsError::BeyondTip) => {
-                // Stiffer than any single contact on the distal phalanx: the finger is
+            Err(PtsError::BeyondTip) if self.kc_locked() => {
+                // Far stiffer than any single contact on the distal phalanx: the finger is
                 // blocked at two points.
-                self.fault(
-                    hw,
-                    FaultReason::SecondContact {
-                        kc_unm_per_rad: i32::MAX,
-                    },
-                );
+                let kc_unm_per_rad = self.kc_late_unm_per_rad();
+                self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad });
             }
             Err(error) => self.fault(hw, FaultReason::EstimateOutOfRange { error }),
         }
+    }
+
+    /// Stiffness (µN·m/rad) of the second half of the step, seated again → settled:
+    /// (T_end − T_seat2)/(θ_end − θ_seat2), saturating. A second contact shows there.
+    fn kc_late_unm_per_rad(&self) -> i32 {
+        let dt = i64::from(self.end.torque_unm) - i64::from(self.seat2.torque_unm);
+        let dth = i64::from(self.end.theta_a_urad) - i64::from(self.seat2.theta_a_urad);
+        if dth <= 0 {
+            return i32::MAX;
+        }
+        sat_i32(
+            dt.saturating_mul(1_000_000)
+                .checked_div(dth)
+                .unwrap_or(i64::MAX),
+        )
+    }
+
+    /// Whether the step's late stiffness says "locked" (above the second-contact threshold).
+    fn kc_locked(&self) -> bool {
+        i64::from(self.kc_late_unm_per_rad()) > self.p.second_k_unm_per_rad
     }
 
     /// One control period. Reads the sensors once, advances the state machine, writes the

@@ -150,7 +150,7 @@ pub fn run_estimate_with<R: Real>(
     let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
     let th2 = conv(f64::from(req.end.theta_a_urad) * 1e-6)?;
     let t2 = conv(f64::from(req.end.torque_unm) * 1e-6)?;
-    let (theta_c, ta_c) = contact_point(req);
+    let (theta_c, ta_c) = contact_point_model(model, req).unwrap_or_else(|| contact_point(req));
     let est = model.estimate_two_point(conv(theta_c)?, conv(ta_c)?, th2, t2)?;
     let c = est.contact;
     let micro = |v: R| -> i32 { to_micro(v.to_f64()) };
@@ -221,6 +221,86 @@ pub fn back_date(req: &EstimateRequest, free: (f64, f64), b: f64) -> Option<(f64
         return None;
     }
     Some((th, t))
+}
+
+/// The parabola θa(T_a) (rad, N·m) through the three static points after contact
+/// (seated, seated again, settled), as a closure; `None` when they are not ordered in T_a.
+fn path_parabola(req: &EstimateRequest) -> Option<impl Fn(f64) -> f64> {
+    let pt = |s: &Sample| {
+        (
+            f64::from(s.torque_unm) * 1e-6,
+            f64::from(s.theta_a_urad) * 1e-6,
+        )
+    };
+    let (t1, th1) = pt(&req.seat);
+    let (tb, thb) = pt(&req.seat2);
+    let (t2, th2) = pt(&req.end);
+    if !(tb - t1 > 1e-4 && t2 - tb > 1e-4) {
+        return None;
+    }
+    let s1b = (thb - th1) / (tb - t1);
+    let sb2 = (th2 - thb) / (t2 - tb);
+    let c2 = (sb2 - s1b) / (t2 - t1);
+    Some(move |t: f64| th1 + s1b * (t - t1) + c2 * (t - t1) * (t - tb))
+}
+
+/// The contact point (θa,c rad, T_a,c N·m) from the model's free-motion curve.
+///
+/// The measured free motion before the impact gives the offset between the measured torque
+/// and the model's free-motion torque at the same θa (transmission friction while moving,
+/// current-gain error); the contact is where the path after contact, extrapolated back by
+/// the parabola through the three static points, meets that shifted free-motion curve.
+/// `None` when a solve fails (the caller falls back to [`contact_point`]).
+pub fn contact_point_model<R: Real>(model: &Model<R>, req: &EstimateRequest) -> Option<(f64, f64)> {
+    let t_free = |th: f64| -> Option<f64> {
+        let c = model.free_from_theta_a(R::try_from_f64(th)?).ok()?;
+        Some(c.ta.to_f64())
+    };
+    let guard = u64::from(req.sample_ticks.max(1));
+    let kt = u64::from(req.contact.tick);
+    let before = req
+        .pre
+        .iter()
+        .filter(|s| u64::from(s.tick) <= kt + guard / 2);
+    let n_before = before.clone().count();
+    let mut sum = 0.0;
+    let mut n = 0u32;
+    for s in before.skip(n_before.saturating_sub(FIT_SAMPLES)) {
+        let tf = t_free(f64::from(s.theta_a_urad) * 1e-6)?;
+        sum += f64::from(s.torque_unm) * 1e-6 - tf;
+        n += 1;
+    }
+    if n < 3 {
+        return None;
+    }
+    let offset = sum / f64::from(n);
+    let q = path_parabola(req)?;
+    // h(T) = T − offset − T_free(q(T)) = 0, secant from the seated torque downwards.
+    let h = |t: f64| -> Option<f64> { Some(t - offset - t_free(q(t))?) };
+    let t1 = f64::from(req.seat.torque_unm) * 1e-6;
+    let (mut a, mut b) = (t1, t1 - 0.01);
+    let (mut ha, mut hb) = (h(a)?, h(b)?);
+    for _ in 0..12 {
+        let d = hb - ha;
+        if !(d.abs() > 1e-15) {
+            break;
+        }
+        let c = b - hb * (b - a) / d;
+        a = b;
+        ha = hb;
+        b = c;
+        hb = h(b)?;
+        if hb.abs() < 1e-7 {
+            break;
+        }
+    }
+    let th = q(b);
+    let th1 = f64::from(req.seat.theta_a_urad) * 1e-6;
+    let plausible = hb.abs() < 1e-5 && b <= t1 + 1e-3 && b > t1 - 0.2 && th <= th1 + 1e-4;
+    if !plausible {
+        return None;
+    }
+    Some((th, b))
 }
 
 /// The contact point (θa,c rad, T_a,c N·m).
