@@ -27,6 +27,10 @@ fn free_running_speed_matches_hand_computation() {
     for _ in 0..3000 {
         d.advance(&mut st, Input::Duty(1.0), &load, 0.0, d.r_ohm, 100e-6);
     }
+    println!(
+        "free-running: ω = {:.2} rad/s, hand {hand:.2}",
+        st.speed_rad_s
+    );
     assert!(
         (st.speed_rad_s - hand).abs() / hand < 1e-3,
         "ω = {} vs {hand}",
@@ -98,6 +102,10 @@ fn stall_torque_is_n_eta_kt_i_within_friction() {
     let hand: f64 = 3072.0 * 0.6175 * 4.5e-3 * -0.05;
     assert!((hand - -0.426_83).abs() < 1e-4);
     let band = 3072.0 * 0.6175 * 60e-6;
+    println!(
+        "stall: T = {:.5} N·m, N·η·kt·i = {hand:.5} ± {band:.4}",
+        t.torque_a_nm
+    );
     assert!(
         (t.torque_a_nm - hand).abs() <= band + 1e-9,
         "T = {} vs {hand} ± {band}",
@@ -135,6 +143,7 @@ fn backlash_is_a_dead_band_on_reversal() {
     }
     let span = band_counts.iter().max().unwrap() - band_counts.iter().min().unwrap();
     let hand = 3.0e-3 * 3072.0 * 64.0 / std::f64::consts::TAU;
+    println!("backlash dead band: {span} counts, hand {hand:.1}");
     assert!(
         (span as f64 - hand).abs() <= 3.0,
         "dead band {span} counts vs {hand:.1}"

@@ -31,6 +31,7 @@ fn stiffness_at_contact_matches_model_md() {
     let mid_cyl = kc(spec(t1, Phalanx::Distal, 0.02927, 0.05));
     let prox = kc(spec(t1, Phalanx::Proximal, 0.05, 0.0));
     let tip = kc(spec(t1, Phalanx::Distal, 0.075 - 1e-6, 0.0));
+    println!("K_c at contact: k2=2.927cm vertex {mid:.5}, R=5cm {mid_cyl:.5}, proximal {prox:.5}, tip {tip:.5}");
     assert!(rel(mid, 6.7249) < 2e-4, "K_c = {mid}");
     // At f = 0 the curvature does not matter (Γ = J for a vertex and a cylinder).
     assert!(rel(mid_cyl, 6.7249) < 2e-4, "K_c cylinder = {mid_cyl}");
@@ -204,5 +205,6 @@ fn time_stepped_plant_follows_the_table2_path() {
     let th = hit.expect("torque never reached T_a,c + 0.8");
     assert!(checked > 1000);
     let dth = th - -0.223_771_185;
+    println!("time-stepped plant: Δθa = {dth:.7} at T_a,c + 0.8 ({checked} contact steps checked)");
     assert!(rel(dth, 0.080_281_4) < 1e-4, "Δθa = {dth}");
 }
