@@ -1,16 +1,20 @@
 //! The `pts` host tool as a library: each subcommand is a module with plain functions, so the
 //! integration tests call the same code the binary runs.
 
+pub mod estimate_cmd;
 pub mod eval;
 pub mod path;
 pub mod plot;
+pub mod replay;
+pub mod sim;
+pub mod sim_cmd;
+pub mod trace;
 
 use pts::config::FingerFile;
 use std::path::Path;
 
-/// The numeric type `pts eval --numeric fixed` runs: the firmware's back end. A stand-in
-/// (`f32`, the other target back end) until `pts::fixed` lands in the workspace.
-pub type FixedReal = f32;
+/// The numeric type `pts eval --numeric fixed` runs: the firmware's back end.
+pub type FixedReal = pts::FirmwareReal;
 
 /// Loads a finger description, or the paper's prototype when no file is given.
 pub fn load_finger(path: Option<&Path>) -> Result<FingerFile, String> {

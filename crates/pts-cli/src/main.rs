@@ -27,6 +27,44 @@ enum Cmd {
         #[arg(long, value_enum, default_value = "f64")]
         numeric: Numeric,
     },
+    /// Run the grasp controller closed loop against the simulated finger; print events and the
+    /// estimate against the truth. With --sweep, a grid of objects × ΔT_a and its error table.
+    Sim(SimArgs),
+    /// Replay a recorded grasp (CSV) through the controller and estimator the firmware runs.
+    ///
+    /// The CSV needs a header with at least t_s,theta_a_rad,torque_nm (or current_a instead of
+    /// torque_nm); other columns are ignored. Prints the contact found: time, phalanx, k2,
+    /// K̂c, ΔT_a, Δθa and any fault.
+    Estimate {
+        /// The recorded grasp (CSV).
+        #[arg(long)]
+        trace: PathBuf,
+        /// Finger description (TOML); default: the paper's prototype.
+        #[arg(long)]
+        finger: Option<PathBuf>,
+        /// The controller's torque step ΔT_a (N·m); default: from the `# pts-sim` line of the
+        /// trace, else 0.2.
+        #[arg(long)]
+        dta: Option<f64>,
+        /// Control period (s); default: from the trace.
+        #[arg(long)]
+        dt_s: Option<f64>,
+        /// Machine-readable output (one JSON object).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Turn a decoded defmt log (text) into a trace CSV for `pts estimate` and `pts plot`.
+    Trace {
+        /// The decoded defmt log (text, one message per line); `-` for stdin.
+        #[arg(long = "from-defmt")]
+        from_defmt: PathBuf,
+        /// Output CSV; default: stdout.
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Finger description (for current → torque); default: the paper's prototype.
+        #[arg(long)]
+        finger: Option<PathBuf>,
+    },
     /// Figures as PNG or SVG (by the extension of --out).
     Plot {
         #[command(subcommand)]
@@ -40,8 +78,84 @@ enum Cmd {
     },
 }
 
+#[derive(clap::Args)]
+struct SimArgs {
+    /// Built-in scene name (see --list) or a scene TOML file (crates/plant/scenes/).
+    #[arg(long, default_value = "table2")]
+    scene: String,
+    /// List the built-in scenes and exit.
+    #[arg(long)]
+    list: bool,
+    /// Torque step after contact ΔT_a (N·m); a list with --sweep.
+    #[arg(long, value_delimiter = ',', default_value = "0.2")]
+    dta: Vec<f64>,
+    /// Write every control tick to this CSV (input of `pts estimate` and `pts plot signals`).
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Also draw the grasp signals (or, with --sweep, the error heat map) to this .png/.svg.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Machine-readable output (one JSON object).
+    #[arg(long)]
+    json: bool,
+    /// Simulated time limit per grasp (s).
+    #[arg(long, default_value = "10")]
+    max_s: f64,
+    /// Run a grid: every object radius × contact location × ΔT_a on the Table 2 approach.
+    #[arg(long)]
+    sweep: bool,
+    /// Sweep: object radii (cm; 0 = a vertex).
+    #[arg(long, value_delimiter = ',', default_value = "0,1,5")]
+    radii_cm: Vec<f64>,
+    /// Sweep: contact locations on the distal phalanx (% of l2).
+    #[arg(long, value_delimiter = ',', default_value = "10,30,50,70,90")]
+    k2_pct: Vec<f64>,
+    /// Sweep: use the ideal drive and sensors (no friction, backlash, noise).
+    #[arg(long)]
+    ideal: bool,
+}
+
 #[derive(Subcommand)]
 enum PlotCmd {
+    /// A grasp over time (θa, T_a, running K̂c, controller state), like the paper's Figs. 5 and 9.
+    ///
+    /// The trace is replayed through the firmware's controller to find the contact and the
+    /// estimate it would make.
+    Signals {
+        /// The recorded grasp (CSV, as written by `pts sim --csv` or `pts trace`).
+        #[arg(long)]
+        trace: PathBuf,
+        /// Finger description (TOML); default: the paper's prototype.
+        #[arg(long)]
+        finger: Option<PathBuf>,
+        /// ΔT_a of the controller (N·m); default: from the trace, else 0.2.
+        #[arg(long)]
+        dta: Option<f64>,
+        /// Start of the time window (s); e.g. shortly before contact.
+        #[arg(long)]
+        from_s: Option<f64>,
+        /// End of the time window (s).
+        #[arg(long)]
+        to_s: Option<f64>,
+        /// Output file (.png or .svg).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Image size in px, WIDTHxHEIGHT.
+        #[arg(long, default_value = "1200x900")]
+        size: pts_cli::plot::Size,
+    },
+    /// The error table of `pts sim --sweep --json` as a heat map.
+    Heat {
+        /// The JSON written by `pts sim --sweep --json`.
+        #[arg(long)]
+        sweep: PathBuf,
+        /// Output file (.png or .svg).
+        #[arg(long, short)]
+        out: PathBuf,
+        /// Image size in px, WIDTHxHEIGHT.
+        #[arg(long, default_value = "1000x700")]
+        size: pts_cli::plot::Size,
+    },
     /// K_c(k2) along the distal phalanx at free-motion contact configurations.
     Kc {
         /// Finger description (TOML); default: the paper's prototype.
@@ -66,6 +180,19 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
         Cmd::Eval { finger, numeric } => run_eval(finger, numeric),
+        Cmd::Sim(args) => pts_cli::sim_cmd::run(&args.into()),
+        Cmd::Estimate {
+            trace,
+            finger,
+            dta,
+            dt_s,
+            json,
+        } => pts_cli::estimate_cmd::run(&trace, finger.as_deref(), dta, dt_s, json),
+        Cmd::Trace {
+            from_defmt,
+            out,
+            finger,
+        } => pts_cli::estimate_cmd::from_defmt(&from_defmt, out.as_deref(), finger.as_deref()),
         Cmd::Plot { what } => run_plot(what),
         Cmd::Finger { finger } => {
             pts_cli::load_finger(finger.as_deref()).map(|f| print!("{}", f.to_toml_string()))
@@ -126,6 +253,41 @@ fn run_plot(what: PlotCmd) -> Result<(), String> {
             plot::kc_curve(&out, size, &title, file.finger.l2, &curves, mark)?;
             eprintln!("wrote {}", out.display());
             Ok(())
+        }
+        PlotCmd::Signals {
+            trace,
+            finger,
+            dta,
+            from_s,
+            to_s,
+            out,
+            size,
+        } => pts_cli::estimate_cmd::plot_signals(
+            &trace,
+            finger.as_deref(),
+            dta,
+            (from_s, to_s),
+            &out,
+            size,
+        ),
+        PlotCmd::Heat { sweep, out, size } => pts_cli::sim_cmd::plot_heat(&sweep, &out, size),
+    }
+}
+
+impl From<SimArgs> for pts_cli::sim_cmd::Args {
+    fn from(a: SimArgs) -> Self {
+        pts_cli::sim_cmd::Args {
+            scene: a.scene,
+            list: a.list,
+            dta: a.dta,
+            csv: a.csv,
+            plot: a.plot,
+            json: a.json,
+            max_s: a.max_s,
+            sweep: a.sweep,
+            radii_cm: a.radii_cm,
+            k2_pct: a.k2_pct,
+            ideal: a.ideal,
         }
     }
 }

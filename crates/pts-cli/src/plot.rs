@@ -294,6 +294,7 @@ pub struct Signals {
 fn state_color(name: &str) -> RGBColor {
     match name {
         "approach" => RGBColor(222, 235, 247),
+        "seating" => RGBColor(239, 237, 245),
         "step" => RGBColor(254, 230, 206),
         "settling" => RGBColor(253, 208, 162),
         "estimating" => RGBColor(229, 245, 224),
@@ -400,10 +401,22 @@ fn draw_signals<DB: DrawingBackend>(
         } else {
             range(series.iter().flat_map(|s| s.1.iter().map(|p| p.1)))
         };
+        // The running K̂c is meaningless right after contact (Δθa ≈ 0): show 0 … 3 K̂c.
         let (lo, hi) = match (i, s.kc_hat) {
-            (2, Some(k)) if k.is_finite() => (lo.min(k * 0.8), hi.max(k * 1.2)),
+            (2, Some(k)) if k.is_finite() && k > 0.0 => (0.0, 3.0 * k),
+            (2, _) => (lo.max(0.0), hi.min(100.0).max(lo.max(0.0) + 1.0)),
             _ => (lo, hi),
         };
+        let series: Series = series
+            .into_iter()
+            .map(|(l, pts, c)| {
+                let pts = pts
+                    .into_iter()
+                    .filter(|p| p.1 >= lo && p.1 <= hi && p.0 >= t0 && p.0 <= t1)
+                    .collect();
+                (l, pts, c)
+            })
+            .collect();
         let mut chart = ChartBuilder::on(panel)
             .margin(fs / 2)
             .x_label_area_size(if i == 2 { fs * 3 } else { fs * 2 })
@@ -436,7 +449,7 @@ fn draw_signals<DB: DrawingBackend>(
                         .map(|(a, _, st)| {
                             Text::new(
                                 st.clone(),
-                                (*a + (t1 - t0) * 0.005, hi - (hi - lo) * 0.04),
+                                (*a + (t1 - t0) * 0.005, lo + (hi - lo) * 0.12),
                                 ("sans-serif", fs).into_font().color(&RGBColor(80, 80, 80)),
                             )
                         }),
@@ -516,6 +529,8 @@ pub struct Table {
     pub cells: Vec<Vec<Option<f64>>>,
     /// What a cell holds (colour bar label).
     pub value_name: String,
+    /// Optional note per cell, printed after the value (e.g. "(4/5)"); may be empty.
+    pub notes: Vec<Vec<String>>,
 }
 
 /// Blue (0) → yellow → red (max) colour scale.
@@ -582,40 +597,34 @@ fn draw_heat<DB: DrawingBackend>(
         .filter(|v| v.is_finite())
         .fold(0.0f64, f64::max);
     let (nr, nc) = (t.rows.len(), t.cols.len());
+    // Cell (r, c) is centred on the integer point (c, r): the mesh's integer key points
+    // carry the parameter values.
     let mut chart = ChartBuilder::on(&main)
         .caption(title, ("sans-serif", fs + 6))
         .margin(fs)
         .x_label_area_size(fs * 3)
         .y_label_area_size(fs * 5)
-        .build_cartesian_2d(0.0..nc as f64, 0.0..nr as f64)
+        .build_cartesian_2d(-0.5..nc as f64 - 0.5, -0.5..nr as f64 - 0.5)
         .map_err(err)?;
     let cols = t.cols.clone();
     let rows = t.rows.clone();
+    let label = |vals: &[f64], x: f64| -> String {
+        let i = x.round();
+        if (x - i).abs() < 1e-6 && i >= 0.0 {
+            vals.get(i as usize)
+                .map(|v| format!("{v}"))
+                .unwrap_or_default()
+        } else {
+            String::new()
+        }
+    };
     chart
         .configure_mesh()
         .disable_mesh()
-        .x_labels(nc + 1)
-        .y_labels(nr + 1)
-        .x_label_formatter(&move |x| {
-            let i = (x - 0.5).round();
-            if (x - 0.5 - i).abs() < 0.01 && i >= 0.0 {
-                cols.get(i as usize)
-                    .map(|v| format!("{v}"))
-                    .unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
-        .y_label_formatter(&move |y| {
-            let i = (y - 0.5).round();
-            if (y - 0.5 - i).abs() < 0.01 && i >= 0.0 {
-                rows.get(i as usize)
-                    .map(|v| format!("{v}"))
-                    .unwrap_or_default()
-            } else {
-                String::new()
-            }
-        })
+        .x_labels(nc.max(2) * 2 + 1)
+        .y_labels(nr.max(2) * 2 + 1)
+        .x_label_formatter(&|x| label(&cols, *x))
+        .y_label_formatter(&|y| label(&rows, *y))
         .x_desc(t.col_name.as_str())
         .y_desc(t.row_name.as_str())
         .label_style(("sans-serif", fs))
@@ -624,7 +633,7 @@ fn draw_heat<DB: DrawingBackend>(
         .map_err(err)?;
     for (r, row) in t.cells.iter().enumerate() {
         for (c, cell) in row.iter().enumerate() {
-            let (x, y) = (c as f64, r as f64);
+            let (x, y) = (c as f64 - 0.5, r as f64 - 0.5);
             let fill = match cell {
                 Some(v) if v.is_finite() => heat(*v, max),
                 _ => RGBColor(200, 200, 200),
@@ -638,9 +647,16 @@ fn draw_heat<DB: DrawingBackend>(
                     WHITE.stroke_width(1),
                 )])
                 .map_err(err)?;
+            let note = t
+                .notes
+                .get(r)
+                .and_then(|n| n.get(c))
+                .filter(|n| !n.is_empty())
+                .map(|n| format!(" {n}"))
+                .unwrap_or_default();
             let text = match cell {
-                Some(v) if v.is_finite() => format!("{v:.1}"),
-                _ => "fault".into(),
+                Some(v) if v.is_finite() => format!("{v:.1}{note}"),
+                _ => format!("no estimate{note}"),
             };
             let dark = matches!(cell, Some(v) if max > 0.0 && (*v / max < 0.2 || *v / max > 0.8));
             let style = ("sans-serif", fs)
@@ -661,7 +677,7 @@ fn draw_heat<DB: DrawingBackend>(
         .margin_top(fs * 3)
         .margin_bottom(fs * 4)
         .margin_right(fs)
-        .y_label_area_size(fs * 3)
+        .y_label_area_size(fs * 5)
         .build_cartesian_2d(0.0..1.0, 0.0..top)
         .map_err(err)?;
     cb.configure_mesh()

@@ -559,3 +559,124 @@ fn id_is_echoed() {
     assert_eq!(out[1]["id"], 2);
     assert_eq!(out[1]["error"], "bad_request");
 }
+
+// ---------------------------------------------------------------- path (the plant)
+
+#[test]
+fn path_matches_table2_and_the_free_motion_at_contact() {
+    let out = run_eval(
+        &[],
+        &[
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":2,"k_c":0.02927,"radius":0.05,"dta":0.8}"#
+                .to_string(),
+        ],
+    );
+    let a = &out[0];
+    assert_eq!(a["ok"], true, "{a}");
+    // The contact instant is free motion at θ1,c: T_a,c = K1(θ1,c − θ01), θa,c from the
+    // independent tan(γ/2) reference.
+    let ta_c = PAPER.k1 * (1.2797 - PAPER.t01);
+    assert_rel(f(a, "ta_c"), ta_c, REL, "ta_c");
+    let (_, t2c, _) = PAPER.free(ta_c);
+    let thac = PAPER.closure(1.2797, t2c).1;
+    assert_rel(f(a, "theta_a_c"), thac, 1e-8, "theta_a_c");
+    assert_rel(
+        f(a, "dtheta_a"),
+        f(a, "theta_a") - f(a, "theta_a_c"),
+        1e-12,
+        "dtheta_a",
+    );
+    // MODEL.md: Δθa = 0.08028 rad (paper 0.08), k2 after the step 0.039414 m (paper 3.941 cm).
+    assert!((f(a, "dtheta_a") - 0.08028).abs() < 1e-5, "{a}");
+    assert!((f(a, "k") - 0.039414).abs() < 1e-6, "{a}");
+}
+
+#[test]
+fn path_errors() {
+    let cases = [
+        (
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":2,"k_c":0.01,"radius":0.0975,"dta":0.8}"#,
+            "second_contact",
+        ),
+        (
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":2,"k_c":0.074,"radius":0,"dta":0.8}"#,
+            "beyond_tip",
+        ),
+        (
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":2,"k_c":0.03,"radius":0,"dta":-0.5}"#,
+            "loss_of_contact",
+        ),
+        (
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":2,"k_c":0.09,"radius":0,"dta":0.3}"#,
+            "contact_outside_phalanx",
+        ),
+        (
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":2,"k_c":0.03,"radius":-1,"dta":0.3}"#,
+            "bad_request",
+        ),
+        (
+            r#"{"op":"path","theta1_c":1.2797,"phalanx":0,"k_c":0.03,"radius":0,"dta":0.3}"#,
+            "bad_request",
+        ),
+    ];
+    let lines: Vec<String> = cases.iter().map(|(l, _)| l.to_string()).collect();
+    let out = run_eval(&[], &lines);
+    for ((line, kind), a) in cases.iter().zip(&out) {
+        assert_eq!(kind_of(a), *kind, "{line} -> {a}");
+    }
+}
+
+// ---------------------------------------------------------------- fixed point
+
+#[test]
+fn fixed_back_end_within_pts_tolerances() {
+    // Tolerances of crates/pts/tests/prop_fixed.rs: γ, x2 1e-8 abs, dx2 1e-7 abs, θ 1e-7,
+    // K_c proximal/free 1e-6 rel, distal 1e-4 rel, K̂c 1e-4 rel, k2 1e-4·l2.
+    let ta_c = PAPER.k1 * (1.2797 - PAPER.t01);
+    let (t1c, t2c, thac) = PAPER.free(ta_c);
+    let lines = vec![
+        format!(r#"{{"op":"closure","theta1":1.2797,"theta2":0.209196}}"#),
+        format!(r#"{{"op":"kc","theta1":1,"theta2":0.209196,"ta":0.340821,"phalanx":1,"k":0.05}}"#),
+        format!(
+            r#"{{"op":"kc","theta1":1,"theta2":0.209196,"ta":0.340821,"phalanx":2,"k":0.02927}}"#
+        ),
+        format!(r#"{{"op":"free","ta":{ta_c}}}"#),
+        format!(r#"{{"op":"invert","theta1":{t1c},"theta2":{t2c},"ta":{ta_c},"kc":9.965}}"#),
+        format!(
+            r#"{{"op":"estimate","theta_a_c":{thac},"ta_c":{ta_c},"theta_a":{},"ta":{}}}"#,
+            thac + 0.0802814,
+            ta_c + 0.8
+        ),
+        r#"{"op":"free","ta":0.3,"K1":1e9}"#.to_string(),
+        r#"{"op":"closure","theta1":1,"theta2":2.3557}"#.to_string(),
+    ];
+    let out = run_eval(&["--numeric", "fixed"], &lines);
+    let (g, tha, x2, dx2) = PAPER.closure(1.2797, 0.209196);
+    assert!((f(&out[0], "gamma") - g).abs() < 1e-8);
+    assert!((f(&out[0], "theta_a") - tha).abs() < 1e-7);
+    assert!((f(&out[0], "x2") - x2).abs() < 1e-8);
+    assert!((f(&out[0], "dx2") - dx2).abs() < 1e-7);
+    assert_rel(
+        f(&out[1], "kc"),
+        PAPER.kc_prox(0.209196, 0.340821),
+        1e-6,
+        "prox",
+    );
+    assert_rel(
+        f(&out[2], "kc"),
+        PAPER.kc_dist(0.209196, 0.340821, 0.02927),
+        1e-4,
+        "dist",
+    );
+    assert!((f(&out[3], "theta2") - t2c).abs() < 1e-7);
+    assert!((f(&out[3], "theta_a") - thac).abs() < 1e-7);
+    assert_rel(f(&out[3], "kc"), PAPER.kc_free(t2c, ta_c), 1e-6, "free");
+    assert_eq!(out[4]["phalanx"], "distal");
+    assert!((f(&out[4], "k2") - PAPER.invert(t2c, ta_c, 9.965)).abs() < 1e-4 * PAPER.l2);
+    let kc_hat = 0.8 / 0.0802814;
+    assert_rel(f(&out[5], "kc_hat"), kc_hat, 1e-4, "kc_hat");
+    assert!((f(&out[5], "k2") - PAPER.invert(t2c, ta_c, kc_hat)).abs() < 1e-4 * PAPER.l2);
+    // A spring the fixed-point type cannot hold, and the toggle, are errors there too.
+    assert_eq!(out[6]["ok"], false, "{}", out[6]);
+    assert_eq!(kind_of(&out[7]), "toggle");
+}

@@ -24,17 +24,17 @@
 //! theta01_rad = 0.7853981633974483
 //! theta02_rad = 0.0
 //! [drive]
-//! gear_ratio = 256.0    # motor turns per turn of the input crank θa
-//! efficiency = 0.7      # output torque = efficiency · gear_ratio · motor torque
+//! gear_ratio = 3072.0   # motor turns per turn of the input crank θa
+//! efficiency = 0.6175     # output torque = efficiency · gear_ratio · motor torque
 //! [motor]
-//! kt_nm_per_a = 0.00395
-//! resistance_ohm = 10.2
+//! kt_nm_per_a = 0.0045
+//! resistance_ohm = 20.0
 //! supply_v = 6.0
-//! max_current_a = 0.5
+//! max_current_a = 0.28
 //! [encoder]
 //! counts_per_rev = 64   # quadrature ×4 counts per motor revolution
 //! [current_sense]
-//! amps_per_count = 0.00025
+//! amps_per_count = 0.00016113281
 //! zero_count = 2048
 //! adc_bits = 12
 //! ```
@@ -165,26 +165,27 @@ impl Default for FingerFile {
 }
 
 impl FingerFile {
-    /// Drive defaults of the prototype: the paper gives none, these are a Maxon RE10
-    /// (3.95 mN·m/A, 10.2 Ω, 6 V) behind a 256:1 train at 70 %, a 16-line encoder
-    /// (64 counts ×4) and a 12-bit ADC at 0.25 mA/code, the same numbers as the simulated plant
-    /// (`plant`) and `grasp::DriveConfig::DEFAULT`.
+    /// Drive defaults of the prototype. The paper gives none; these are the simulated plant's
+    /// (`plant::drive::DriveParams::RE10_GP10A`, `plant::sensors::SensorParams::DEFAULT`): a
+    /// Maxon RE10 6 V (4.5 mN·m/A, 20 Ω) behind a 256:1 gearhead and a 12:1 cable stage
+    /// (N = 3072, η = 0.6175 driving), a 16-line encoder (64 counts ×4 per motor turn) and a
+    /// 0.5 Ω shunt × 10 V/V into a 12-bit 3.3 V ADC (6206 codes/A, zero at code 2048).
     pub const PAPER_DRIVE: Drive = Drive {
-        gear_ratio: 256.0,
-        efficiency: 0.7,
+        gear_ratio: 3072.0,
+        efficiency: 0.6175,
     };
     /// Motor defaults of the prototype (see [`FingerFile::PAPER_DRIVE`]).
     pub const PAPER_MOTOR: Motor = Motor {
-        kt_nm_per_a: 3.95e-3,
-        resistance_ohm: 10.2,
+        kt_nm_per_a: 4.5e-3,
+        resistance_ohm: 20.0,
         supply_v: 6.0,
-        max_current_a: 0.5,
+        max_current_a: 0.28,
     };
     /// Encoder defaults of the prototype.
     pub const PAPER_ENCODER: Encoder = Encoder { counts_per_rev: 64 };
-    /// Current-sense defaults of the prototype: ±0.512 A over a 12-bit ADC.
+    /// Current-sense defaults of the prototype: ±0.33 A over a 12-bit ADC.
     pub const PAPER_CURRENT_SENSE: CurrentSense = CurrentSense {
-        amps_per_count: 2.5e-4,
+        amps_per_count: 1.0 / (0.5 * 10.0 * 4096.0 / 3.3),
         zero_count: 2048,
         adc_bits: 12,
     };
@@ -654,10 +655,10 @@ mod tests {
     fn drive_conversions_are_inverse() {
         let f = FingerFile::paper();
         let t = f.torque_from_current(0.25);
-        // 0.25 A · 3.95 mN·m/A · 256 · 0.7
-        assert!((t - 0.25 * 0.00395 * 256.0 * 0.7).abs() < 1e-15);
+        // 0.25 A · 4.5 mN·m/A · 3072 · 0.6175
+        assert!((t - 0.25 * 0.0045 * 3072.0 * 0.6175).abs() < 1e-15);
         assert!((f.current_from_torque(t) - 0.25).abs() < 1e-15);
-        let expected = 2.0 * core::f64::consts::PI / (64.0 * 256.0);
+        let expected = 2.0 * core::f64::consts::PI / (64.0 * 3072.0);
         assert!((f.rad_per_count() - expected).abs() < 1e-18);
     }
 }

@@ -1,0 +1,235 @@
+//! `pts estimate --trace` and `pts trace --from-defmt` as commands.
+
+use crate::replay::{self, TraceMeta};
+use crate::trace::{self, located_name, quality_name, Trace};
+use serde_json::{json, Value};
+use std::io::{Read, Write};
+use std::path::Path;
+
+/// Default ΔT_a (N·m) when neither the flag nor the trace says: the controller's default.
+pub const DEFAULT_DTA_NM: f64 = 0.2;
+
+/// Reads a text file (`-` = stdin) with a clear message; non-UTF-8 bytes are replaced.
+pub fn read_text(path: &Path) -> Result<String, String> {
+    let mut bytes = vec![];
+    if path.as_os_str() == "-" {
+        std::io::stdin()
+            .read_to_end(&mut bytes)
+            .map_err(|e| format!("reading stdin: {e}"))?;
+    } else {
+        bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    }
+    Ok(String::from_utf8_lossy(&bytes).into_owned())
+}
+
+/// Loads and replays a trace; the returned trace is the one replayed.
+pub fn load_and_replay(
+    path: &Path,
+    finger: Option<&Path>,
+    dta: Option<f64>,
+    dt_s: Option<f64>,
+) -> Result<(Trace, replay::Replay, f64), String> {
+    let file = crate::load_finger(finger)?;
+    let text = read_text(path)?;
+    let meta = TraceMeta::find(&text);
+    let conv = |i: f64| file.torque_from_current(i);
+    let tr = trace::read_csv(&text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    let dta = dta.or(meta.map(|m| m.dta_nm)).unwrap_or(DEFAULT_DTA_NM);
+    if !(dta.is_finite() && dta > 0.0 && dta <= 2.0) {
+        return Err("--dta must be in (0, 2] N·m".into());
+    }
+    if let Some(dt) = dt_s {
+        if !(dt.is_finite() && dt > 0.0 && dt <= 0.1) {
+            return Err("--dt-s must be in (0, 0.1] s".into());
+        }
+    }
+    let dt_s = dt_s.or(meta.map(|m| m.dt_s));
+    let rep =
+        replay::replay(&tr, &file, dta, dt_s).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok((tr, rep, dta))
+}
+
+fn n(x: f64) -> Value {
+    crate::eval::num(x)
+}
+
+/// Runs `pts estimate`.
+pub fn run(
+    path: &Path,
+    finger: Option<&Path>,
+    dta: Option<f64>,
+    dt_s: Option<f64>,
+    json_out: bool,
+) -> Result<(), String> {
+    let (tr, rep, dta) = load_and_replay(path, finger, dta, dt_s)?;
+    let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
+    let fault = match rep.state {
+        grasp::State::Fault(r) => Some(r.kind()),
+        _ => None,
+    };
+    let (t0, t1) = (
+        tr.rows.first().map_or(0.0, |r| r.t_s),
+        tr.rows.last().map_or(0.0, |r| r.t_s),
+    );
+    if json_out {
+        let contacts: Vec<Value> = match (&rep.contact, &rep.estimate) {
+            (None, _) => vec![],
+            (Some((t, thc, tac)), est) => {
+                let mut c = json!({
+                    "t_s": n(*t),
+                    "theta_a_c": n(*thc),
+                    "ta_c": n(*tac),
+                    "fault": fault,
+                });
+                match est {
+                    Some(Ok(r)) => {
+                        // The contact point the estimator used (it may refine the detection's).
+                        c["theta_a_c"] = n(f64::from(r.theta_a_c_urad) / 1e6);
+                        c["ta_c"] = n(f64::from(r.ta_c_unm) / 1e6);
+                        c["phalanx"] = json!(located_name(r.located));
+                        c["k2"] = r.k2_um.map_or(Value::Null, |k| n(f64::from(k) / 1e6));
+                        c["kc_hat"] = n(f64::from(r.kc_hat_unm_per_rad) / 1e6);
+                        c["dta"] = n(f64::from(r.delta_ta_unm) / 1e6);
+                        c["dtheta_a"] = n(f64::from(r.delta_theta_a_urad) / 1e6);
+                        c["quality"] = json!(quality_name(r.quality));
+                    }
+                    Some(Err(e)) => {
+                        c["estimate_error"] = json!(e.kind());
+                    }
+                    None => {}
+                }
+                vec![c]
+            }
+        };
+        let out = json!({
+            "trace": path.display().to_string(),
+            "rows": tr.rows.len(),
+            "t_s": [n(t0), n(t1)],
+            "dt_s": n(rep.dt_s),
+            "dta_cmd": n(dta),
+            "exact_replay": rep.raw,
+            "state": trace::state_name(rep.state),
+            "contacts": contacts,
+            "warnings": warnings,
+        });
+        println!("{out}");
+        return Ok(());
+    }
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    println!(
+        "{}: {} rows, t = {t0:.4} … {t1:.4} s, control period {} s, ΔT_a = {dta} N·m{}",
+        path.display(),
+        tr.rows.len(),
+        rep.dt_s,
+        if rep.raw {
+            ", raw encoder/ADC columns"
+        } else {
+            ""
+        }
+    );
+    match (&rep.contact, &rep.estimate) {
+        (None, _) => println!(
+            "no contact found (controller ended in {})",
+            trace::state_name(rep.state)
+        ),
+        (Some((t, thc, tac)), est) => {
+            let (thc, tac) = match est {
+                Some(Ok(r)) => (
+                    f64::from(r.theta_a_c_urad) / 1e6,
+                    f64::from(r.ta_c_unm) / 1e6,
+                ),
+                _ => (*thc, *tac),
+            };
+            println!("contact 1 at t = {t:.4} s: θa,c = {thc:.6} rad, T_a,c = {tac:.4} N·m");
+            match est {
+                Some(Ok(r)) => println!("  {}", crate::sim::describe(r)),
+                Some(Err(e)) => println!("  estimate refused: {} ({e})", e.kind()),
+                None => println!("  the step did not settle: no estimate"),
+            }
+        }
+    }
+    if let Some(f) = fault {
+        println!("  fault: {f}");
+    }
+    Ok(())
+}
+
+/// Runs `pts trace --from-defmt`.
+pub fn from_defmt(input: &Path, out: Option<&Path>, finger: Option<&Path>) -> Result<(), String> {
+    let file = crate::load_finger(finger)?;
+    let text = read_text(input)?;
+    let conv = |i: f64| file.torque_from_current(i);
+    let tr = trace::from_defmt(&text, &conv);
+    for w in &tr.warnings {
+        eprintln!("warning: {w}");
+    }
+    if tr.rows.is_empty() {
+        return Err(format!(
+            "{}: no telemetry lines (`tel t_us=… theta_urad=… torque_unm=…`) found",
+            input.display()
+        ));
+    }
+    match out {
+        Some(p) => {
+            let f = std::fs::File::create(p)
+                .map_err(|e| format!("cannot create {}: {e}", p.display()))?;
+            let mut w = std::io::BufWriter::new(f);
+            trace::write_csv(&tr.rows, &mut w)
+                .and_then(|()| w.flush())
+                .map_err(|e| format!("writing {}: {e}", p.display()))?;
+            eprintln!("wrote {} ({} rows)", p.display(), tr.rows.len());
+        }
+        None => {
+            let mut w = std::io::BufWriter::new(std::io::stdout().lock());
+            trace::write_csv(&tr.rows, &mut w)
+                .and_then(|()| w.flush())
+                .map_err(|e| format!("writing stdout: {e}"))?;
+        }
+    }
+    Ok(())
+}
+
+/// Runs `pts plot signals`: replays the trace (to find the contact and the estimate) and draws it.
+pub fn plot_signals(
+    path: &Path,
+    finger: Option<&Path>,
+    dta: Option<f64>,
+    window: (Option<f64>, Option<f64>),
+    out: &Path,
+    size: crate::plot::Size,
+) -> Result<(), String> {
+    let (mut tr, rep, dta) = load_and_replay(path, finger, dta, None)?;
+    for w in tr.warnings.iter().chain(&rep.warnings) {
+        eprintln!("warning: {w}");
+    }
+    // Show the controller state the replay went through when the trace has none.
+    for (row, st) in tr.rows.iter_mut().zip(&rep.states) {
+        if row.state.is_none() {
+            row.state = Some(st.clone());
+        }
+    }
+    let (from, to) = window;
+    let rows: Vec<_> = tr
+        .rows
+        .into_iter()
+        .filter(|r| from.is_none_or(|f| r.t_s >= f) && to.is_none_or(|t| r.t_s <= t))
+        .collect();
+    if rows.len() < 2 {
+        return Err("fewer than two rows in the time window".into());
+    }
+    let kc_hat = match &rep.estimate {
+        Some(Ok(r)) => Some(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+        _ => None,
+    };
+    let sig = crate::sim_cmd::signals(&rows, rep.contact, kc_hat);
+    let name = path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    let title = format!("{name}: grasp replayed (ΔT_a = {dta} N·m)");
+    crate::plot::signals(out, size, &title, &sig)?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}

@@ -1,0 +1,241 @@
+//! `pts estimate --trace`: replays a recorded grasp through the controller and estimator the
+//! firmware runs (`grasp::Controller` + `grasp::run_estimate_with`).
+//!
+//! Each trace row becomes one control tick: the controller reads the row's encoder count and
+//! ADC code (the raw columns when the trace has them, otherwise θa and T_a converted back with
+//! the finger's drive constants), runs its state machine (calibration, approach, contact
+//! detection, step, settle) and, when the step has settled, the estimate runs on the request
+//! it hands out. The duty it computes is ignored: the trace already holds what happened.
+
+use crate::trace::{state_name, Trace};
+use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State};
+use pts::config::FingerFile;
+
+/// Settings of a `pts sim` run, written as a `# pts-sim key=value …` comment line at the top
+/// of the CSV so that a replay uses the same controller settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TraceMeta {
+    /// ΔT_a commanded (N·m).
+    pub dta_nm: f64,
+    /// Control period (s).
+    pub dt_s: f64,
+}
+
+impl TraceMeta {
+    /// The comment line.
+    pub fn line(&self) -> String {
+        format!("# pts-sim dta_nm={} dt_s={}", self.dta_nm, self.dt_s)
+    }
+
+    /// Finds the comment line in a CSV text.
+    pub fn find(text: &str) -> Option<TraceMeta> {
+        let line = text.lines().take(5).find(|l| l.starts_with("# pts-sim"))?;
+        let get = |k: &str| {
+            line.split_whitespace()
+                .find_map(|w| w.strip_prefix(k)?.strip_prefix('='))
+                .and_then(|v| v.parse::<f64>().ok())
+                .filter(|v| v.is_finite() && *v > 0.0)
+        };
+        Some(TraceMeta {
+            dta_nm: get("dta_nm")?,
+            dt_s: get("dt_s")?,
+        })
+    }
+}
+
+/// What the replay found.
+#[derive(Clone, Debug)]
+pub struct Replay {
+    /// The estimate, or the estimator's refusal; `None` when no step settled.
+    pub estimate: Option<Result<EstimateResult, pts::PtsError>>,
+    /// Trace time of the back-dated contact instant (s).
+    pub contact_t_s: Option<f64>,
+    /// (t, θa,c, T_a,c) of the contact the controller used.
+    pub contact: Option<(f64, f64, f64)>,
+    /// Final controller state.
+    pub state: State,
+    /// State after each row (for plots).
+    pub states: Vec<String>,
+    /// Control period used (s).
+    pub dt_s: f64,
+    /// Whether the raw encoder/ADC columns were used (exact replay).
+    pub raw: bool,
+    /// Notes for the user.
+    pub warnings: Vec<String>,
+}
+
+/// The controller's drive constants from a finger description and a control period.
+pub fn drive_config(f: &FingerFile, dt_s: f64) -> Result<DriveConfig, String> {
+    let model = pts::Model::<f64>::new(&f.finger).map_err(|e| format!("finger: {e}"))?;
+    let rest = model
+        .free_from_torque(0.0)
+        .map_err(|e| format!("finger rest pose: {e}"))?
+        .theta_a;
+    Ok(DriveConfig {
+        dt_s,
+        gear_ratio: f.drive.gear_ratio,
+        efficiency: f.drive.efficiency,
+        kt_nm_per_a: f.motor.kt_nm_per_a,
+        resistance_ohm: f.motor.resistance_ohm,
+        bus_v: f.motor.supply_v,
+        encoder_counts_per_rev: f64::from(f.encoder.counts_per_rev),
+        amps_per_code: f.current_sense.amps_per_count,
+        adc_zero_code: f64::from(f.current_sense.zero_count),
+        theta_a_rest_rad: rest,
+    })
+}
+
+struct TraceHw {
+    count: u16,
+    code: u16,
+}
+
+impl Hardware for TraceHw {
+    fn encoder_count(&mut self) -> u16 {
+        self.count
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.code
+    }
+    fn set_duty(&mut self, _duty: i16) {}
+    fn bridge_off(&mut self) {}
+}
+
+/// The control period of a trace: the median time step, snapped to 1 ns so that a period
+/// written as 1e-4 reads back as exactly 1e-4.
+pub fn median_dt(trace: &Trace) -> Option<f64> {
+    let mut d: Vec<f64> = trace
+        .rows
+        .windows(2)
+        .map(|w| w[1].t_s - w[0].t_s)
+        .filter(|d| *d > 0.0)
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal));
+    let m = d[d.len() / 2];
+    format!("{m:.9}").parse().ok().filter(|v: &f64| *v > 0.0)
+}
+
+/// Replays a trace. `dta_nm` is the controller's ΔT_a; `dt_s` overrides the trace's period.
+pub fn replay(
+    trace: &Trace,
+    finger: &FingerFile,
+    dta_nm: f64,
+    dt_s: Option<f64>,
+) -> Result<Replay, String> {
+    let mut warnings = vec![];
+    let dt = match dt_s.or_else(|| median_dt(trace)) {
+        Some(dt) => dt,
+        None => return Err("the trace needs at least two rows with increasing t_s".into()),
+    };
+    let drive = drive_config(finger, dt)?;
+    let cfg = ControllerConfig {
+        drive,
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(dta_nm);
+    let mut ctl = Controller::new(cfg).map_err(|e| {
+        format!("controller configuration for dt = {dt} s, ΔT_a = {dta_nm} N·m: {e:?}")
+    })?;
+    let model = pts::Model::<grasp::EstReal>::new(&finger.finger)
+        .map_err(|e| format!("finger on the firmware back end: {e}"))?;
+    let raw = trace
+        .rows
+        .iter()
+        .all(|r| r.encoder_count.is_some() && r.current_code.is_some());
+    if !raw {
+        warnings.push(
+            "no encoder_count/current_code columns: θa and T_a converted back to counts and \
+             codes with the finger's drive constants (close to, not bit-exact with, the run)"
+                .into(),
+        );
+    }
+    let rad_per_count = finger.rad_per_count();
+    let rest = drive.theta_a_rest_rad;
+    let mut hw = TraceHw { count: 0, code: 0 };
+    let mut rep = Replay {
+        estimate: None,
+        contact_t_s: None,
+        contact: None,
+        state: State::Init,
+        states: Vec::with_capacity(trace.rows.len()),
+        dt_s: dt,
+        raw,
+        warnings,
+    };
+    let t_first = trace.rows.first().map_or(0.0, |r| r.t_s);
+    let mut dither = 0.0f64;
+    let mut gaps = 0usize;
+    let mut prev_t: Option<f64> = None;
+    for row in &trace.rows {
+        if let Some(p) = prev_t {
+            if row.t_s - p > 1.5 * dt {
+                gaps += 1;
+            }
+        }
+        prev_t = Some(row.t_s);
+        if raw {
+            hw.count = row.encoder_count.unwrap_or(0);
+            hw.code = row.current_code.unwrap_or(0);
+        } else {
+            let counts = ((row.theta_a_rad - rest) / rad_per_count).round();
+            hw.count = (counts.clamp(-1e15, 1e15) as i64).rem_euclid(65536) as u16;
+            // The recorded torque is already offset-corrected: feed the nominal zero while
+            // the controller calibrates (bridge off), so that its offset is the nominal one
+            // and it reads back the recorded torque. Sub-code values are dithered (error
+            // feedback) so that the torque loop's integrator sees no rounding bias.
+            let zero = f64::from(finger.current_sense.zero_count);
+            let exact = if matches!(ctl.state(), State::Init | State::Calibrating) {
+                zero
+            } else {
+                zero + finger.current_from_torque(row.torque_nm)
+                    / finger.current_sense.amps_per_count
+            };
+            let code = (exact + dither).round().clamp(0.0, 4095.0);
+            dither += exact - code;
+            dither = dither.clamp(-1.0, 1.0);
+            hw.code = code as u16;
+        }
+        let out = ctl.tick(&mut hw);
+        if out.estimate_ready {
+            if let Some(req) = ctl.take_request() {
+                let r = grasp::run_estimate_with(&model, &req);
+                rep.estimate = Some(r);
+                ctl.deliver(&mut hw, r);
+            }
+        }
+        while let Some(e) = ctl.poll_event() {
+            if let grasp::Event::ContactDetected {
+                contact_tick,
+                theta_a_urad,
+                torque_unm,
+                ..
+            } = e
+            {
+                // Tick n is row n−1 (ticks count from 1).
+                let idx = (contact_tick as usize).saturating_sub(1);
+                let t = trace
+                    .rows
+                    .get(idx)
+                    .map_or(t_first + f64::from(contact_tick) * dt, |r| r.t_s);
+                rep.contact_t_s = Some(t);
+                rep.contact = Some((
+                    t,
+                    f64::from(theta_a_urad) / 1e6,
+                    f64::from(torque_unm) / 1e6,
+                ));
+            }
+        }
+        rep.states.push(state_name(ctl.state()));
+    }
+    if gaps > 0 {
+        rep.warnings.push(format!(
+            "{gaps} gap(s) longer than 1.5 control periods ({dt} s): the replay treats rows \
+             as consecutive ticks"
+        ));
+    }
+    rep.state = ctl.state();
+    Ok(rep)
+}

@@ -1,0 +1,439 @@
+//! `pts sim`: the real grasp controller closed loop against the simulated finger, on the host.
+//!
+//! One control tick per plant step: the controller reads the plant's encoder and ADC, sets a
+//! duty, the plant advances one period. When the step has settled, the estimate request goes
+//! through [`grasp::run_estimate`] (the estimator the firmware runs) and back to the controller.
+//! Every tick is recorded ([`TraceRow`]) for the CSV, the plots and `pts estimate`.
+
+use crate::trace::{state_name, TraceRow};
+use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State, DUTY_MAX};
+use plant::{EventKind, Plant, Scene};
+use pts::PtsError;
+
+/// `grasp::Hardware` on the simulated finger: the duty (or bridge off) applies to the next step.
+pub struct PlantHw {
+    /// The plant.
+    pub plant: Plant,
+    duty: f64,
+    off: bool,
+}
+
+impl PlantHw {
+    /// Wraps a plant, bridge off.
+    pub fn new(plant: Plant) -> Self {
+        PlantHw {
+            plant,
+            duty: 0.0,
+            off: true,
+        }
+    }
+
+    /// One control period with what the controller commanded.
+    pub fn advance(&mut self) {
+        if self.off {
+            self.plant.step_off();
+        } else {
+            self.plant.step(self.duty);
+        }
+    }
+
+    /// The duty in force (−1..1), 0 with the bridge off.
+    pub fn duty(&self) -> f64 {
+        if self.off {
+            0.0
+        } else {
+            self.duty
+        }
+    }
+}
+
+impl Hardware for PlantHw {
+    fn encoder_count(&mut self) -> u16 {
+        self.plant.encoder_count()
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.plant.current_adc()
+    }
+    fn set_duty(&mut self, duty: i16) {
+        self.off = false;
+        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
+    }
+    fn bridge_off(&mut self) {
+        self.off = true;
+        self.duty = 0.0;
+    }
+}
+
+/// The controller's view of a scene: the nominal drive and sensor constants a firmware would
+/// be built with (the plant's gain/offset errors and noise stay unknown to it).
+pub fn drive_config(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
+    let d = &scene.drive;
+    let s = &scene.sensors;
+    DriveConfig {
+        dt_s: scene.dt_s,
+        gear_ratio: d.gear_ratio,
+        efficiency: d.eff_drive,
+        kt_nm_per_a: d.kt_nm_per_a,
+        resistance_ohm: d.r_ohm,
+        bus_v: d.supply_v,
+        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
+        amps_per_code: 1.0 / s.codes_per_amp(),
+        adc_zero_code: s.zero_code(),
+        theta_a_rest_rad,
+    }
+}
+
+/// A scene: a built-in name (`plant::scenes::NAMES`) or a TOML scene file.
+pub fn load_scene(name_or_file: &str) -> Result<Scene, String> {
+    if let Some(s) = plant::scenes::by_name(name_or_file) {
+        return Ok(s);
+    }
+    let path = std::path::Path::new(name_or_file);
+    if path.is_file() {
+        return plant::toml_scene::from_toml_file(path)
+            .map_err(|e| format!("scene {}: {e}", path.display()));
+    }
+    Err(format!(
+        "no scene \"{name_or_file}\": not a file, and the built-in scenes are {}",
+        plant::scenes::NAMES.join(", ")
+    ))
+}
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct SimOptions {
+    /// The scene.
+    pub scene: Scene,
+    /// Torque step ΔT_a after contact (N·m).
+    pub delta_ta_nm: f64,
+    /// Simulated time limit (s).
+    pub max_s: f64,
+    /// Simulated time kept after the controller holds or faults (s).
+    pub extra_s: f64,
+    /// Keep every tick in [`SimReport::rows`] (for the CSV and the plots).
+    pub record: bool,
+}
+
+/// A timed event from the controller or the plant, for people.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TimedEvent {
+    /// Simulated time (s).
+    pub t_s: f64,
+    /// `"ctl"` or `"plant"`.
+    pub source: &'static str,
+    /// snake_case name.
+    pub name: String,
+    /// Details.
+    pub detail: String,
+}
+
+/// What one closed-loop grasp produced.
+#[derive(Clone, Debug)]
+pub struct SimReport {
+    /// Scene name.
+    pub scene: String,
+    /// Final controller state.
+    pub state: State,
+    /// The estimate (or the estimator's refusal).
+    pub estimate: Option<Result<EstimateResult, PtsError>>,
+    /// Plant: first contact (t, phalanx name, k in m).
+    pub first_contact: Option<(f64, &'static str, f64)>,
+    /// Plant truth when the estimate was requested: contact location (m).
+    pub k_at_settle_m: Option<f64>,
+    /// Controller: the back-dated contact instant (t s, θa,c rad, T_a,c N·m).
+    pub contact: Option<(f64, f64, f64)>,
+    /// Controller and plant events in time order.
+    pub events: Vec<TimedEvent>,
+    /// Every tick (when recorded).
+    pub rows: Vec<TraceRow>,
+    /// Simulated time at the end (s).
+    pub t_end_s: f64,
+    /// l2 of the scene's finger (m).
+    pub l2_m: f64,
+    /// Control period (s).
+    pub dt_s: f64,
+}
+
+impl SimReport {
+    /// Estimated k2 (m) when the estimate located a distal contact.
+    pub fn k2_hat_m(&self) -> Option<f64> {
+        match &self.estimate {
+            Some(Ok(r)) => r.k2_um.map(|k| f64::from(k) / 1e6),
+            _ => None,
+        }
+    }
+
+    /// Error of k̂2 against the true contact location at first contact, % of l2.
+    pub fn error_pct_l2(&self) -> Option<f64> {
+        let (_, ph, k) = self.first_contact?;
+        if ph != "distal" {
+            return None;
+        }
+        Some((self.k2_hat_m()? - k) / self.l2_m * 100.0)
+    }
+
+    /// Fault kind, if the controller ended in its safe state.
+    pub fn fault(&self) -> Option<&'static str> {
+        match self.state {
+            State::Fault(r) => Some(r.kind()),
+            _ => None,
+        }
+    }
+}
+
+fn ctl_event(e: &grasp::Event, dt: f64) -> TimedEvent {
+    use grasp::Event as E;
+    // Tick n (counted from 1) reads the sensors at plant time (n − 1)·dt.
+    let t = |tick: u32| f64::from(tick.saturating_sub(1)) * dt;
+    let (tick, name, detail) = match *e {
+        E::Calibrated { tick, offset_q8 } => (
+            tick,
+            "calibrated",
+            format!("ADC zero {:.2} codes", f64::from(offset_q8) / 256.0),
+        ),
+        E::ContactDetected {
+            tick,
+            contact_tick,
+            theta_a_urad,
+            torque_unm,
+            target_unm,
+        } => (
+            tick,
+            "contact_detected",
+            format!(
+                "back-dated to t = {:.4} s: θa,c = {:.5} rad, T_a,c = {:.4} N·m; step to {:.4} N·m",
+                t(contact_tick),
+                f64::from(theta_a_urad) / 1e6,
+                f64::from(torque_unm) / 1e6,
+                f64::from(target_unm) / 1e6
+            ),
+        ),
+        E::StepDone { tick } => (tick, "step_done", String::new()),
+        E::Settled {
+            tick,
+            theta_a_urad,
+            torque_unm,
+            path_len,
+        } => (
+            tick,
+            "settled",
+            format!(
+                "θa = {:.5} rad, T_a = {:.4} N·m, {path_len} path samples",
+                f64::from(theta_a_urad) / 1e6,
+                f64::from(torque_unm) / 1e6
+            ),
+        ),
+        E::Estimated { tick, result } => (tick, "estimated", describe(&result)),
+        E::Holding { tick } => (tick, "holding", String::new()),
+        E::Releasing { tick } => (tick, "releasing", String::new()),
+        E::Released { tick } => (tick, "released", String::new()),
+        E::Fault { tick, reason } => (tick, "fault", format!("{} ({reason:?})", reason.kind())),
+        // Events added to the controller later: their Debug form.
+        #[allow(unreachable_patterns)]
+        other => {
+            let text = format!("{other:?}");
+            let tick = text
+                .split("tick: ")
+                .nth(1)
+                .and_then(|r| r.split([',', ' ', '}']).next())
+                .and_then(|n| n.parse().ok())
+                .unwrap_or(0);
+            let name = crate::trace::snake(&text);
+            return TimedEvent {
+                t_s: t(tick),
+                source: "ctl",
+                name,
+                detail: text,
+            };
+        }
+    };
+    TimedEvent {
+        t_s: t(tick),
+        source: "ctl",
+        name: name.into(),
+        detail,
+    }
+}
+
+/// One line about an estimate.
+pub fn describe(r: &EstimateResult) -> String {
+    let k2 = r
+        .k2_um
+        .map(|k| format!(", k2 = {:.2} mm", f64::from(k) * 1e-3))
+        .unwrap_or_default();
+    format!(
+        "{}{k2}, K̂c = {:.4} N·m/rad, ΔT_a = {:.4} N·m, Δθa = {:.5} rad, quality {}",
+        crate::trace::located_name(r.located),
+        f64::from(r.kc_hat_unm_per_rad) / 1e6,
+        f64::from(r.delta_ta_unm) / 1e6,
+        f64::from(r.delta_theta_a_urad) / 1e6,
+        crate::trace::quality_name(r.quality),
+    )
+}
+
+fn phalanx_name(p: plant::Phalanx) -> &'static str {
+    match p {
+        plant::Phalanx::Proximal => "proximal",
+        plant::Phalanx::Distal => "distal",
+    }
+}
+
+/// Runs one grasp: ticks until the controller holds, finishes or faults (plus `extra_s`),
+/// at most `max_s` of simulated time.
+pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
+    let scene = &opts.scene;
+    let plant = Plant::new(scene).map_err(|e| format!("scene {}: {e}", scene.name))?;
+    // The firmware knows the finger from its description, not the plant: θa at rest and the
+    // estimator's model come from the pts model of the scene's finger.
+    let finger = pts_finger(&scene.finger);
+    let model = pts::Model::<f64>::new(&finger).map_err(|e| format!("scene finger: {e}"))?;
+    let rest = model
+        .free_from_torque(0.0)
+        .map_err(|e| format!("scene finger rest pose: {e}"))?
+        .theta_a;
+    let est_model = pts::Model::<grasp::EstReal>::new(&finger)
+        .map_err(|e| format!("scene finger on the firmware back end: {e}"))?;
+    let cfg = ControllerConfig {
+        drive: drive_config(scene, rest),
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(opts.delta_ta_nm);
+    let mut ctl = Controller::new(cfg).map_err(|e| format!("controller configuration: {e:?}"))?;
+    let mut hw = PlantHw::new(plant);
+    let dt = scene.dt_s;
+    let mut rep = SimReport {
+        scene: scene.name.to_string(),
+        state: State::Init,
+        estimate: None,
+        first_contact: None,
+        k_at_settle_m: None,
+        contact: None,
+        events: vec![],
+        rows: vec![],
+        t_end_s: 0.0,
+        l2_m: scene.finger.l2_m,
+        dt_s: dt,
+    };
+    let max_ticks = (opts.max_s / dt).ceil().max(0.0) as u64;
+    let extra_ticks = (opts.extra_s / dt).ceil().max(0.0) as u64;
+    let mut stop_at: Option<u64> = None;
+    for n in 0..max_ticks {
+        let enc = hw.plant.encoder_count();
+        let code = hw.plant.current_adc();
+        let truth = hw.plant.truth();
+        let out = ctl.tick(&mut hw);
+        if out.estimate_ready {
+            rep.k_at_settle_m = Some(truth.k_m);
+            if let Some(req) = ctl.take_request() {
+                let r = grasp::run_estimate_with(&est_model, &req);
+                rep.estimate = Some(r);
+                ctl.deliver(&mut hw, r);
+            }
+        }
+        while let Some(e) = ctl.poll_event() {
+            if let grasp::Event::ContactDetected {
+                contact_tick,
+                theta_a_urad,
+                torque_unm,
+                ..
+            } = e
+            {
+                rep.contact = Some((
+                    f64::from(contact_tick.saturating_sub(1)) * dt,
+                    f64::from(theta_a_urad) / 1e6,
+                    f64::from(torque_unm) / 1e6,
+                ));
+            }
+            rep.events.push(ctl_event(&e, dt));
+        }
+        if opts.record {
+            rep.rows.push(TraceRow {
+                t_s: truth.t_s,
+                theta_a_rad: f64::from(out.theta_a_urad) / 1e6,
+                torque_nm: f64::from(out.torque_unm) / 1e6,
+                torque_ref_nm: Some(f64::from(out.torque_ref_unm) / 1e6),
+                duty: Some(hw.duty()),
+                state: Some(state_name(ctl.state())),
+                encoder_count: Some(enc),
+                current_code: Some(code),
+                true_theta_a_rad: Some(truth.theta_a_rad),
+                true_torque_nm: Some(truth.torque_a_nm),
+                true_contact: Some(contact_name(truth.contact).to_string()),
+                true_k_m: Some(truth.k_m),
+            });
+        }
+        hw.advance();
+        while let Some(e) = hw.plant.poll_event() {
+            if let EventKind::FirstContact { phalanx, k_m } = e.kind {
+                if rep.first_contact.is_none() {
+                    rep.first_contact = Some((e.t_s, phalanx_name(phalanx), k_m));
+                }
+            }
+            rep.events.push(TimedEvent {
+                t_s: e.t_s,
+                source: "plant",
+                name: e.kind.name().into(),
+                detail: plant_detail(&e),
+            });
+        }
+        if stop_at.is_none()
+            && matches!(ctl.state(), State::Holding | State::Done | State::Fault(_))
+        {
+            stop_at = Some(n + extra_ticks);
+        }
+        if stop_at.is_some_and(|s| n >= s) {
+            break;
+        }
+    }
+    rep.state = ctl.state();
+    rep.t_end_s = hw.plant.truth().t_s;
+    rep.events.sort_by(|a, b| {
+        a.t_s
+            .partial_cmp(&b.t_s)
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    Ok(rep)
+}
+
+/// The pts finger of a plant finger (geometry and springs).
+pub fn pts_finger(g: &plant::FingerGeom) -> pts::Finger {
+    pts::Finger {
+        l1: g.l1_m,
+        l2: g.l2_m,
+        a: g.a_m,
+        b: g.b_m,
+        c: g.c_m,
+        phi2: g.phi2_rad,
+        theta01: g.theta01_rad,
+        theta02: g.theta02_rad,
+        k1: g.k1_nm_per_rad,
+        k2: g.k2_nm_per_rad,
+    }
+}
+
+fn contact_name(c: plant::ContactState) -> &'static str {
+    match c {
+        plant::ContactState::Free => "free",
+        plant::ContactState::Proximal => "proximal",
+        plant::ContactState::Distal => "distal",
+        plant::ContactState::Limit => "limit",
+        plant::ContactState::Locked => "locked",
+    }
+}
+
+fn plant_detail(e: &plant::Event) -> String {
+    let at = format!(
+        "θa = {:.5} rad, T_a = {:.4} N·m",
+        e.theta_a_rad, e.torque_nm
+    );
+    match e.kind {
+        EventKind::FirstContact { phalanx, k_m } | EventKind::SecondContact { phalanx, k_m } => {
+            format!("{} at k = {:.2} mm; {at}", phalanx_name(phalanx), k_m * 1e3)
+        }
+        EventKind::LossOfContact { phalanx, k_m } => {
+            format!("{} at k = {:.2} mm; {at}", phalanx_name(phalanx), k_m * 1e3)
+        }
+        EventKind::OverCurrent { current_a } => format!("{current_a:.3} A"),
+        _ => at,
+    }
+}

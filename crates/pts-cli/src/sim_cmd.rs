@@ -1,0 +1,524 @@
+//! `pts sim` as a command: one scene (events, estimate vs truth, CSV, plot) or a sweep
+//! (grid, progress bar on stderr, error table, heat map).
+
+use crate::plot;
+use crate::sim::{self, SimOptions, SimReport};
+use crate::trace::{located_name, quality_name, write_csv, TraceRow};
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// The options of `pts sim`.
+#[derive(Clone, Debug)]
+pub struct Args {
+    /// Built-in scene.
+    pub scene: String,
+    /// List scenes and exit.
+    pub list: bool,
+    /// ΔT_a values (N·m).
+    pub dta: Vec<f64>,
+    /// CSV output.
+    pub csv: Option<PathBuf>,
+    /// Plot output.
+    pub plot: Option<PathBuf>,
+    /// JSON output.
+    pub json: bool,
+    /// Time limit per grasp (s).
+    pub max_s: f64,
+    /// Sweep mode.
+    pub sweep: bool,
+    /// Sweep radii (cm).
+    pub radii_cm: Vec<f64>,
+    /// Sweep contact locations (% l2).
+    pub k2_pct: Vec<f64>,
+    /// Ideal drive and sensors.
+    pub ideal: bool,
+}
+
+fn check_dta(dta: &[f64]) -> Result<(), String> {
+    if dta.is_empty()
+        || dta
+            .iter()
+            .any(|d| !(d.is_finite() && *d > 0.0 && *d <= 2.0))
+    {
+        return Err("--dta: each ΔT_a must be in (0, 2] N·m".into());
+    }
+    Ok(())
+}
+
+/// Runs `pts sim`.
+pub fn run(a: &Args) -> Result<(), String> {
+    if a.list {
+        for n in plant::scenes::NAMES {
+            println!("{n}");
+        }
+        return Ok(());
+    }
+    check_dta(&a.dta)?;
+    if !(a.max_s.is_finite() && a.max_s > 0.0 && a.max_s <= 600.0) {
+        return Err("--max-s must be in (0, 600] s".into());
+    }
+    if a.sweep {
+        return sweep(a);
+    }
+    if a.dta.len() != 1 {
+        return Err("--dta takes one value without --sweep".into());
+    }
+    let scene = sim::load_scene(&a.scene)?;
+    let t0 = Instant::now();
+    let rep = sim::run(&SimOptions {
+        scene,
+        delta_ta_nm: a.dta[0],
+        max_s: a.max_s,
+        extra_s: 0.2,
+        record: a.csv.is_some() || a.plot.is_some(),
+    })?;
+    let wall = t0.elapsed().as_secs_f64();
+    if let Some(path) = &a.csv {
+        let file = std::fs::File::create(path)
+            .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        let meta = crate::replay::TraceMeta {
+            dta_nm: a.dta[0],
+            dt_s: rep.dt_s,
+        };
+        writeln!(w, "{}", meta.line())
+            .and_then(|()| write_csv(&rep.rows, &mut w))
+            .and_then(|()| w.flush())
+            .map_err(|e| format!("writing {}: {e}", path.display()))?;
+        eprintln!("wrote {} ({} rows)", path.display(), rep.rows.len());
+    }
+    if let Some(path) = &a.plot {
+        let sig = signals(&rep.rows, rep.contact, kc_hat(&rep));
+        let title = format!("pts sim {} (ΔT_a = {} N·m)", rep.scene, a.dta[0]);
+        plot::signals(
+            path,
+            plot::Size {
+                width: 1200,
+                height: 900,
+            },
+            &title,
+            &sig,
+        )?;
+        eprintln!("wrote {}", path.display());
+    }
+    if a.json {
+        println!("{}", report_json(&rep, a.dta[0]));
+    } else {
+        print_report(&rep, a.dta[0], wall);
+    }
+    Ok(())
+}
+
+fn kc_hat(rep: &SimReport) -> Option<f64> {
+    match &rep.estimate {
+        Some(Ok(r)) => Some(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+        _ => None,
+    }
+}
+
+/// Plot signals from trace rows.
+pub fn signals(
+    rows: &[TraceRow],
+    contact: Option<(f64, f64, f64)>,
+    kc_hat: Option<f64>,
+) -> plot::Signals {
+    let has = |f: &dyn Fn(&TraceRow) -> bool| !rows.is_empty() && rows.iter().all(f);
+    plot::Signals {
+        t_s: rows.iter().map(|r| r.t_s).collect(),
+        theta_a_rad: rows.iter().map(|r| r.theta_a_rad).collect(),
+        torque_nm: rows.iter().map(|r| r.torque_nm).collect(),
+        torque_ref_nm: has(&|r| r.torque_ref_nm.is_some()).then(|| {
+            rows.iter()
+                .map(|r| r.torque_ref_nm.unwrap_or(0.0))
+                .collect()
+        }),
+        state: has(&|r| r.state.is_some()).then(|| {
+            rows.iter()
+                .map(|r| r.state.clone().unwrap_or_default())
+                .collect()
+        }),
+        k_true_m: has(&|r| r.true_k_m.is_some())
+            .then(|| rows.iter().map(|r| r.true_k_m.unwrap_or(0.0)).collect()),
+        contact,
+        kc_hat,
+    }
+}
+
+fn num(x: f64) -> Value {
+    crate::eval::num(x)
+}
+
+fn report_json(rep: &SimReport, dta: f64) -> Value {
+    let estimate = match &rep.estimate {
+        Some(Ok(r)) => json!({
+            "phalanx": located_name(r.located),
+            "k2": r.k2_um.map(|k| num(f64::from(k) / 1e6)),
+            "kc_hat": num(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+            "dta": num(f64::from(r.delta_ta_unm) / 1e6),
+            "dtheta_a": num(f64::from(r.delta_theta_a_urad) / 1e6),
+            "theta_a_c": num(f64::from(r.theta_a_c_urad) / 1e6),
+            "ta_c": num(f64::from(r.ta_c_unm) / 1e6),
+            "quality": quality_name(r.quality),
+        }),
+        Some(Err(e)) => json!({"error": e.kind(), "message": e.to_string()}),
+        None => Value::Null,
+    };
+    json!({
+        "scene": rep.scene,
+        "dta_cmd": num(dta),
+        "state": crate::trace::state_name(rep.state),
+        "fault": rep.fault(),
+        "estimate": estimate,
+        "truth": {
+            "first_contact": rep.first_contact.map(|(t, ph, k)| json!({"t_s": num(t), "phalanx": ph, "k": num(k)})),
+            "k_at_settle": rep.k_at_settle_m.map(num),
+        },
+        "error_pct_l2": rep.error_pct_l2().map(num),
+        "events": rep.events.iter().map(|e| json!({
+            "t_s": num(e.t_s), "source": e.source, "event": e.name, "detail": e.detail
+        })).collect::<Vec<_>>(),
+        "t_end_s": num(rep.t_end_s),
+    })
+}
+
+fn print_report(rep: &SimReport, dta: f64, wall_s: f64) {
+    println!(
+        "scene {}  ΔT_a = {dta} N·m  ({:.2} s simulated in {wall_s:.1} s)",
+        rep.scene, rep.t_end_s
+    );
+    println!("events:");
+    for e in &rep.events {
+        println!(
+            "  {:>8.4} s  {:<5} {:<18} {}",
+            e.t_s, e.source, e.name, e.detail
+        );
+    }
+    match (&rep.estimate, rep.first_contact) {
+        (Some(Ok(r)), truth) => {
+            println!("estimate: {}", sim::describe(r));
+            if let Some((t, ph, k)) = truth {
+                println!(
+                    "truth:    first contact at {t:.4} s on the {ph} phalanx, k = {:.2} mm",
+                    k * 1e3
+                );
+            }
+            if let Some(k) = rep.k_at_settle_m {
+                println!("          contact at settle k = {:.2} mm", k * 1e3);
+            }
+            match rep.error_pct_l2() {
+                Some(e) => println!("error:    k̂2 − k2,c = {e:+.2} % of l2"),
+                None => println!("error:    n/a (no distal location to compare)"),
+            }
+        }
+        (Some(Err(e)), _) => println!("estimate refused: {} ({e})", e.kind()),
+        (None, _) => println!("no estimate"),
+    }
+    if let Some(f) = rep.fault() {
+        println!("fault:    {f}");
+    }
+}
+
+/// One cell of the sweep.
+struct Cell {
+    radius_cm: f64,
+    k2_pct: f64,
+    dta: f64,
+    err: Option<f64>,
+    outcome: String,
+}
+
+fn sweep(a: &Args) -> Result<(), String> {
+    let base = plant::scenes::table2();
+    let base = if a.ideal { base.ideal() } else { base };
+    let l2 = base.finger.l2_m;
+    for r in &a.radii_cm {
+        if !(r.is_finite() && (0.0..=20.0).contains(r)) {
+            return Err("--radii-cm: radii in [0, 20] cm".into());
+        }
+    }
+    for k in &a.k2_pct {
+        if !(k.is_finite() && *k > 0.0 && *k <= 100.0) {
+            return Err("--k2-pct: locations in (0, 100] % of l2".into());
+        }
+    }
+    let mut jobs = vec![];
+    for &r in &a.radii_cm {
+        for &k in &a.k2_pct {
+            for &d in &a.dta {
+                jobs.push((r, k, d));
+            }
+        }
+    }
+    let total = jobs.len();
+    let t0 = Instant::now();
+    let mut cells = vec![];
+    for (i, (r, k, d)) in jobs.into_iter().enumerate() {
+        progress(i, total, t0);
+        let scene = plant::Scene {
+            name: "sweep",
+            object: plant::scene::ObjectSpec::Touching(plant::ContactSpec {
+                theta1_c_rad: plant::scenes::TABLE2_THETA1_C_RAD,
+                phalanx: plant::Phalanx::Distal,
+                k_c_m: k / 100.0 * l2,
+                radius_m: r / 100.0,
+            }),
+            ..base
+        };
+        let rep = sim::run(&SimOptions {
+            scene,
+            delta_ta_nm: d,
+            max_s: a.max_s,
+            extra_s: 0.0,
+            record: false,
+        });
+        let (err, outcome) = match rep {
+            Err(e) => (None, format!("scene: {e}")),
+            Ok(rep) => match (&rep.estimate, rep.error_pct_l2(), rep.fault()) {
+                (_, Some(e), _) => (Some(e), "ok".to_string()),
+                (Some(Err(e)), _, _) => (None, e.kind().to_string()),
+                (_, _, Some(f)) => (None, f.to_string()),
+                (Some(Ok(r)), None, None) => (None, located_name(r.located).to_string()),
+                (None, None, None) => (None, "no_estimate".to_string()),
+            },
+        };
+        cells.push(Cell {
+            radius_cm: r,
+            k2_pct: k,
+            dta: d,
+            err,
+            outcome,
+        });
+    }
+    progress(total, total, t0);
+    eprintln!();
+    // Max |error| over the contact locations, per radius × ΔT_a (as MODEL.md's table).
+    let max_abs = |r: f64, d: f64| -> Option<f64> {
+        let v: Vec<Option<f64>> = cells
+            .iter()
+            .filter(|c| c.radius_cm == r && c.dta == d)
+            .map(|c| c.err.map(f64::abs))
+            .collect();
+        if v.iter().any(Option::is_none) && v.iter().all(Option::is_none) {
+            return None;
+        }
+        v.into_iter().flatten().reduce(f64::max)
+    };
+    if a.json {
+        let out = json!({
+            "l2": num(l2),
+            "cells": cells.iter().map(|c| json!({
+                "radius": num(c.radius_cm / 100.0),
+                "k2_c": num(c.k2_pct / 100.0 * l2),
+                "dta": num(c.dta),
+                "error_pct_l2": c.err.map(num),
+                "outcome": c.outcome,
+            })).collect::<Vec<_>>(),
+        });
+        println!("{out}");
+    } else {
+        println!(
+            "location error k̂2 − k2,c (% of l2), closed loop{}; rows: object, contact location; columns: ΔT_a (N·m)",
+            if a.ideal { ", ideal drive" } else { "" }
+        );
+        let mut head = format!("{:<22}", "object / k2,c");
+        for d in &a.dta {
+            head += &format!("{:>12}", format!("{d}"));
+        }
+        println!("{head}");
+        for &r in &a.radii_cm {
+            let obj = if r == 0.0 {
+                "vertex".to_string()
+            } else {
+                format!("R = {r} cm")
+            };
+            for &k in &a.k2_pct {
+                let mut line = format!("{:<22}", format!("{obj}, {k} %"));
+                for &d in &a.dta {
+                    let c = cells
+                        .iter()
+                        .find(|c| c.radius_cm == r && c.k2_pct == k && c.dta == d);
+                    let txt = match c {
+                        Some(Cell { err: Some(e), .. }) => format!("{e:+.2}"),
+                        Some(c) => c.outcome.clone(),
+                        None => "-".into(),
+                    };
+                    line += &format!("{txt:>12}");
+                }
+                println!("{line}");
+            }
+            let mut line = format!("{:<22}", format!("{obj}, max |err|"));
+            for &d in &a.dta {
+                line += &format!(
+                    "{:>12}",
+                    max_abs(r, d).map_or("-".to_string(), |v| format!("{v:.2}"))
+                );
+            }
+            println!("{line}");
+        }
+        println!("({} runs in {:.1} s)", total, t0.elapsed().as_secs_f64());
+    }
+    if let Some(path) = &a.plot {
+        let flat: Vec<SweepCell> = cells
+            .iter()
+            .map(|c| (c.radius_cm, c.k2_pct, c.dta, c.err))
+            .collect();
+        plot::heat_map(
+            path,
+            plot::Size {
+                width: 1000,
+                height: 700,
+            },
+            HEAT_TITLE,
+            &table(&flat),
+        )?;
+        eprintln!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// A sweep result: (radius cm, k2,c % of l2, ΔT_a N·m, signed error % of l2 or no estimate).
+pub type SweepCell = (f64, f64, f64, Option<f64>);
+
+const HEAT_TITLE: &str = "Two-point estimate: location error, closed loop";
+
+fn uniq(v: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut out: Vec<f64> = vec![];
+    for x in v {
+        if !out.contains(&x) {
+            out.push(x);
+        }
+    }
+    out.sort_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal));
+    out
+}
+
+/// The heat-map table of sweep cells (radius cm, k2 %, ΔT_a, signed error % l2): rows are the
+/// contact locations when there is one radius, else the radii (max |error| over locations).
+pub fn table(cells: &[SweepCell]) -> plot::Table {
+    let radii = uniq(cells.iter().map(|c| c.0));
+    let ks = uniq(cells.iter().map(|c| c.1));
+    let dtas = uniq(cells.iter().map(|c| c.2));
+    let pick = |f: &dyn Fn(&SweepCell) -> bool| -> Option<f64> {
+        cells
+            .iter()
+            .filter(|c| f(c))
+            .filter_map(|c| c.3.map(f64::abs))
+            .reduce(f64::max)
+    };
+    if radii.len() == 1 {
+        plot::Table {
+            row_name: "contact location k2,c (% of l2)".into(),
+            col_name: "torque step ΔT_a (N·m)".into(),
+            cells: ks
+                .iter()
+                .map(|&k| {
+                    dtas.iter()
+                        .map(|&d| pick(&|c| c.1 == k && c.2 == d))
+                        .collect()
+                })
+                .collect(),
+            rows: ks,
+            cols: dtas,
+            value_name: "|estimated k2 − k2,c| (% of l2)".into(),
+            notes: vec![],
+        }
+    } else {
+        plot::Table {
+            row_name: "object radius (cm; 0 = vertex)".into(),
+            col_name: "torque step ΔT_a (N·m)".into(),
+            cells: radii
+                .iter()
+                .map(|&r| {
+                    dtas.iter()
+                        .map(|&d| pick(&|c| c.0 == r && c.2 == d))
+                        .collect()
+                })
+                .collect(),
+            rows: radii.clone(),
+            cols: dtas.clone(),
+            notes: radii
+                .iter()
+                .map(|&r| {
+                    dtas.iter()
+                        .map(|&d| {
+                            let all = cells.iter().filter(|c| c.0 == r && c.2 == d);
+                            let n = all.clone().count();
+                            let ok = all.filter(|c| c.3.is_some()).count();
+                            if ok == n {
+                                String::new()
+                            } else {
+                                format!("({ok}/{n} located)")
+                            }
+                        })
+                        .collect()
+                })
+                .collect(),
+            value_name: "max |estimated k2 − k2,c| (% of l2)".into(),
+        }
+    }
+}
+
+/// Runs `pts plot heat`: the JSON of `pts sim --sweep --json` as a heat map.
+pub fn plot_heat(
+    sweep: &std::path::Path,
+    out: &std::path::Path,
+    size: plot::Size,
+) -> Result<(), String> {
+    let text = std::fs::read_to_string(sweep)
+        .map_err(|e| format!("cannot read {}: {e}", sweep.display()))?;
+    let v: Value = serde_json::from_str(&text).map_err(|e| {
+        format!(
+            "{}: not the JSON of `pts sim --sweep --json`: {e}",
+            sweep.display()
+        )
+    })?;
+    let Some(list) = v.get("cells").and_then(Value::as_array) else {
+        return Err(format!("{}: no \"cells\" array", sweep.display()));
+    };
+    let l2 = v.get("l2").and_then(Value::as_f64).unwrap_or(0.075);
+    let mut cells = vec![];
+    for c in list {
+        let f = |k: &str| c.get(k).and_then(Value::as_f64);
+        let (Some(r), Some(k), Some(d)) = (f("radius"), f("k2_c"), f("dta")) else {
+            return Err(format!(
+                "{}: a cell lacks radius, k2_c or dta",
+                sweep.display()
+            ));
+        };
+        cells.push((
+            r * 100.0,
+            (k / l2 * 1000.0).round() / 10.0,
+            d,
+            f("error_pct_l2"),
+        ));
+    }
+    if cells.is_empty() {
+        return Err(format!("{}: the sweep has no cells", sweep.display()));
+    }
+    plot::heat_map(out, size, HEAT_TITLE, &table(&cells))?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+/// A one-line progress bar on stderr.
+fn progress(done: usize, total: usize, t0: Instant) {
+    let width = 30;
+    let filled = (done * width)
+        .checked_div(total)
+        .unwrap_or(width)
+        .min(width);
+    let el = t0.elapsed().as_secs_f64();
+    let eta = if done > 0 && done < total {
+        format!(", ~{:.0} s left", el / done as f64 * (total - done) as f64)
+    } else {
+        String::new()
+    };
+    eprint!(
+        "\r[{}{}] {done}/{total} runs, {el:.0} s{eta}   ",
+        "#".repeat(filled),
+        ".".repeat(width - filled)
+    );
+    let _ = std::io::stderr().flush();
+}

@@ -1,0 +1,241 @@
+//! `pts sim --csv` then `pts estimate --trace` reproduces the closed-loop estimate; the trace
+//! reader survives empty, truncated, unsorted and non-numeric CSVs with a clear message.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::OnceLock;
+
+fn pts(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_pts"))
+        .args(args)
+        .output()
+        .expect("spawn pts")
+}
+
+fn dir() -> PathBuf {
+    let d = std::env::temp_dir().join(format!("pts-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn json_of(o: &Output) -> Value {
+    assert!(
+        o.status.success(),
+        "exit {:?}\nstderr: {}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+    serde_json::from_slice(&o.stdout).unwrap_or_else(|e| {
+        panic!("{e}: {}", String::from_utf8_lossy(&o.stdout));
+    })
+}
+
+/// One closed-loop Table 2 grasp (ΔT_a = 0.8 N·m) recorded to CSV, shared by the tests.
+fn recorded() -> &'static (PathBuf, Value) {
+    static REC: OnceLock<(PathBuf, Value)> = OnceLock::new();
+    REC.get_or_init(|| {
+        let csv = dir().join("table2.csv");
+        let o = pts(&[
+            "sim",
+            "--scene",
+            "table2",
+            "--dta",
+            "0.8",
+            "--csv",
+            csv.to_str().unwrap(),
+            "--json",
+        ]);
+        (csv, json_of(&o))
+    })
+}
+
+fn estimate(path: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["estimate", "--trace", path.to_str().unwrap(), "--json"];
+    args.extend_from_slice(extra);
+    pts(&args)
+}
+
+fn f(v: &Value, k: &str) -> f64 {
+    v[k].as_f64().unwrap_or_else(|| panic!("no {k} in {v}"))
+}
+
+#[test]
+fn replay_of_a_sim_trace_reproduces_the_closed_loop_estimate() {
+    let (csv, sim) = recorded();
+    let est = &sim["estimate"];
+    assert!(est.is_object() && est.get("error").is_none(), "sim: {sim}");
+    let rep = json_of(&estimate(csv, &[]));
+    assert_eq!(rep["exact_replay"], true);
+    let c = &rep["contacts"][0];
+    // Same controller, same samples: the same integers come out.
+    for k in ["k2", "kc_hat", "dta", "dtheta_a"] {
+        assert_eq!(c[k], est[k], "{k}: replay {c} vs sim {est}");
+    }
+    assert_eq!(c["phalanx"], est["phalanx"]);
+    assert_eq!(c["theta_a_c"], est["theta_a_c"]);
+    assert_eq!(c["ta_c"], est["ta_c"]);
+}
+
+#[test]
+fn minimal_columns_and_current_reproduce_it_closely() {
+    let (csv, sim) = recorded();
+    let est = &sim["estimate"];
+    let text = std::fs::read_to_string(csv).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
+    let (it, ith, itq) = (col("t_s"), col("theta_a_rad"), col("torque_nm"));
+    // T_a = η N kt i with the paper finger's drive (= the plant's nominal constants).
+    let nm_per_a = 0.6175 * 3072.0 * 4.5e-3;
+    let mut minimal = String::from("t_s,theta_a_rad,torque_nm\n");
+    let mut current = String::from("current_a,t_s,theta_a_rad,ignored\n");
+    for l in lines {
+        let c: Vec<&str> = l.split(',').collect();
+        minimal += &format!("{},{},{}\n", c[it], c[ith], c[itq]);
+        let i: f64 = c[itq].parse::<f64>().unwrap() / nm_per_a;
+        current += &format!("{i:e},{},{},x\n", c[it], c[ith]);
+    }
+    for (name, body) in [("minimal.csv", minimal), ("current.csv", current)] {
+        let p = dir().join(name);
+        std::fs::write(&p, body).unwrap();
+        let rep = json_of(&estimate(&p, &["--dta", "0.8"]));
+        assert_eq!(rep["exact_replay"], false);
+        let c = &rep["contacts"][0];
+        assert_eq!(c["phalanx"], est["phalanx"], "{name}: {rep}");
+        assert!(
+            (f(c, "k2") - f(est, "k2")).abs() < 2e-4,
+            "{name}: {c} vs {est}"
+        );
+        assert!(
+            (f(c, "kc_hat") / f(est, "kc_hat") - 1.0).abs() < 0.01,
+            "{name}: {c} vs {est}"
+        );
+        assert!((f(c, "t_s") - f(&rep["contacts"][0], "t_s")).abs() < 1e-9);
+    }
+}
+
+#[test]
+fn unsorted_rows_are_sorted_with_a_warning() {
+    let (csv, sim) = recorded();
+    let text = std::fs::read_to_string(csv).unwrap();
+    let mut lines: Vec<&str> = text.lines().collect();
+    // Swap two blocks of data rows (after the comment and the header).
+    let n = lines.len();
+    lines[2..n].rotate_left(1000);
+    let p = dir().join("unsorted.csv");
+    std::fs::write(&p, lines.join("\n")).unwrap();
+    let rep = json_of(&estimate(&p, &[]));
+    let w = rep["warnings"].to_string();
+    assert!(w.contains("sorted"), "{w}");
+    assert_eq!(rep["contacts"][0]["k2"], sim["estimate"]["k2"]);
+}
+
+fn fails_clearly(body: &[u8], needle: &str) {
+    let p = dir().join(format!("bad-{}.csv", needle.replace(' ', "_")));
+    std::fs::write(&p, body).unwrap();
+    let o = pts(&["estimate", "--trace", p.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "no panic, exit 1: {err}");
+    assert!(
+        err.contains(needle),
+        "message {err:?} should say {needle:?}"
+    );
+    assert!(err.starts_with("pts: "), "{err}");
+}
+
+#[test]
+fn broken_traces_give_clear_messages() {
+    fails_clearly(b"", "empty");
+    fails_clearly(b"\n\n", "empty");
+    fails_clearly(b"t_s,theta_a_rad,torque_nm\n", "no rows");
+    fails_clearly(
+        b"time,angle,torque\n0,1,2\n",
+        "t_s, theta_a_rad and torque_nm",
+    );
+    fails_clearly(b"t_s,theta_a_rad\n0,1\n", "neither torque_nm nor current_a");
+    fails_clearly(
+        b"t_s,theta_a_rad,torque_nm\nzero,-0.85,0\none,-0.85,0\n",
+        "not a finite number",
+    );
+    fails_clearly(b"t_s,theta_a_rad,torque_nm\n0,-0.85,0\n", "two rows");
+    fails_clearly(b"\xff\xfe\x00garbage\x00\n\x01,\x02\n", "t_s");
+    let o = pts(&["estimate", "--trace", "/nonexistent/trace.csv"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read"));
+}
+
+#[test]
+fn truncated_trace_still_replays_what_it_has() {
+    let (csv, _) = recorded();
+    let text = std::fs::read_to_string(csv).unwrap();
+    // Cut in the middle of a line, before the contact: no contact, a warning, exit 0.
+    let cut = &text[..text.len() / 3 + 7];
+    let p = dir().join("truncated.csv");
+    std::fs::write(&p, cut).unwrap();
+    let o = estimate(&p, &[]);
+    let rep = json_of(&o);
+    assert_eq!(rep["contacts"].as_array().map(Vec::len), Some(0), "{rep}");
+    // Human output says so.
+    let o = pts(&["estimate", "--trace", p.to_str().unwrap()]);
+    assert!(o.status.success());
+    assert!(String::from_utf8_lossy(&o.stdout).contains("no contact found"));
+}
+
+#[test]
+fn sim_reports_events_and_truth() {
+    let (_, sim) = recorded();
+    let events: Vec<&str> = sim["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|e| e["event"].as_str())
+        .collect();
+    for e in [
+        "calibrated",
+        "first_contact",
+        "contact_detected",
+        "settled",
+        "estimated",
+    ] {
+        assert!(events.contains(&e), "{e} missing from {events:?}");
+    }
+    let fc = &sim["truth"]["first_contact"];
+    assert_eq!(fc["phalanx"], "distal");
+    assert!((f(fc, "k") - 0.02927).abs() < 1e-6, "{fc}");
+    // The reported error is the estimate against this truth.
+    let err = f(sim, "error_pct_l2");
+    let want = (f(&sim["estimate"], "k2") - f(fc, "k")) / 0.075 * 100.0;
+    assert!((err - want).abs() < 1e-9, "{err} vs {want}");
+}
+
+#[test]
+fn defmt_log_becomes_a_trace() {
+    let log = "\
+0.000000 INFO  boot finger-fw
+0.001000 INFO  tel t_us=0 theta_urad=-850361 torque_unm=0 ref_unm=0 state=calibrating
+0.002000 INFO  tel t_us=100 theta_urad=-850361 torque_unm=12 ref_unm=0 state=calibrating
+0.003000 WARN  something else
+";
+    let p = dir().join("log.txt");
+    std::fs::write(&p, log).unwrap();
+    let out = dir().join("from_log.csv");
+    let o = pts(&[
+        "trace",
+        "--from-defmt",
+        p.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let csv = std::fs::read_to_string(&out).unwrap();
+    let rows: Vec<&str> = csv.lines().collect();
+    assert_eq!(rows.len(), 3, "{csv}");
+    assert!(rows[0].starts_with("t_s,theta_a_rad,torque_nm"));
+    assert!(rows[2].starts_with("0.0001,-0.850361,0.000012"), "{csv}");
+    // No telemetry at all: a clear error.
+    std::fs::write(&p, "nothing here\n").unwrap();
+    let o = pts(&["trace", "--from-defmt", p.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no telemetry"));
+}
