@@ -51,8 +51,9 @@ mod app {
         #[cfg(not(feature = "qemu"))]
         let (board, cfg) = platform::init(cx.core, cx.device);
         defmt::info!(
-            "BOOT finger={=str} scene={=str} board={=str} dt_us={=u32}",
+            "BOOT finger={=str} l2_um={=u32} scene={=str} board={=str} dt_us={=u32}",
             crate::config::FINGER_NAME,
+            (crate::config::FINGER.l2 * 1e6) as u32,
             crate::config::SCENE,
             platform::NAME,
             (cfg.drive.dt_s * 1e6) as u32

@@ -25,7 +25,7 @@ pub fn status(state: State) -> i32 {
 }
 
 /// Drive constants for the real board.
-#[allow(dead_code)]
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
 pub fn board_drive() -> DriveConfig {
     let mut d = DriveConfig::DEFAULT;
     if let Some(f) = crate::config::FINGER_DRIVE {
@@ -42,6 +42,7 @@ pub fn board_drive() -> DriveConfig {
 }
 
 /// The controller's view of a simulated scene's drive and sensors (nominal constants).
+#[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
     let d = &scene.drive;
     let s = &scene.sensors;
@@ -68,6 +69,7 @@ pub fn config(drive: DriveConfig) -> ControllerConfig {
 }
 
 /// The scene of this build (`FINGER_FW_SCENE` at build time; build.rs checked the name).
+#[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn scene() -> Option<plant::Scene> {
     match crate::config::SCENE_CONST {
         Some(s) => Some(s),

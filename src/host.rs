@@ -87,8 +87,9 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         off: true,
     };
     println!(
-        "BOOT finger={} scene={} board=host dt_us={}",
+        "BOOT finger={} l2_um={} scene={} board=host dt_us={}",
         crate::config::FINGER_NAME,
+        (crate::config::FINGER.l2 * 1e6) as u32,
         name.as_deref().unwrap_or(crate::config::SCENE),
         (cfg.drive.dt_s * 1e6) as u32
     );

@@ -1,1 +1,261 @@
-//! The STM32F411 board (drivers land next).
+//! The real board: STM32F411CEU6 "Black Pill" (25 MHz HSE, 100 MHz core), RE10 motor with a
+//! quadrature encoder, DRV8871 H-bridge, shunt + amplifier on an ADC input. The only module
+//! of the workspace that touches registers.
+//!
+//! | signal                    | pin  | peripheral                     | notes                              |
+//! |---------------------------|------|--------------------------------|------------------------------------|
+//! | encoder A                 | PB6  | TIM4_CH1 (AF2), encoder mode ×4 | 5 V-tolerant (FT) input            |
+//! | encoder B                 | PB7  | TIM4_CH2 (AF2)                 |                                    |
+//! | DRV8871 IN1 (flex)        | PA8  | TIM1_CH1 (AF1), 20 kHz centre-aligned PWM | 10 kΩ pull-down on the board |
+//! | DRV8871 IN2 (extend)      | PA9  | TIM1_CH2 (AF1)                 | 10 kΩ pull-down                    |
+//! | shunt amplifier output    | PA4  | ADC1_IN4, injected, TIM1_TRGO  | mid-scale (1.65 V) at 0 A          |
+//! | watchdog                  | —    | IWDG, 10 ms                    | fed by the sampling task           |
+//!
+//! Timing: TIM1 runs centre-aligned at 20 kHz (ARR = 2500 at 100 MHz); its repetition counter
+//! (RCR = 3) makes an update event every second PWM period, at the counter underflow, i.e. in
+//! the middle of the active pulse, away from the switching edges. The update is TIM1_TRGO,
+//! which starts the injected ADC conversion; its end (JEOC) raises the ADC interrupt: the
+//! sampling task at 10 kHz, with the current sampled in step with the PWM.
+
+use core::sync::atomic::{AtomicBool, Ordering};
+
+use grasp::{Hardware, DUTY_MAX};
+use stm32f4xx_hal::{
+    pac,
+    prelude::*,
+    rcc::{self, Enable, Reset},
+    watchdog::IndependentWatchdog,
+};
+
+use crate::telemetry::{PlantEvent, Truth};
+
+/// Name of this board in the log.
+pub const NAME: &str = "stm32f411ceu6";
+
+/// PWM period in timer ticks (centre-aligned: 100 MHz / (2 × 2500) = 20 kHz).
+const PWM_ARR: u32 = 2500;
+/// Update (→ ADC trigger, sampling task) every RCR + 1 = 4 half periods = 2 PWM periods.
+const PWM_RCR: u32 = 3;
+
+/// Latched by [`safe_state`].
+static BRIDGE_SAFE: AtomicBool = AtomicBool::new(false);
+
+/// The board's drivers.
+pub struct Board {
+    adc_code: u16,
+    off: bool,
+    wdg: IndependentWatchdog,
+}
+
+/// Clocks, pins, PWM, encoder timer, ADC and watchdog; the first sample interrupt comes one
+/// control period later.
+pub fn init(
+    mut core: rtic::export::Peripherals,
+    dp: pac::Peripherals,
+) -> (Board, grasp::ControllerConfig) {
+    let mut rcc = dp.RCC.freeze(
+        rcc::Config::hse(25.MHz())
+            .sysclk(100.MHz())
+            .pclk1(50.MHz())
+            .pclk2(100.MHz()),
+    );
+
+    // Cycle counter for the work measurements.
+    core.DCB.enable_trace();
+    core.DWT.enable_cycle_counter();
+
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let _in1 = gpioa.pa8.into_alternate::<1>();
+    let _in2 = gpioa.pa9.into_alternate::<1>();
+    let _ia = gpioa.pa4.into_analog();
+    let _enc_a = gpiob.pb6.into_alternate::<2>();
+    let _enc_b = gpiob.pb7.into_alternate::<2>();
+
+    pac::TIM1::enable(&mut rcc);
+    pac::TIM1::reset(&mut rcc);
+    pac::TIM4::enable(&mut rcc);
+    pac::TIM4::reset(&mut rcc);
+    pac::ADC1::enable(&mut rcc);
+    pac::ADC1::reset(&mut rcc);
+
+    // SAFETY (all register blocks below): this function owns the peripherals (taken from
+    // `dp`); bit patterns follow RM0383.
+    let tim4 = dp.TIM4;
+    unsafe {
+        // Encoder mode 3 (count on both edges of both inputs: ×4), inputs TI1/TI2 with an
+        // 8-sample filter, full 16-bit range. Zero at power-up: the finger must be at rest.
+        tim4.ccmr1_input()
+            .write(|w| w.bits((0b01) | (0b0011 << 4) | (0b01 << 8) | (0b0011 << 12)));
+        tim4.ccer().write(|w| w.bits(0));
+        tim4.smcr().write(|w| w.bits(0b011));
+        tim4.arr().write(|w| w.bits(0xFFFF));
+        tim4.cnt().write(|w| w.bits(0));
+        tim4.cr1().write(|w| w.bits(1));
+    }
+
+    let adc = dp.ADC1;
+    unsafe {
+        // ADC clock = PCLK2 / 4 = 25 MHz; one injected conversion of IN4 (JL = 0 → JSQ4),
+        // 28-cycle sampling, triggered by TIM1_TRGO (JEXTSEL = 0001) on the rising edge,
+        // interrupt at the end of the injected conversion.
+        dp.ADC_COMMON.ccr().write(|w| w.bits(0b01 << 16));
+        adc.smpr2().write(|w| w.bits(0b010 << 12));
+        adc.jsqr().write(|w| w.bits(4 << 15));
+        adc.cr1().write(|w| w.bits(1 << 7));
+        adc.cr2()
+            .write(|w| w.bits(1 | (0b0001 << 16) | (0b01 << 20)));
+    }
+
+    let tim1 = dp.TIM1;
+    unsafe {
+        // 20 kHz centre-aligned PWM on CH1/CH2 (PWM mode 1, preload), both outputs low,
+        // update every second period → TRGO → ADC.
+        tim1.psc().write(|w| w.bits(0));
+        tim1.arr().write(|w| w.bits(PWM_ARR));
+        tim1.rcr().write(|w| w.bits(PWM_RCR));
+        tim1.ccr1().write(|w| w.bits(0));
+        tim1.ccr2().write(|w| w.bits(0));
+        tim1.ccmr1_output()
+            .write(|w| w.bits((0b110 << 4) | (1 << 3) | (0b110 << 12) | (1 << 11)));
+        tim1.ccer().write(|w| w.bits(1 | (1 << 4)));
+        tim1.cr2().write(|w| w.bits(0b010 << 4));
+        tim1.bdtr().write(|w| w.bits(1 << 15));
+        tim1.egr().write(|w| w.bits(1));
+        tim1.cr1().write(|w| w.bits(1 | (0b01 << 5) | (1 << 7)));
+    }
+
+    let mut wdg = IndependentWatchdog::new(dp.IWDG);
+    wdg.start(10.millis());
+
+    let drive = crate::ctl::board_drive();
+    (
+        Board {
+            adc_code: 2048,
+            off: true,
+            wdg,
+        },
+        crate::ctl::config(drive),
+    )
+}
+
+impl Board {
+    /// Acknowledges the end of the injected conversion and latches the current sample.
+    pub fn ack_sample(&mut self) {
+        // SAFETY: the sampling task is the only user of ADC1 after init; reading JDR1 and
+        // clearing JEOC (write 0 to bit 2, 1 elsewhere: rc_w0 bits).
+        let adc = unsafe { &*pac::ADC1::ptr() };
+        self.adc_code = (adc.jdr1().read().bits() & 0x0FFF) as u16;
+        adc.sr().write(|w| unsafe { w.bits(!(1 << 2)) });
+    }
+
+    /// End of the control period: feed the watchdog (the loop is alive).
+    pub fn advance(&mut self) {
+        self.wdg.feed();
+    }
+
+    /// True when the bridge is off.
+    pub fn is_safe(&self) -> bool {
+        self.off || BRIDGE_SAFE.load(Ordering::Relaxed)
+    }
+
+    /// No ground truth on the real finger.
+    pub fn truth(&self, _at: &'static str) -> Option<Truth> {
+        None
+    }
+
+    /// No plant events on the real finger.
+    pub fn poll_plant_event(&mut self) -> Option<PlantEvent> {
+        None
+    }
+}
+
+fn tim1() -> &'static pac::tim1::RegisterBlock {
+    // SAFETY: TIM1 is only written by the sampling task (duty) and by `safe_state`, which
+    // writes values that are safe whatever the interleaving (zeros, MOE off).
+    unsafe { &*pac::TIM1::ptr() }
+}
+
+impl Hardware for Board {
+    fn encoder_count(&mut self) -> u16 {
+        // SAFETY: read of TIM4's counter.
+        (unsafe { &*pac::TIM4::ptr() }.cnt().read().bits() & 0xFFFF) as u16
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.adc_code
+    }
+    fn set_duty(&mut self, duty: i16) {
+        if BRIDGE_SAFE.load(Ordering::Relaxed) {
+            return;
+        }
+        let d = i32::from(duty.clamp(-DUTY_MAX, DUTY_MAX));
+        let ticks = (d.unsigned_abs() * PWM_ARR) / DUTY_MAX as u32;
+        let (c1, c2) = if d >= 0 { (ticks, 0) } else { (0, ticks) };
+        let t = tim1();
+        // SAFETY: compare values within ARR.
+        unsafe {
+            t.ccr1().write(|w| w.bits(c1));
+            t.ccr2().write(|w| w.bits(c2));
+        }
+        self.off = false;
+    }
+    fn bridge_off(&mut self) {
+        let t = tim1();
+        // SAFETY: both inputs low = DRV8871 coast (all switches off).
+        unsafe {
+            t.ccr1().write(|w| w.bits(0));
+            t.ccr2().write(|w| w.bits(0));
+        }
+        self.off = true;
+    }
+}
+
+/// Stops the sampling interrupt (the run is over): no more end-of-conversion interrupts.
+pub fn stop_sampling() {
+    // SAFETY: clears JEOCIE.
+    unsafe {
+        (*pac::ADC1::ptr())
+            .cr1()
+            .modify(|r, w| w.bits(r.bits() & !(1 << 7)))
+    };
+}
+
+/// Nothing to re-arm: the timer triggers the next conversion by itself.
+pub fn rearm_sampling() {}
+
+/// CPU cycles (DWT).
+#[inline(always)]
+pub fn stamp() -> u32 {
+    cortex_m::peripheral::DWT::cycle_count()
+}
+
+/// Bridge to the safe state from any context (panic, HardFault, refused configuration): both
+/// compare values zero, main output off, and the two pins forced to GPIO outputs driven low,
+/// so the DRV8871 coasts even if the timer state is corrupt.
+pub fn safe_state() {
+    BRIDGE_SAFE.store(true, Ordering::SeqCst);
+    // SAFETY: writes that only ever switch the bridge off.
+    unsafe {
+        let t = &*pac::TIM1::ptr();
+        t.ccr1().write(|w| w.bits(0));
+        t.ccr2().write(|w| w.bits(0));
+        t.bdtr().write(|w| w.bits(0));
+        let a = &*pac::GPIOA::ptr();
+        a.bsrr()
+            .write(|w| w.bits((1 << (8 + 16)) | (1 << (9 + 16))));
+        a.moder().modify(|r, w| {
+            w.bits((r.bits() & !((0b11 << 16) | (0b11 << 18))) | (0b01 << 16) | (0b01 << 18))
+        });
+    }
+}
+
+/// End of a grasp on the real board: keep running (holding, or safe), nothing to exit to.
+pub fn finish(_status: i32) {}
+
+/// After a panic or HardFault (bridge already safe): stop here. The watchdog is no longer
+/// fed, so the MCU resets after ≤ 10 ms and restarts with the bridge off (calibration).
+pub fn halt(_status: i32) -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

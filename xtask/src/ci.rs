@@ -1,4 +1,284 @@
-//! placeholder
-pub fn main(_a: &[String]) -> Result<i32, String> {
-    Err("todo".into())
+//! `cargo xtask test`: the one command that runs every check of the project, on a fresh Debian
+//! machine too. Every stage runs (a failure does not hide the others), nothing is skipped, and
+//! the last line is `N passed, M failed`; the exit status is non-zero when anything failed.
+
+use std::process::Command;
+use std::time::Instant;
+
+use crate::log::{self, int, word};
+use crate::qemu::{self, Frame, INSTR_PER_TICK};
+use crate::size;
+use crate::util::{self, Res};
+
+/// Scenes run in QEMU: three that must end in an estimate, one that must end in the safe state.
+const ESTIMATE_SCENES: &[&str] = &["table2", "vertex_k2_30", "cyl10_k2_20"];
+const FAULT_SCENE: &str = "fault_encoder_stuck";
+/// The controller events every estimate scene must show, in this order.
+const ESTIMATE_SEQUENCE: &[&str] = &[
+    "Calibrated",
+    "ContactDetected",
+    "StepDone",
+    "Settled",
+    "Estimated",
+    "Holding",
+];
+/// Tolerance of the QEMU estimate against the host run of the same controller, × l2.
+const K2_TOL_REL_L2: f64 = 1e-4;
+
+struct Stages {
+    passed: Vec<String>,
+    failed: Vec<(String, String)>,
+}
+
+impl Stages {
+    fn run(&mut self, name: &str, f: impl FnOnce() -> Res) {
+        eprintln!("\n==== {name} ====");
+        let t = Instant::now();
+        match f() {
+            Ok(()) => {
+                eprintln!("==== {name}: ok ({:.1} s)", t.elapsed().as_secs_f64());
+                self.passed.push(name.to_string());
+            }
+            Err(e) => {
+                eprintln!(
+                    "==== {name}: FAILED ({:.1} s)\n{e}",
+                    t.elapsed().as_secs_f64()
+                );
+                self.failed.push((name.to_string(), e));
+            }
+        }
+    }
+}
+
+/// Makes sure the rustup targets of rust-toolchain.toml are there.
+fn toolchain() -> Res {
+    let out = util::output(Command::new("rustup").args(["target", "list", "--installed"]))?;
+    for t in ["thumbv7em-none-eabihf", "thumbv6m-none-eabi"] {
+        if !out.lines().any(|l| l.trim() == t) {
+            util::run(Command::new("rustup").args(["target", "add", t]))?;
+        }
+    }
+    Ok(())
+}
+
+fn cargo(args: &[&str]) -> Res {
+    util::run(util::cargo().args(args))
+}
+
+/// The host run of the same control path (src/host.rs) for a scene.
+fn host_run(scene: &str) -> Res<Vec<Frame>> {
+    let out = util::output(util::cargo().args([
+        "run",
+        "-q",
+        "-p",
+        "finger-fw",
+        "--",
+        "simulate",
+        "--scene",
+        scene,
+    ]))?;
+    Ok(out
+        .lines()
+        .map(|l| Frame {
+            ts: None,
+            level: "HOST".into(),
+            msg: l.to_string(),
+        })
+        .collect())
+}
+
+fn expect_end(frames: &[Frame]) -> Res<&Frame> {
+    log::last(frames, "END").ok_or_else(|| "no END line in the log".to_string())
+}
+
+/// Runs one scene in QEMU and on the host and checks the log.
+fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, u64, u64)>) -> Res {
+    let elf = qemu::build(scene)?;
+    let run = qemu::run(&elf, &mut |f| {
+        if !f.msg.starts_with("S ") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let host = host_run(scene)?;
+    let q = &run.frames;
+    let end = expect_end(q)?;
+    let mut errs = Vec::new();
+
+    // The sequence of controller events: as required, and identical on both ISAs.
+    let ev_q = log::events(q);
+    let ev_h = log::events(&host);
+    if ev_q != ev_h {
+        errs.push(format!(
+            "event sequence differs from the host run of the same controller:\n  qemu: {ev_q:?}\n  host: {ev_h:?}"
+        ));
+    }
+    if expect_fault {
+        if !ev_q.iter().any(|e| e == "Fault") {
+            errs.push(format!("fault scene without a Fault event: {ev_q:?}"));
+        }
+        if run.status != 2 {
+            errs.push(format!("fault scene exited {} (expected 2)", run.status));
+        }
+        if !word(&end.msg, "state").unwrap_or("").starts_with("Fault") {
+            errs.push(format!(
+                "fault scene did not end in the Fault state: {}",
+                end.msg
+            ));
+        }
+        if word(&end.msg, "bridge_safe") != Some("true") {
+            errs.push(format!("fault scene ended with the bridge on: {}", end.msg));
+        }
+    } else {
+        let mut it = ev_q.iter();
+        for want in ESTIMATE_SEQUENCE {
+            if !it.any(|e| e == want) {
+                errs.push(format!(
+                    "event {want} missing or out of order; got {ev_q:?} (expected {ESTIMATE_SEQUENCE:?} in order)"
+                ));
+                break;
+            }
+        }
+        if run.status != 0 {
+            errs.push(format!(
+                "exit status {} (expected 0): {}",
+                run.status, end.msg
+            ));
+        }
+        let l2_um = log::first(q, "BOOT")
+            .and_then(|b| int(&b.msg, "l2_um"))
+            .ok_or("no l2_um in the BOOT line")? as f64;
+        let k2 =
+            |frames: &[Frame]| log::last(frames, "E Estimated").and_then(|e| int(&e.msg, "k2_um"));
+        match (k2(q), k2(&host)) {
+            (Some(kq), Some(kh)) => {
+                let d = (kq - kh).abs() as f64;
+                let tol = K2_TOL_REL_L2 * l2_um;
+                println!(
+                    "{scene}: k2 qemu {kq} µm, host {kh} µm, |Δ| = {d} µm (tolerance {tol:.1} µm = 1e-4·l2)"
+                );
+                if d > tol {
+                    errs.push(format!(
+                        "k2 differs between QEMU ({kq} µm) and host ({kh} µm) by more than 1e-4·l2"
+                    ));
+                }
+            }
+            other => errs.push(format!(
+                "no k2 estimate in both logs (qemu, host) = {other:?}"
+            )),
+        }
+    }
+    for key in ["work_max", "est_work_max"] {
+        if int(&end.msg, key).is_none() {
+            errs.push(format!("END line without {key}"));
+        }
+    }
+    work.push((
+        scene.to_string(),
+        int(&end.msg, "work_max").unwrap_or(0) as u64 * INSTR_PER_TICK,
+        int(&end.msg, "est_work_max").unwrap_or(0) as u64 * INSTR_PER_TICK,
+    ));
+    println!(
+        "{scene}: exit {}, {} frames, QEMU wall {:.1} s",
+        run.status,
+        q.len(),
+        run.wall.as_secs_f64()
+    );
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
+/// `cargo xtask test`.
+pub fn main(args: &[String]) -> Res<i32> {
+    if let Some(a) = args.first() {
+        return Err(format!("`test` takes no arguments (got {a})"));
+    }
+    let start = Instant::now();
+    let mut st = Stages {
+        passed: Vec::new(),
+        failed: Vec::new(),
+    };
+    st.run("toolchain targets", toolchain);
+    st.run("qemu-system-arm present", qemu::ensure_qemu);
+    st.run("cargo fmt --check", || {
+        cargo(&["fmt", "--all", "--", "--check"])
+    });
+    st.run("cargo clippy -D warnings", || {
+        cargo(&[
+            "clippy",
+            "--workspace",
+            "--all-targets",
+            "--",
+            "-D",
+            "warnings",
+        ])
+    });
+    st.run("cargo test --workspace", || cargo(&["test", "--workspace"]));
+    for t in ["thumbv6m-none-eabi", "thumbv7em-none-eabihf"] {
+        st.run(&format!("pts builds for {t}"), || {
+            cargo(&["build", "-p", "pts", "--target", t])
+        });
+    }
+    st.run("clippy: firmware for QEMU (thumbv7em)", || {
+        cargo(&[
+            "clippy",
+            "-p",
+            "finger-fw",
+            "--target",
+            qemu::TARGET,
+            "--no-default-features",
+            "--features",
+            "qemu",
+            "--",
+            "-D",
+            "warnings",
+        ])
+    });
+    st.run("clippy: firmware for the board (thumbv7em)", || {
+        cargo(&[
+            "clippy",
+            "-p",
+            "finger-fw",
+            "--target",
+            qemu::TARGET,
+            "--",
+            "-D",
+            "warnings",
+        ])
+    });
+    st.run("board firmware (release) within flash/RAM budgets", || {
+        let elf = size::build_board()?;
+        size::report(size::measure(&elf)?)
+    });
+    let mut work = Vec::new();
+    for s in ESTIMATE_SCENES {
+        st.run(
+            &format!("QEMU scene {s}: events, estimate = host within 1e-4·l2"),
+            || scene_check(s, false, &mut work),
+        );
+    }
+    st.run(
+        &format!("QEMU fault scene {FAULT_SCENE}: ends in the safe state"),
+        || scene_check(FAULT_SCENE, true, &mut work),
+    );
+
+    eprintln!(
+        "\n==== summary ({:.0} s) ====",
+        start.elapsed().as_secs_f64()
+    );
+    for (scene, w, e) in &work {
+        eprintln!(
+            "work on the target ISA ({scene}): sampling task ≤ {w} instructions, estimate task ≤ {e} instructions (±{INSTR_PER_TICK})"
+        );
+    }
+    for p in &st.passed {
+        eprintln!("  ok      {p}");
+    }
+    for (f, _) in &st.failed {
+        eprintln!("  FAILED  {f}");
+    }
+    println!("{} passed, {} failed", st.passed.len(), st.failed.len());
+    Ok(if st.failed.is_empty() { 0 } else { 1 })
 }
