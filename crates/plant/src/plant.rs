@@ -174,7 +174,7 @@ impl Plant {
             ev_len: 0,
             dropped: 0,
         };
-        p.k_loc = p.local_stiffness(rest).unwrap_or(0.5);
+        p.k_loc = p.local_stiffness(p.tracker.pose.theta_a_rad).unwrap_or(0.5);
         p.sample_adc();
         Ok(p)
     }
