@@ -157,17 +157,22 @@ pub fn run(
 }
 
 /// Runs `pts trace --from-defmt`.
-pub fn from_defmt(input: &Path, out: Option<&Path>, finger: Option<&Path>) -> Result<(), String> {
+pub fn from_defmt(
+    input: &Path,
+    out: Option<&Path>,
+    finger: Option<&Path>,
+    dt_s: Option<f64>,
+) -> Result<(), String> {
     let file = crate::load_finger(finger)?;
     let text = read_text(input)?;
     let conv = |i: f64| file.torque_from_current(i);
-    let tr = trace::from_defmt(&text, &conv);
+    let tr = trace::from_defmt(&text, dt_s, &conv);
     for w in &tr.warnings {
         eprintln!("warning: {w}");
     }
     if tr.rows.is_empty() {
         return Err(format!(
-            "{}: no telemetry lines (`tel t_us=… theta_urad=… torque_unm=…`) found",
+            "{}: no telemetry sample lines (`S tick=… theta_a_urad=… torque_unm=…`) found",
             input.display()
         ));
     }

@@ -64,6 +64,9 @@ enum Cmd {
         /// Finger description (for current → torque); default: the paper's prototype.
         #[arg(long)]
         finger: Option<PathBuf>,
+        /// Control period (s) for `tick=` times; default: the log's BOOT line, else 1e-4.
+        #[arg(long)]
+        dt_s: Option<f64>,
     },
     /// Figures as PNG or SVG (by the extension of --out).
     Plot {
@@ -192,7 +195,10 @@ fn main() -> ExitCode {
             from_defmt,
             out,
             finger,
-        } => pts_cli::estimate_cmd::from_defmt(&from_defmt, out.as_deref(), finger.as_deref()),
+            dt_s,
+        } => {
+            pts_cli::estimate_cmd::from_defmt(&from_defmt, out.as_deref(), finger.as_deref(), dt_s)
+        }
         Cmd::Plot { what } => run_plot(what),
         Cmd::Finger { finger } => {
             pts_cli::load_finger(finger.as_deref()).map(|f| print!("{}", f.to_toml_string()))

@@ -288,18 +288,37 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
     Ok(trace)
 }
 
-/// Converts a decoded defmt log (text lines) into trace rows.
+/// Control period of the firmware when its log does not say (s): 10 kHz.
+pub const FIRMWARE_DT_S: f64 = 1e-4;
+
+/// Converts a decoded defmt log of the firmware (text lines, `src/telemetry.rs`) into trace rows.
 ///
-/// Telemetry lines carry `key=value` pairs after a marker word `tel` (e.g.
-/// `0.123456 INFO tel t_us=123456 theta_urad=-850360 torque_unm=12345 ref_unm=12000 state=approach`).
-/// Recognised keys: `t_us`/`t_s`, `theta_urad`/`theta_a_rad`, `torque_unm`/`torque_nm`,
-/// `current_ua`/`current_a`, `ref_unm`, `enc`, `adc`, `state`. Other lines are ignored.
-pub fn from_defmt(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Trace {
+/// Sample lines carry the marker word `S` and `key=value` pairs:
+/// `S tick=1200 theta_a_urad=-850361 torque_unm=1234 ref_unm=1300 duty=120 state=Approach`
+/// (any prefix, such as defmt's timestamp and level, is ignored). Time is `tick` × the control
+/// period, read from the `BOOT … dt_us=100` line, else `dt_s`, else [`FIRMWARE_DT_S`]; a
+/// `t_us=`/`t_s=` key is used instead when present. Torque may also come as `current_ua=` or
+/// `current_a=` (converted with `current_to_torque`). Other lines (`E`, `P`, `TRUTH`, `END`) are
+/// ignored.
+pub fn from_defmt(text: &str, dt_s: Option<f64>, current_to_torque: &dyn Fn(f64) -> f64) -> Trace {
     let mut trace = Trace::default();
+    let boot_dt = text.lines().find_map(|l| {
+        let words: Vec<&str> = l.split_whitespace().collect();
+        if !words.contains(&"BOOT") {
+            return None;
+        }
+        words
+            .iter()
+            .find_map(|w| w.strip_prefix("dt_us="))
+            .and_then(|v| v.parse::<f64>().ok())
+            .filter(|v| *v > 0.0)
+            .map(|v| v / 1e6)
+    });
+    let dt = dt_s.or(boot_dt).unwrap_or(FIRMWARE_DT_S);
     let mut bad = 0usize;
     for line in text.lines() {
         let mut words = line.split_whitespace();
-        if !words.any(|w| w == "tel" || w == "tel:") {
+        if !words.any(|w| w == "S" || w == "tel") {
             continue;
         }
         let mut kv = std::collections::HashMap::new();
@@ -313,8 +332,12 @@ pub fn from_defmt(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Trace {
                 .and_then(|v| v.parse::<f64>().ok())
                 .filter(|v| v.is_finite())
         };
-        let t = f("t_s").or_else(|| f("t_us").map(|v| v / 1e6));
-        let th = f("theta_a_rad").or_else(|| f("theta_urad").map(|v| v / 1e6));
+        let t = f("t_s")
+            .or_else(|| f("t_us").map(|v| v / 1e6))
+            .or_else(|| f("tick").map(|v| v * dt));
+        let th = f("theta_a_rad")
+            .or_else(|| f("theta_a_urad").map(|v| v / 1e6))
+            .or_else(|| f("theta_urad").map(|v| v / 1e6));
         let tq = f("torque_nm")
             .or_else(|| f("torque_unm").map(|v| v / 1e6))
             .or_else(|| f("current_a").map(current_to_torque))
@@ -325,7 +348,8 @@ pub fn from_defmt(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Trace {
                 theta_a_rad,
                 torque_nm,
                 torque_ref_nm: f("ref_unm").map(|v| v / 1e6),
-                state: kv.get("state").map(|s| s.to_string()),
+                duty: f("duty").map(|v| v / f64::from(grasp::DUTY_MAX)),
+                state: kv.get("state").map(|s| snake(s)),
                 encoder_count: kv.get("enc").and_then(|v| v.parse().ok()),
                 current_code: kv.get("adc").and_then(|v| v.parse().ok()),
                 ..TraceRow::default()
@@ -335,7 +359,7 @@ pub fn from_defmt(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Trace {
     }
     if bad > 0 {
         trace.warnings.push(format!(
-            "{bad} telemetry line(s) lacked t, θa or torque and were skipped"
+            "{bad} sample line(s) lacked a time, θa or torque and were skipped"
         ));
     }
     trace
@@ -401,13 +425,22 @@ mod tests {
 
     #[test]
     fn defmt_lines() {
-        let log = "0.000001 INFO boot\n\
-                   0.1 INFO tel t_us=1000 theta_urad=-850360 torque_unm=1000 ref_unm=900 state=approach enc=0 adc=2048\n\
-                   0.2 INFO tel t_us=2000 theta_urad=oops torque_unm=1000\n";
-        let t = from_defmt(log, &nm);
-        assert_eq!(t.rows.len(), 1);
-        assert!((t.rows[0].theta_a_rad - -0.85036).abs() < 1e-12);
+        // The firmware's lines (src/telemetry.rs), as a defmt decoder prints them.
+        let log = "0 INFO  BOOT finger=paper l2_um=75000 scene=table2 board=qemu dt_us=200\n\
+                   200 INFO  S tick=200 theta_a_urad=-850360 torque_unm=1000 ref_unm=900 duty=-5000 state=Approach\n\
+                   300 INFO  P first_contact t_us=300 theta_a_urad=-1 torque_unm=2 phalanx=distal k_um=3\n\
+                   400 INFO  S tick=400 theta_a_urad=oops torque_unm=1000\n\
+                   500 INFO  S tick=500 theta_a_urad=-800000 torque_unm=1 ref_unm=2 duty=1 state=Fault(NoContact)\n";
+        let t = from_defmt(log, None, &nm);
+        assert_eq!(t.rows.len(), 2, "{:?}", t.rows);
+        assert!((t.rows[0].t_s - 0.04).abs() < 1e-15);
+        assert!((t.rows[0].theta_a_rad - -0.85036).abs() < 1e-15);
+        assert_eq!(t.rows[0].duty, Some(-0.5));
         assert_eq!(t.rows[0].state.as_deref(), Some("approach"));
+        assert_eq!(t.rows[1].state.as_deref(), Some("fault"));
         assert_eq!(t.warnings.len(), 1);
+        // An explicit period wins over the BOOT line.
+        let t = from_defmt(log, Some(1e-3), &nm);
+        assert!((t.rows[0].t_s - 0.2).abs() < 1e-12);
     }
 }

@@ -476,6 +476,11 @@ fn every_model_error_kind_is_reported_per_line() {
             r#"{"op":"estimate","theta_a_c":-0.22,"ta_c":0.34,"theta_a":-0.22,"ta":0.5}"#,
             "delta_theta_too_small",
         ),
+        // Δθa of about two encoder steps: one step would move k2 by more than 5 % of l2.
+        (
+            r#"{"op":"estimate","theta_a_c":-0.223771,"ta_c":0.340821,"theta_a":-0.2237,"ta":0.342}"#,
+            "ill_conditioned",
+        ),
         (r#"{"op":"free","ta":0.3,"K1":-1}"#, "invalid_finger"),
         (r#"{"op":"free","ta":0.3,"K2":0}"#, "invalid_finger"),
     ];

@@ -212,10 +212,10 @@ fn sim_reports_events_and_truth() {
 #[test]
 fn defmt_log_becomes_a_trace() {
     let log = "\
-0.000000 INFO  boot finger-fw
-0.001000 INFO  tel t_us=0 theta_urad=-850361 torque_unm=0 ref_unm=0 state=calibrating
-0.002000 INFO  tel t_us=100 theta_urad=-850361 torque_unm=12 ref_unm=0 state=calibrating
-0.003000 WARN  something else
+0 INFO  BOOT finger=paper l2_um=75000 scene=table2 board=qemu dt_us=100
+1 INFO  S tick=1 theta_a_urad=-850361 torque_unm=0 ref_unm=0 duty=0 state=Calibrating
+2 INFO  S tick=2 theta_a_urad=-850361 torque_unm=12 ref_unm=0 duty=0 state=Calibrating
+3 INFO  E Calibrated { tick: 2, offset_q8: 525000 }
 ";
     let p = dir().join("log.txt");
     std::fs::write(&p, log).unwrap();
@@ -232,10 +232,13 @@ fn defmt_log_becomes_a_trace() {
     let rows: Vec<&str> = csv.lines().collect();
     assert_eq!(rows.len(), 3, "{csv}");
     assert!(rows[0].starts_with("t_s,theta_a_rad,torque_nm"));
-    assert!(rows[2].starts_with("0.0001,-0.850361,0.000012"), "{csv}");
+    assert!(
+        rows[2].starts_with("0.0002,-0.850361,0.000012,0,0,calibrating"),
+        "{csv}"
+    );
     // No telemetry at all: a clear error.
     std::fs::write(&p, "nothing here\n").unwrap();
     let o = pts(&["trace", "--from-defmt", p.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no telemetry"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no telemetry sample lines"));
 }
