@@ -142,7 +142,15 @@ pub struct ControllerConfig {
     /// estimator also finds beyond a tip contact) means the finger touched a second time and
     /// is locked. Between the tip stiffness and this, the estimate is out of range.
     pub second_contact_stiffness_nm_per_rad: f64,
-    /// Loss of contact: θa moving beyond (T − T_c)/K_detect + this margin (rad).
+    /// Second contact: the late half of the step this many times stiffer than the early one.
+    pub second_contact_ratio: u16,
+    /// Loss of contact: |ω̂a| above this in contact (rad/s); in contact the step ramp moves
+    /// the finger at most ramp/K_c,prox ≈ 0.4 rad/s.
+    pub loss_speed_rad_s: f64,
+    /// Approach: θa beyond this (rad) without a contact ends the approach (the finger would
+    /// otherwise close onto its joint stops, which read like a contact).
+    pub approach_theta_a_max_rad: f64,
+    /// Loss of contact: θa moving beyond what the contact stiffness allows + this margin (rad).
     pub loss_margin_rad: f64,
     /// Over-current limit on |motor current| (A).
     pub overcurrent_a: f64,
@@ -150,6 +158,11 @@ pub struct ControllerConfig {
     pub overcurrent_s: f64,
     /// Stall: duty saturated for this long (s).
     pub stall_s: f64,
+    /// Encoder plausibility: largest |back-EMF from V − R·I − back-EMF from the encoder speed|
+    /// (V) over one sample ...
+    pub emf_mismatch_v: f64,
+    /// ... tolerated for this long (s); longer is a sensor fault (stuck encoder).
+    pub emf_mismatch_s: f64,
     /// Largest physically possible encoder change per tick (counts); more is a sensor fault.
     pub encoder_max_counts_per_tick: u16,
     /// Current loop proportional gain, relative to the static plant inverse (dimensionless).
@@ -187,10 +200,15 @@ impl ControllerConfig {
         settle_timeout_s: 6.0,
         estimate_timeout_s: 1.0,
         second_contact_stiffness_nm_per_rad: 80.0,
-        loss_margin_rad: 0.02,
+        second_contact_ratio: 5,
+        loss_speed_rad_s: 0.6,
+        approach_theta_a_max_rad: 1.0,
+        loss_margin_rad: 0.01,
         overcurrent_a: 0.27,
         overcurrent_s: 2e-3,
         stall_s: 0.2,
+        emf_mismatch_v: 1.0,
+        emf_mismatch_s: 0.02,
         encoder_max_counts_per_tick: 64,
         kp_rel: 0.2,
         ki_rel: 0.3,
@@ -237,7 +255,11 @@ impl ControllerConfig {
             self.estimate_timeout_s,
             self.second_contact_stiffness_nm_per_rad,
             self.loss_margin_rad,
+            self.loss_speed_rad_s,
+            self.approach_theta_a_max_rad,
             self.overcurrent_a,
+            self.emf_mismatch_v,
+            self.emf_mismatch_s,
             self.kp_rel,
             self.ki_rel,
             self.release_rate_nm_per_s,
@@ -276,6 +298,8 @@ impl ControllerConfig {
             || !(self.ki_rel > 0.0 && self.ki_rel <= 1.0)
             || self.settle_min_s < 0.0
             || self.loss_margin_rad < 0.0
+            || self.emf_mismatch_v <= 0.0
+            || self.emf_mismatch_s < 0.0
         {
             return Err(ConfigError::OutOfRange);
         }
@@ -337,10 +361,22 @@ impl ControllerConfig {
             estimate_timeout_ticks: secs(self.estimate_timeout_s),
             second_k_unm_per_rad: to_i64(self.second_contact_stiffness_nm_per_rad * 1e6),
             loss_margin_urad: to_i32(self.loss_margin_rad * 1e6),
+            second_ratio: u32::from(self.second_contact_ratio.max(1)),
+            loss_speed_urad: to_i32(self.loss_speed_rad_s * 1e6 * self.sample_s),
+            approach_theta_max_urad: to_i32(self.approach_theta_a_max_rad * 1e6),
             overcurrent_ua: to_i64(self.overcurrent_a * 1e6),
             overcurrent_ticks: secs(self.overcurrent_s),
             stall_ticks: secs(self.stall_s),
             encoder_max_step: i32::from(self.encoder_max_counts_per_tick),
+            bus_uv: to_i64(d.bus_v * 1e6),
+            r_mohm: to_i64(d.resistance_ohm * 1e3),
+            // ke = kt (SI): µV of back-EMF per encoder count per sample.
+            emf_uv_per_count_q16: q16(d.kt_nm_per_a * 2.0 * core::f64::consts::PI
+                / d.encoder_counts_per_rev
+                / self.sample_s
+                * 1e6),
+            emf_mismatch_uv: to_i64(self.emf_mismatch_v * 1e6),
+            emf_mismatch_samples: to_u32(self.emf_mismatch_s / self.sample_s).max(1),
             ff_duty_per_unm_q16: q16(duty_per_unm),
             kp_duty_per_unm_q16: q16(duty_per_unm * self.kp_rel),
             ki_duty_per_unm_q16: q16(duty_per_unm * self.ki_rel),
@@ -433,6 +469,12 @@ pub struct Params {
     pub estimate_timeout_ticks: u32,
     /// Second-contact stiffness (µN·m/rad).
     pub second_k_unm_per_rad: i64,
+    /// Second-contact stiffness ratio late/early.
+    pub second_ratio: u32,
+    /// Loss-of-contact speed (µrad per sample).
+    pub loss_speed_urad: i32,
+    /// Approach θa limit (µrad).
+    pub approach_theta_max_urad: i32,
     /// Loss-of-contact margin (µrad).
     pub loss_margin_urad: i32,
     /// Over-current limit (µA).
@@ -443,6 +485,16 @@ pub struct Params {
     pub stall_ticks: u32,
     /// Largest encoder step per tick (counts).
     pub encoder_max_step: i32,
+    /// Bus voltage (µV).
+    pub bus_uv: i64,
+    /// Winding resistance (mΩ).
+    pub r_mohm: i64,
+    /// Back-EMF per encoder count per sample (µV), Q16.
+    pub emf_uv_per_count_q16: i64,
+    /// Back-EMF mismatch threshold (µV).
+    pub emf_mismatch_uv: i64,
+    /// Back-EMF mismatch persistence (samples).
+    pub emf_mismatch_samples: u32,
     /// Feed-forward duty per µN·m, Q16.
     pub ff_duty_per_unm_q16: i64,
     /// Proportional duty per µN·m of error, Q16.

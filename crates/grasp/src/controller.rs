@@ -29,6 +29,14 @@ pub enum FaultReason {
         /// The jump (counts).
         step_counts: i32,
     },
+    /// The encoder disagrees with the motor's back-EMF (bridge voltage − R·I) for longer than
+    /// allowed: stuck or slipping encoder.
+    EncoderMismatch {
+        /// Back-EMF from the bridge voltage and current (mV).
+        emf_mv: i32,
+        /// Back-EMF implied by the encoder speed (mV).
+        encoder_emf_mv: i32,
+    },
     /// The ADC gave a code outside 0‥4095.
     AdcCode {
         /// The code.
@@ -46,7 +54,8 @@ pub enum FaultReason {
     },
     /// The duty stayed saturated: the drive cannot follow the torque reference.
     Stall,
-    /// The approach reached its torque ceiling without detecting a contact.
+    /// The approach reached its torque ceiling or the end of the finger's range without
+    /// detecting a contact.
     NoContact,
     /// The finger did not settle after the step within the timeout.
     SettleTimeout,
@@ -75,6 +84,7 @@ impl FaultReason {
     pub const fn kind(&self) -> &'static str {
         match self {
             FaultReason::EncoderJump { .. } => "encoder_jump",
+            FaultReason::EncoderMismatch { .. } => "encoder_mismatch",
             FaultReason::AdcCode { .. } => "adc_code",
             FaultReason::AdcOffset { .. } => "adc_offset",
             FaultReason::OverCurrent { .. } => "over_current",
@@ -93,6 +103,7 @@ impl FaultReason {
         matches!(
             self,
             FaultReason::EncoderJump { .. }
+                | FaultReason::EncoderMismatch { .. }
                 | FaultReason::AdcCode { .. }
                 | FaultReason::AdcOffset { .. }
         )
@@ -268,6 +279,10 @@ impl Ring {
 struct Acc {
     theta: i64,
     torque: i64,
+    /// Duty applied over the interval (sum).
+    duty: i64,
+    /// Motor current (sum, µA).
+    ua: i64,
     n: u32,
 }
 
@@ -311,6 +326,25 @@ pub struct Controller {
     oc_count: u32,
     stall_count: u32,
     last_duty: i16,
+    last_counts: i32,
+    emf_bad: u32,
+    /// A fault found where the hardware is not at hand; applied at the end of the sample.
+    pending: Option<FaultReason>,
+}
+
+/// Secant stiffness between two static points, (T_b − T_a)/(θ_b − θ_a) (µN·m/rad),
+/// saturating; `i32::MAX` when θa did not advance.
+fn stiffness(a: &Sample, b: &Sample) -> i32 {
+    let dt = i64::from(b.torque_unm) - i64::from(a.torque_unm);
+    let dth = i64::from(b.theta_a_urad) - i64::from(a.theta_a_urad);
+    if dth <= 0 {
+        return i32::MAX;
+    }
+    sat_i32(
+        dt.saturating_mul(1_000_000)
+            .checked_div(dth)
+            .unwrap_or(i64::MAX),
+    )
 }
 
 impl Controller {
@@ -357,6 +391,9 @@ impl Controller {
             oc_count: 0,
             stall_count: 0,
             last_duty: 0,
+            last_counts: 0,
+            emf_bad: 0,
+            pending: None,
         }
     }
 
@@ -480,19 +517,10 @@ impl Controller {
         }
     }
 
-    /// Stiffness (µN·m/rad) of the second half of the step, seated again → settled:
-    /// (T_end − T_seat2)/(θ_end − θ_seat2), saturating. A second contact shows there.
+    /// Stiffness (µN·m/rad) of the second half of the step, seated again → settled.
+    /// A second contact shows there.
     fn kc_late_unm_per_rad(&self) -> i32 {
-        let dt = i64::from(self.end.torque_unm) - i64::from(self.seat2.torque_unm);
-        let dth = i64::from(self.end.theta_a_urad) - i64::from(self.seat2.theta_a_urad);
-        if dth <= 0 {
-            return i32::MAX;
-        }
-        sat_i32(
-            dt.saturating_mul(1_000_000)
-                .checked_div(dth)
-                .unwrap_or(i64::MAX),
-        )
+        stiffness(&self.seat2, &self.end)
     }
 
     /// Whether the step's late stiffness says "locked" (above the second-contact threshold).
@@ -612,9 +640,24 @@ impl Controller {
         // Sample accumulation (boxcar over `sample_ticks`, no smearing beyond it).
         self.acc.theta = self.acc.theta.saturating_add(i64::from(theta));
         self.acc.torque = self.acc.torque.saturating_add(i64::from(torque));
+        self.acc.duty = self.acc.duty.saturating_add(i64::from(self.last_duty));
+        self.acc.ua = self
+            .acc
+            .ua
+            .saturating_add(self.cur.current_ua(code, &self.p));
         self.acc.n = self.acc.n.saturating_add(1);
         if self.acc.n >= self.p.sample_ticks {
             let n = i64::from(self.acc.n);
+            // Encoder plausibility: the back-EMF the bridge voltage and the current imply
+            // must match the speed the encoder reports (a stuck or slipping encoder).
+            let counts = self.enc.map(|e| e.counts()).unwrap_or(0);
+            let dcounts = i64::from(counts) - i64::from(self.last_counts);
+            self.last_counts = counts;
+            if let Some(f) = self.emf_check(dcounts, n) {
+                self.fault(hw, f);
+                out.state = self.state;
+                return out;
+            }
             let s = Sample {
                 tick: self.tick,
                 theta_a_urad: sat_i32(self.acc.theta.checked_div(n).unwrap_or(0)),
@@ -629,6 +672,9 @@ impl Controller {
             }
             self.theta_prev = [Some(s.theta_a_urad), self.theta_prev[0]];
             self.on_sample(s);
+            if let Some(f) = self.pending.take() {
+                self.fault(hw, f);
+            }
             if let State::Fault(_) = self.state {
                 out.state = self.state;
                 return out;
@@ -641,7 +687,9 @@ impl Controller {
         // Per-tick supervision.
         match self.state {
             State::Seating | State::Step | State::Settling | State::Estimating | State::Holding => {
-                if let Some(d) = self.lost(theta, t_ref) {
+                let fast = self.vel.saturating_abs() > self.p.loss_speed_urad;
+                if fast || self.lost(theta, t_ref).is_some() {
+                    let d = sat_i32(i64::from(theta) - i64::from(self.contact.theta_a_urad));
                     self.fault(hw, FaultReason::LossOfContact { dtheta_a_urad: d });
                 }
             }
@@ -649,7 +697,9 @@ impl Controller {
         }
         let since = self.tick.wrapping_sub(self.phase_tick);
         match self.state {
-            State::Approach if t_ref >= self.p.approach_max_unm => {
+            State::Approach
+                if t_ref >= self.p.approach_max_unm || theta > self.p.approach_theta_max_urad =>
+            {
                 self.fault(hw, FaultReason::NoContact);
             }
             State::Seating | State::Step | State::Settling
@@ -696,16 +746,56 @@ impl Controller {
         out
     }
 
-    /// Loss of contact: θa beyond what a stiffness ≥ K_detect allows from the contact point.
+    /// Back-EMF check over one sample of `n` ticks with `dcounts` encoder counts.
+    fn emf_check(&mut self, dcounts: i64, n: i64) -> Option<FaultReason> {
+        let p = &self.p;
+        let duty = self.acc.duty.checked_div(n).unwrap_or(0);
+        let ua = self.acc.ua.checked_div(n).unwrap_or(0);
+        let v_uv = duty
+            .saturating_mul(p.bus_uv)
+            .checked_div(i64::from(DUTY_MAX))
+            .unwrap_or(0);
+        let ri_uv = ua.saturating_mul(p.r_mohm) / 1000;
+        let emf_uv = v_uv.saturating_sub(ri_uv);
+        let enc_uv = dcounts.saturating_mul(p.emf_uv_per_count_q16) >> 16;
+        if emf_uv.saturating_sub(enc_uv).saturating_abs() > p.emf_mismatch_uv {
+            self.emf_bad = self.emf_bad.saturating_add(1);
+        } else {
+            self.emf_bad = 0;
+        }
+        if self.emf_bad >= p.emf_mismatch_samples {
+            Some(FaultReason::EncoderMismatch {
+                emf_mv: sat_i32(emf_uv / 1000),
+                encoder_emf_mv: sat_i32(enc_uv / 1000),
+            })
+        } else {
+            None
+        }
+    }
+
+    /// Loss of contact: θa beyond what the contact allows. Before the second static point:
+    /// a stiffness ≥ K_detect from the contact point. After it: 1.5× the displacement the
+    /// early stiffness (seated → seated again) predicts from there (the path only stiffens).
     fn lost(&self, theta: i32, t_ref: i32) -> Option<i32> {
-        let dth = i64::from(theta) - i64::from(self.contact.theta_a_urad);
-        let dt = i64::from(t_ref) - i64::from(self.contact.torque_unm);
+        let second_known = matches!(
+            self.state,
+            State::Step | State::Settling | State::Estimating | State::Holding
+        );
+        let k_early = i64::from(stiffness(&self.seat, &self.seat2));
+        let (from, k, num, den) = if second_known && k_early > 0 && k_early < i64::from(i32::MAX) {
+            (self.seat2, k_early, 3, 2)
+        } else {
+            (self.contact, self.p.detect_k_unm_per_rad, 1, 1)
+        };
+        let dth = i64::from(theta) - i64::from(from.theta_a_urad);
+        let dt = (i64::from(t_ref) - i64::from(from.torque_unm)).max(0);
         let excess = dth - i64::from(self.p.loss_margin_urad);
         if excess <= 0 {
             return None;
         }
-        // excess·K > ΔT·1e6  ⇔  the finger moved more than ΔT/K + margin.
-        if excess.saturating_mul(self.p.detect_k_unm_per_rad) > dt.max(0).saturating_mul(1_000_000)
+        // excess·K·den > ΔT·1e6·num  ⇔  moved more than (num/den)·ΔT/K + margin.
+        if excess.saturating_mul(k).saturating_mul(den)
+            > dt.saturating_mul(1_000_000).saturating_mul(num)
         {
             Some(sat_i32(dth))
         } else {
@@ -895,6 +985,19 @@ impl Controller {
             return;
         };
         self.end = end;
+        // A second contact locks the finger: the late half of the step is far stiffer than
+        // any single contact, or far stiffer than the early half (a proximal first contact,
+        // K ≈ K_c,prox, then the distal phalanx touching too).
+        let late = i64::from(self.kc_late_unm_per_rad());
+        let early = i64::from(stiffness(&self.seat, &self.seat2));
+        if late > self.p.second_k_unm_per_rad
+            || late > early.saturating_mul(i64::from(self.p.second_ratio))
+        {
+            self.pending = Some(FaultReason::SecondContact {
+                kc_unm_per_rad: sat_i32(late),
+            });
+            return;
+        }
         self.state = State::Estimating;
         self.phase_tick = self.tick;
         self.request_ready = true;

@@ -106,6 +106,8 @@ fn cfg(dta: f64) -> ControllerConfig {
         damping_nm_s_per_rad: 0.0,
         approach_speed_max_rad_s: 100.0,
         detect_min_rise_nm: 0.002,
+        // The mock has no back-EMF.
+        emf_mismatch_v: 1000.0,
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(dta)
