@@ -17,8 +17,8 @@ use pts::{Finger, Model, Phalanx, PtsError, Real};
 use crate::config::HISTORY;
 
 /// The numeric back end of the estimator on the target. One place to switch
-/// (to `pts::fixed::Fx32` / `pts::FirmwareReal` once available).
-pub type EstReal = f32;
+/// (`pts::FirmwareReal`, I32F32 fixed point; f32 or f64 work too).
+pub type EstReal = pts::FirmwareReal;
 
 /// Capacity of the contact-to-settle path (samples; the stride doubles when it fills).
 pub const PATH_CAPACITY: usize = 128;
