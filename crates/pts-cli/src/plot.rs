@@ -463,7 +463,7 @@ fn draw_signals<DB: DrawingBackend>(
                 .label(label)
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], col.stroke_width(3)));
         }
-        if let Some((tc, thc, tac)) = s.contact {
+        if let Some((tc, thc, tac)) = s.contact.filter(|c| c.0 >= t0 && c.0 <= t1) {
             let y = match i {
                 0 => thc,
                 1 => tac,

@@ -279,7 +279,10 @@ fn sweep(a: &Args) -> Result<(), String> {
                 (_, Some(e), _) => (Some(e), "ok".to_string()),
                 (Some(Err(e)), _, _) => (None, e.kind().to_string()),
                 (_, _, Some(f)) => (None, f.to_string()),
-                (Some(Ok(r)), None, None) => (None, located_name(r.located).to_string()),
+                (Some(Ok(r)), None, None) => match rep.first_contact {
+                    Some((_, ph, _)) if ph != "distal" => (None, format!("touched {ph}")),
+                    _ => (None, located_name(r.located).to_string()),
+                },
                 (None, None, None) => (None, "no_estimate".to_string()),
             },
         };
@@ -322,9 +325,15 @@ fn sweep(a: &Args) -> Result<(), String> {
             "location error k̂2 − k2,c (% of l2), closed loop{}; rows: object, contact location; columns: ΔT_a (N·m)",
             if a.ideal { ", ideal drive" } else { "" }
         );
+        let w = cells
+            .iter()
+            .map(|c| c.outcome.len() + 2)
+            .chain([10])
+            .max()
+            .unwrap_or(10);
         let mut head = format!("{:<22}", "object / k2,c");
         for d in &a.dta {
-            head += &format!("{:>12}", format!("{d}"));
+            head += &format!("{:>w$}", format!("{d}"));
         }
         println!("{head}");
         for &r in &a.radii_cm {
@@ -344,14 +353,14 @@ fn sweep(a: &Args) -> Result<(), String> {
                         Some(c) => c.outcome.clone(),
                         None => "-".into(),
                     };
-                    line += &format!("{txt:>12}");
+                    line += &format!("{txt:>w$}");
                 }
                 println!("{line}");
             }
             let mut line = format!("{:<22}", format!("{obj}, max |err|"));
             for &d in &a.dta {
                 line += &format!(
-                    "{:>12}",
+                    "{:>w$}",
                     max_abs(r, d).map_or("-".to_string(), |v| format!("{v:.2}"))
                 );
             }
