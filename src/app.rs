@@ -59,6 +59,14 @@ mod app {
             (cfg.drive.dt_s * 1e6) as u32
         );
         let decimation = ctl::decimation(&cfg.drive);
+        // Calibration of the work counter: `delay(n)` is n + 1 passes of `subs; bne`, i.e.
+        // 200 002 instructions (QEMU icount: stamps × 40; board: CPU cycles of that loop).
+        let c0 = platform::stamp();
+        cortex_m::asm::delay(100_000);
+        defmt::info!(
+            "CAL instructions=200002 stamps={=u32}",
+            platform::stamp().wrapping_sub(c0)
+        );
         let ctrl = match Controller::new(cfg) {
             Ok(c) => c,
             Err(_) => {
@@ -121,7 +129,7 @@ mod app {
                 out
             });
             let t_ctrl = platform::stamp();
-            tm::record_max(&tm::WORK_MAX, t_ctrl.wrapping_sub(t0));
+            tm::record_work(tick, t_ctrl.wrapping_sub(t0));
             if out.estimate_ready && estimate::spawn().is_err() {
                 tm::dropped();
             }
@@ -198,7 +206,7 @@ mod app {
         let work = platform::stamp()
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
-        tm::record_max(&tm::EST_WORK_MAX, work);
+        let _ = tm::record_max(&tm::EST_WORK_MAX, work);
         if result.is_err() {
             // The controller logs the refusal as a Fault event with the reason.
             let _ = cx.local.tel_tx_est;

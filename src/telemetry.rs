@@ -17,6 +17,10 @@ pub static DROPPED: AtomicU32 = AtomicU32::new(0);
 /// Worst sampling-task work seen so far, in the board's cycle-counter units
 /// (board: CPU cycles from DWT; QEMU with `-icount shift=0`: SysTick ticks of 40 instructions).
 pub static WORK_MAX: AtomicU32 = AtomicU32::new(0);
+/// Control tick of the worst sampling-task work.
+pub static WORK_MAX_TICK: AtomicU32 = AtomicU32::new(0);
+/// Sum of the sampling-task work (for the mean).
+pub static WORK_SUM: AtomicU32 = AtomicU32::new(0);
 /// Total time spent in the sampling task (stamp units), so a preempted task can subtract it.
 pub static PREEMPT: AtomicU32 = AtomicU32::new(0);
 /// Worst estimate-task work, same units.
@@ -104,10 +108,25 @@ pub fn dropped() {
     DROPPED.fetch_add(1, Ordering::Relaxed);
 }
 
-/// Keeps the maximum of a work counter.
-pub fn record_max(slot: &AtomicU32, v: u32) {
+/// Keeps the maximum of a work counter; true when `v` is a new maximum.
+pub fn record_max(slot: &AtomicU32, v: u32) -> bool {
     if v > slot.load(Ordering::Relaxed) {
         slot.store(v, Ordering::Relaxed);
+        true
+    } else {
+        false
+    }
+}
+
+/// Records the sampling task's work of one tick.
+pub fn record_work(tick: u32, v: u32) {
+    // Single writer (the sampling task): load + store is enough; saturate instead of wrapping.
+    WORK_SUM.store(
+        WORK_SUM.load(Ordering::Relaxed).saturating_add(v),
+        Ordering::Relaxed,
+    );
+    if record_max(&WORK_MAX, v) {
+        WORK_MAX_TICK.store(tick, Ordering::Relaxed);
     }
 }
 
@@ -150,13 +169,15 @@ pub fn log(msg: &Msg) {
             t.k_um
         ),
         Msg::Done(d) => defmt::info!(
-            "END status={=i32} state={} bridge_safe={=bool} ticks={=u32} dropped={=u32} work_max={=u32} est_work_max={=u32}",
+            "END status={=i32} state={} bridge_safe={=bool} ticks={=u32} dropped={=u32} work_max={=u32} work_max_tick={=u32} work_mean_x100={=u32} est_work_max={=u32}",
             d.status,
             d.state,
             d.bridge_safe,
             d.ticks,
             DROPPED.load(Ordering::Relaxed),
             WORK_MAX.load(Ordering::Relaxed),
+            WORK_MAX_TICK.load(Ordering::Relaxed),
+            (u64::from(WORK_SUM.load(Ordering::Relaxed)) * 100 / u64::from(d.ticks.max(1))) as u32,
             EST_WORK_MAX.load(Ordering::Relaxed)
         ),
     }

@@ -12,7 +12,7 @@
 //! | watchdog                  | —    | IWDG, 10 ms                    | fed by the sampling task           |
 //!
 //! Timing: TIM1 runs centre-aligned at 20 kHz (ARR = 2500 at 100 MHz); its repetition counter
-//! (RCR = 3) makes an update event every second PWM period, at the counter underflow, i.e. in
+//! (RCR = 3 for the controller's dt = 100 µs) makes an update event every second PWM period, at the counter underflow, i.e. in
 //! the middle of the active pulse, away from the switching edges. The update is TIM1_TRGO,
 //! which starts the injected ADC conversion; its end (JEOC) raises the ADC interrupt: the
 //! sampling task at 10 kHz, with the current sampled in step with the PWM.
@@ -32,10 +32,19 @@ use crate::telemetry::{PlantEvent, Truth};
 /// Name of this board in the log.
 pub const NAME: &str = "stm32f411ceu6";
 
+/// PWM frequency (Hz).
+const PWM_HZ: f64 = 20_000.0;
 /// PWM period in timer ticks (centre-aligned: 100 MHz / (2 × 2500) = 20 kHz).
 const PWM_ARR: u32 = 2500;
-/// Update (→ ADC trigger, sampling task) every RCR + 1 = 4 half periods = 2 PWM periods.
-const PWM_RCR: u32 = 3;
+
+/// Repetition counter for one update (→ ADC trigger → sampling task) per control period:
+/// RCR + 1 half PWM periods. 10 kHz (dt = 100 µs) → 4 half periods → RCR = 3. An odd RCR
+/// keeps every update on the same (underflow) extremum.
+fn pwm_rcr(dt_s: f64) -> u32 {
+    let half_periods = (dt_s * 2.0 * PWM_HZ + 0.5) as u32;
+    let rcr = half_periods.clamp(2, 256) - 1;
+    rcr | 1
+}
 
 /// Latched by [`safe_state`].
 static BRIDGE_SAFE: AtomicBool = AtomicBool::new(false);
@@ -107,13 +116,15 @@ pub fn init(
             .write(|w| w.bits(1 | (0b0001 << 16) | (0b01 << 20)));
     }
 
+    let drive = crate::ctl::board_drive();
+    let rcr = pwm_rcr(drive.dt_s);
     let tim1 = dp.TIM1;
     unsafe {
         // 20 kHz centre-aligned PWM on CH1/CH2 (PWM mode 1, preload), both outputs low,
         // update every second period → TRGO → ADC.
         tim1.psc().write(|w| w.bits(0));
         tim1.arr().write(|w| w.bits(PWM_ARR));
-        tim1.rcr().write(|w| w.bits(PWM_RCR));
+        tim1.rcr().write(|w| w.bits(rcr));
         tim1.ccr1().write(|w| w.bits(0));
         tim1.ccr2().write(|w| w.bits(0));
         tim1.ccmr1_output()
@@ -128,7 +139,6 @@ pub fn init(
     let mut wdg = IndependentWatchdog::new(dp.IWDG);
     wdg.start(10.millis());
 
-    let drive = crate::ctl::board_drive();
     (
         Board {
             adc_code: 2048,

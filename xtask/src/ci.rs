@@ -92,7 +92,7 @@ fn expect_end(frames: &[Frame]) -> Res<&Frame> {
 }
 
 /// Runs one scene in QEMU and on the host and checks the log.
-fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, u64, u64)>) -> Res {
+fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64, f64)>) -> Res {
     let elf = qemu::build(scene)?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -172,10 +172,12 @@ fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, u64, u64
             errs.push(format!("END line without {key}"));
         }
     }
+    let per = instr_per_stamp(q)?;
     work.push((
         scene.to_string(),
-        int(&end.msg, "work_max").unwrap_or(0) as u64 * INSTR_PER_TICK,
-        int(&end.msg, "est_work_max").unwrap_or(0) as u64 * INSTR_PER_TICK,
+        int(&end.msg, "work_max").unwrap_or(0) as f64 * per,
+        int(&end.msg, "work_mean_x100").unwrap_or(0) as f64 * 0.01 * per,
+        int(&end.msg, "est_work_max").unwrap_or(0) as f64 * per,
     ));
     println!(
         "{scene}: exit {}, {} frames, QEMU wall {:.1} s",
@@ -188,6 +190,21 @@ fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, u64, u64
     } else {
         Err(errs.join("\n"))
     }
+}
+
+/// Instructions per work stamp, from the firmware's calibration loop (CAL line); must agree
+/// with the icount arithmetic (1 ns per instruction, 40 ns per 25 MHz timer tick).
+pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
+    let cal = log::first(frames, "CAL").ok_or("no CAL line in the log")?;
+    let n = int(&cal.msg, "instructions").ok_or("CAL without instructions")? as f64;
+    let s = int(&cal.msg, "stamps").ok_or("CAL without stamps")? as f64;
+    let per = n / s.max(1.0);
+    if (per - INSTR_PER_TICK as f64).abs() > 0.5 {
+        return Err(format!(
+            "work counter calibration: {per:.2} instructions per stamp, expected {INSTR_PER_TICK} (-icount shift=0 and a 25 MHz timer)"
+        ));
+    }
+    Ok(per)
 }
 
 /// `cargo xtask test`.
@@ -268,9 +285,9 @@ pub fn main(args: &[String]) -> Res<i32> {
         "\n==== summary ({:.0} s) ====",
         start.elapsed().as_secs_f64()
     );
-    for (scene, w, e) in &work {
+    for (scene, w, m, e) in &work {
         eprintln!(
-            "work on the target ISA ({scene}): sampling task ≤ {w} instructions, estimate task ≤ {e} instructions (±{INSTR_PER_TICK})"
+            "work on the target ISA ({scene}): sampling task max {w:.0} / mean {m:.0} instructions, estimate task max {e:.0} instructions (±{INSTR_PER_TICK})"
         );
     }
     for p in &st.passed {

@@ -119,6 +119,14 @@ pub fn summary(frames: &[Frame], status: i32) {
             int(&e.msg, "ticks").unwrap_or(0) as f64 * 1e-4
         );
     }
+    if let (Some(e), Ok(per)) = (log::last(frames, "END"), crate::ci::instr_per_stamp(frames)) {
+        let w = int(&e.msg, "work_max").unwrap_or(0) as f64 * per;
+        let m = int(&e.msg, "work_mean_x100").unwrap_or(0) as f64 * 0.01 * per;
+        let est = int(&e.msg, "est_work_max").unwrap_or(0) as f64 * per;
+        println!(
+            "work     : sampling task max {w:.0} / mean {m:.0} instructions per tick (Cortex-M4, ±40), estimate {est:.0} instructions"
+        );
+    }
     println!("firmware exit status {status}");
 }
 
