@@ -127,10 +127,12 @@ fn finger_consts(src: &mut String) {
     );
 }
 
-/// A scene file turned into a Rust expression of `plant::Scene` (its Debug form is valid Rust
-/// with the plant's types in scope).
+/// A scene file turned into a constant Rust expression of `plant::Scene` (checked by the
+/// plant's own TOML reader, written out with full paths by `to_rust_expr`).
 fn scene_file_const(path: &str) -> String {
-    panic!("FINGER_FW_SCENE={path}: scene files need plant's TOML reader, which is not there yet; use a built-in scene name")
+    let scene = plant::toml_scene::from_toml_file(std::path::Path::new(path))
+        .unwrap_or_else(|e| panic!("FINGER_FW_SCENE={path}: {e}"));
+    plant::toml_scene::to_rust_expr(&scene)
 }
 
 fn scene_consts(src: &mut String) {

@@ -82,3 +82,39 @@ pub fn decimation(drive: &DriveConfig) -> u32 {
     let n = (0.02 / drive.dt_s) as u32;
     n.max(1)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn telemetry_is_50_hz_whatever_the_loop_rate() {
+        let mut d = DriveConfig::DEFAULT;
+        for (dt, n) in [(100e-6, 200), (200e-6, 100), (1e-3, 20), (0.05, 1)] {
+            d.dt_s = dt;
+            assert_eq!(decimation(&d), n, "dt {dt}");
+        }
+    }
+
+    #[test]
+    fn exit_status_and_end_of_run() {
+        assert_eq!(status(State::Holding), 0);
+        assert_eq!(status(State::Fault(grasp::FaultReason::Stall)), 2);
+        assert!(finished(State::Done) && finished(State::Holding));
+        assert!(!finished(State::Approach) && !finished(State::Estimating));
+    }
+
+    /// The simulated board's controller sees the scene's nominal drive: one encoder count
+    /// and one ADC code convert the way the plant's sensor model defines them.
+    #[test]
+    fn scene_drive_matches_the_plant_sensors() {
+        let s = plant::scenes::table2();
+        let d = scene_drive(&s);
+        assert_eq!(d.dt_s, s.dt_s);
+        assert_eq!(
+            d.encoder_counts_per_rev,
+            f64::from(s.sensors.counts_per_turn())
+        );
+        assert!((d.amps_per_code * s.sensors.codes_per_amp() - 1.0).abs() < 1e-12);
+    }
+}

@@ -3,7 +3,7 @@
 //! → estimate delivery) on the host's ISA, printing the firmware's log lines. `cargo xtask
 //! test` compares its estimate with the QEMU run's (same numbers on both ISAs).
 //!
-//! `finger-fw simulate [--scene NAME]` (default: the scene of this build, FINGER_FW_SCENE).
+//! `finger-fw simulate [--scene NAME|FILE]` (default: the scene of this build, FINGER_FW_SCENE).
 
 use grasp::{Controller, Hardware, DUTY_MAX};
 
@@ -74,7 +74,15 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         }
     }
     let scene = match &name {
-        Some(n) => plant::scenes::by_name(n).ok_or_else(|| format!("no scene {n}"))?,
+        Some(n) if n.ends_with(".toml") => {
+            plant::toml_scene::from_toml_file(std::path::Path::new(n)).map_err(|e| e.to_string())?
+        }
+        Some(n) => plant::scenes::by_name(n).ok_or_else(|| {
+            format!(
+                "no scene {n}; built-in: {}",
+                plant::scenes::NAMES.join(", ")
+            )
+        })?,
         None => ctl::scene().ok_or("the build's scene is unknown")?,
     };
     let plant = plant::Plant::new(&scene).map_err(|e| format!("scene: {e:?}"))?;

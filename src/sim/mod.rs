@@ -24,10 +24,12 @@ use crate::telemetry::{PlantEvent, Truth};
 /// Name of this board in the log.
 pub const NAME: &str = "qemu-mps2-an386";
 
-/// SysTick reload: 25 MHz processor clock / 25 000 = 1 ms of QEMU virtual time between the end
-/// of one sample and the next (1 M instructions at `-icount shift=0`). Simulated time is the
-/// plant's own clock, so this only sets how much room the lower priorities get.
-const SYSTICK_RELOAD: u32 = 25_000 - 1;
+/// SysTick reload: 250 ticks of the 25 MHz clock = 10 000 instructions at `-icount shift=0`
+/// between the end of one sample and the next: what a 100 MHz MCU has per 10 kHz period. The
+/// lower priorities (estimate, telemetry) thus get about the share of CPU they get on the
+/// board, so the estimate arrives a realistic number of control ticks after the request.
+/// Simulated time is the plant's own clock and is not affected.
+const SYSTICK_RELOAD: u32 = 250 - 1;
 
 /// CMSDK APB timer 0 registers (CTRL, VALUE, RELOAD).
 const TIMER0_CTRL: *mut u32 = 0x4000_0000 as *mut u32;

@@ -299,3 +299,26 @@ pub fn main(args: &[String]) -> Res<i32> {
     println!("{} passed, {} failed", st.passed.len(), st.failed.len());
     Ok(if st.failed.is_empty() { 0 } else { 1 })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(msg: &str) -> Frame {
+        Frame {
+            ts: None,
+            level: "INFO".into(),
+            msg: msg.into(),
+        }
+    }
+
+    #[test]
+    fn calibration_checks_the_icount_arithmetic() {
+        let ok = [frame("CAL instructions=200002 stamps=5000")];
+        assert!((instr_per_stamp(&ok).unwrap() - 40.0).abs() < 1e-3);
+        // A different clock or icount shift must be caught, not silently rescaled.
+        let bad = [frame("CAL instructions=200002 stamps=10000")];
+        assert!(instr_per_stamp(&bad).is_err());
+        assert!(instr_per_stamp(&[frame("BOOT")]).is_err());
+    }
+}

@@ -140,3 +140,18 @@ pub fn main(args: &[String]) -> Res<i32> {
     println!("(QEMU wall time {:.1} s)", run.wall.as_secs_f64());
     Ok(run.status)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scene_argument() {
+        let a = |v: &[&str]| scene_from_args(&v.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+        assert_eq!(a(&[]).unwrap(), "table2");
+        assert_eq!(a(&["--scene", "free"]).unwrap(), "free");
+        assert_eq!(a(&["--scene=vertex_k2_30"]).unwrap(), "vertex_k2_30");
+        assert!(a(&["--scene"]).is_err());
+        assert!(a(&["--bogus"]).is_err());
+    }
+}
