@@ -98,7 +98,7 @@ pub struct Outcome {
     /// Final controller state.
     pub state: State,
     /// The delivered estimate (or the solver's refusal).
-    pub estimate: Option<Result<EstimateResult, pts::PtsError>>,
+    pub estimate: Option<Result<EstimateResult, grasp::EstimateError>>,
     /// The estimate request (when the grasp got that far).
     pub request: Option<grasp::EstimateRequest>,
     /// Plant truth when the controller reported "settled".

@@ -75,6 +75,18 @@ pub enum StepShape {
     Ramp(f64),
 }
 
+/// Which estimator [`run_estimate`](crate::run_estimate) applies to the request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Estimator {
+    /// The paper's two-point method: K̂c = ΔT_a/Δθa (Eq. 1), inverted at the contact
+    /// configuration.
+    TwoPoint,
+    /// `pts::pathfit`: the whole contact-to-settle path fitted with the quasi-static contact
+    /// model (friction offset, curvature, inertia), no ΔT_a bias.
+    PathFit,
+}
+
 /// What to do once the estimate is delivered.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -169,6 +181,8 @@ pub struct ControllerConfig {
     pub kp_rel: f64,
     /// Current loop integral gain per tick, relative to the static plant inverse (dimensionless).
     pub ki_rel: f64,
+    /// The estimator the request asks for.
+    pub estimator: Estimator,
     /// After the estimate: hold or release.
     pub after_estimate: AfterEstimate,
     /// Release: ramp-down rate (N·m/s).
@@ -212,6 +226,7 @@ impl ControllerConfig {
         encoder_max_counts_per_tick: 64,
         kp_rel: 0.2,
         ki_rel: 0.3,
+        estimator: Estimator::TwoPoint,
         after_estimate: AfterEstimate::Hold,
         release_rate_nm_per_s: 1.0,
     };
@@ -381,6 +396,8 @@ impl ControllerConfig {
             kp_duty_per_unm_q16: q16(duty_per_unm * self.kp_rel),
             ki_duty_per_unm_q16: q16(duty_per_unm * self.ki_rel),
             after_estimate: self.after_estimate,
+            estimator: self.estimator,
+            dt_ns: to_u32(d.dt_s * 1e9),
             release_ramp_q16: ramp(self.release_rate_nm_per_s),
         };
         if p.urad_per_count_q16 == 0
@@ -503,6 +520,10 @@ pub struct Params {
     pub ki_duty_per_unm_q16: i64,
     /// Hold or release after the estimate.
     pub after_estimate: AfterEstimate,
+    /// Estimator for the request.
+    pub estimator: Estimator,
+    /// Control period (ns).
+    pub dt_ns: u32,
     /// Release ramp, µN·m per tick, Q16.
     pub release_ramp_q16: i64,
 }

@@ -8,10 +8,11 @@
 #![deny(clippy::float_arithmetic)]
 
 use heapless::{Deque, Vec};
+use pts::pathfit::PathFitError;
 use pts::PtsError;
 
 use crate::config::{AfterEstimate, ConfigError, ControllerConfig, Params, HISTORY};
-use crate::estimate::{EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
+use crate::estimate::{EstimateError, EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
 use crate::sensors::{sat_i32, CurrentSense, Encoder};
 use crate::torque_loop::TorqueLoop;
 use crate::{Hardware, DUTY_MAX};
@@ -74,8 +75,8 @@ pub enum FaultReason {
     },
     /// The estimator refused the measurement.
     EstimateOutOfRange {
-        /// The solver's reason.
-        error: PtsError,
+        /// The estimator's reason.
+        error: EstimateError,
     },
 }
 
@@ -476,6 +477,8 @@ impl Controller {
             sample_ticks: self.p.sample_ticks,
             path_stride: self.path_stride,
             delta_ta_cmd_unm: self.p.delta_ta_unm,
+            estimator: self.p.estimator,
+            dt_ns: self.p.dt_ns,
             detect_k_unm_per_rad: sat_i32(self.p.detect_k_unm_per_rad),
         })
     }
@@ -486,7 +489,7 @@ impl Controller {
     pub fn deliver<H: Hardware + ?Sized>(
         &mut self,
         hw: &mut H,
-        outcome: Result<EstimateResult, PtsError>,
+        outcome: Result<EstimateResult, EstimateError>,
     ) {
         if self.state != State::Estimating {
             return;
@@ -507,9 +510,13 @@ impl Controller {
                     }
                 }
             }
-            Err(PtsError::BeyondTip) if self.kc_locked() => {
+            Err(EstimateError::Model(PtsError::BeyondTip)) if self.kc_locked() => {
                 // Far stiffer than any single contact on the distal phalanx: the finger is
                 // blocked at two points.
+                let kc_unm_per_rad = self.kc_late_unm_per_rad();
+                self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad });
+            }
+            Err(EstimateError::PathFit(PathFitError::SecondContact)) => {
                 let kc_unm_per_rad = self.kc_late_unm_per_rad();
                 self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad });
             }
@@ -592,11 +599,14 @@ impl Controller {
             return out;
         }
 
-        // Over-current: on the raw sample, persistent for a few ticks.
+        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
+        // so a current chattering around the limit still trips: it trips after
+        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
+        // the ticks are above it.
         let ua = self.cur.current_ua(code, &self.p);
         if ua.saturating_abs() > self.p.overcurrent_ua {
-            self.oc_count = self.oc_count.saturating_add(1);
-            if self.oc_count >= self.p.overcurrent_ticks {
+            self.oc_count = self.oc_count.saturating_add(2);
+            if self.oc_count >= self.p.overcurrent_ticks.saturating_mul(2) {
                 self.fault(
                     hw,
                     FaultReason::OverCurrent {
@@ -607,7 +617,7 @@ impl Controller {
                 return out;
             }
         } else {
-            self.oc_count = 0;
+            self.oc_count = self.oc_count.saturating_sub(1);
         }
 
         // Reference trajectory of this tick.

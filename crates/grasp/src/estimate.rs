@@ -12,9 +12,10 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use heapless::Vec;
+use pts::pathfit::{fit_path, PathFitConfig, PathFitError, PathSample};
 use pts::{Finger, Model, Phalanx, PtsError, Real};
 
-use crate::config::HISTORY;
+use crate::config::{Estimator, HISTORY};
 
 /// The numeric back end of the estimator on the target. One place to switch
 /// (`pts::FirmwareReal`, I32F32 fixed point; f32 or f64 work too).
@@ -80,6 +81,36 @@ pub struct EstimateRequest {
     pub delta_ta_cmd_unm: i32,
     /// The detection stiffness threshold (µN·m/rad).
     pub detect_k_unm_per_rad: i32,
+    /// Which estimator to run.
+    pub estimator: Estimator,
+    /// Control period (ns): sample ticks → time.
+    pub dt_ns: u32,
+}
+
+/// Why the estimator refused the measurement.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum EstimateError {
+    /// The two-point method (or the model under it) refused.
+    Model(PtsError),
+    /// The path fit refused.
+    PathFit(PathFitError),
+}
+
+impl EstimateError {
+    /// A stable snake_case name for logs.
+    pub const fn kind(&self) -> &'static str {
+        match self {
+            EstimateError::Model(e) => e.kind(),
+            EstimateError::PathFit(e) => e.kind(),
+        }
+    }
+}
+
+impl From<PtsError> for EstimateError {
+    fn from(e: PtsError) -> Self {
+        EstimateError::Model(e)
+    }
 }
 
 /// Where the contact is.
@@ -136,14 +167,90 @@ pub struct EstimateResult {
 /// The finger the default estimator uses (the paper's prototype).
 pub const FINGER: Finger = Finger::PAPER;
 
-/// Runs the two-point estimate for the paper's finger on [`EstReal`].
-pub fn run_estimate(req: &EstimateRequest) -> Result<EstimateResult, PtsError> {
+/// Runs the estimator the request names, for the paper's finger on [`EstReal`].
+pub fn run_estimate(req: &EstimateRequest) -> Result<EstimateResult, EstimateError> {
     let model = Model::<EstReal>::new(&FINGER)?;
     run_estimate_with(&model, req)
 }
 
-/// Runs the two-point estimate with a given model (any back end).
+/// Runs the estimator the request names with a given model (any back end).
 pub fn run_estimate_with<R: Real>(
+    model: &Model<R>,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, EstimateError> {
+    match req.estimator {
+        Estimator::TwoPoint => two_point(model, req).map_err(EstimateError::Model),
+        Estimator::PathFit => path_fit(model, req).map_err(EstimateError::PathFit),
+    }
+}
+
+/// The whole-path estimate (`pts::pathfit`) from the samples after the detection.
+pub fn path_fit<R: Real>(
+    model: &Model<R>,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, PathFitError> {
+    let (theta_c, ta_c) = contact_point_model(model, req).unwrap_or_else(|| contact_point(req));
+    let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
+    let dt_s = f64::from(req.dt_ns) * 1e-9;
+    let kt = req.contact.tick;
+    let samples = req
+        .pre
+        .iter()
+        .filter(move |s| s.tick > kt)
+        .chain(req.path.iter())
+        .map(move |s| PathSample {
+            time_s: R::from_f64(f64::from(s.tick) * dt_s),
+            theta_a_rad: R::from_f64(f64::from(s.theta_a_urad) * 1e-6),
+            torque_nm: R::from_f64(f64::from(s.torque_unm) * 1e-6),
+        });
+    let dta = f64::from(req.end.torque_unm) * 1e-6 - ta_c;
+    let dth = f64::from(req.end.theta_a_urad) * 1e-6 - theta_c;
+    let base = EstimateResult {
+        located: Located::Proximal,
+        k2_um: None,
+        kc_hat_unm_per_rad: 0,
+        kc_proximal_unm_per_rad: 0,
+        kc_tip_unm_per_rad: 0,
+        delta_ta_unm: to_micro(dta),
+        delta_theta_a_urad: to_micro(dth),
+        theta_a_c_urad: to_micro(theta_c),
+        ta_c_unm: to_micro(ta_c),
+        quality: Quality::Good,
+    };
+    let fit = match fit_path(
+        model,
+        &PathFitConfig::DEFAULT,
+        conv(theta_c)?,
+        Some(conv(ta_c)?),
+        samples,
+    ) {
+        Ok(f) => f,
+        Err(PathFitError::ProximalContact) => {
+            return Ok(EstimateResult {
+                quality: Quality::Ambiguous,
+                ..base
+            })
+        }
+        Err(e) => return Err(e),
+    };
+    let k2 = fit.k2_contact_m.to_f64();
+    let sigma = fit.sigma_k2_m.to_f64();
+    Ok(EstimateResult {
+        located: Located::Distal,
+        k2_um: Some(to_micro(k2)),
+        kc_hat_unm_per_rad: to_micro(fit.kc_contact.to_f64()),
+        theta_a_c_urad: to_micro(fit.theta_a_c_rad.to_f64()),
+        quality: if sigma > 0.05 * FINGER.l2 {
+            Quality::LowSignal
+        } else {
+            Quality::Good
+        },
+        ..base
+    })
+}
+
+/// The paper's two-point estimate from the request.
+pub fn two_point<R: Real>(
     model: &Model<R>,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, PtsError> {

@@ -22,11 +22,11 @@ pub mod estimate;
 pub mod sensors;
 pub mod torque_loop;
 
-pub use config::{AfterEstimate, ControllerConfig, DriveConfig, StepShape};
+pub use config::{AfterEstimate, ControllerConfig, DriveConfig, Estimator, StepShape};
 pub use controller::{Controller, Event, FaultReason, State, TickOutput};
 pub use estimate::{
-    run_estimate, run_estimate_with, EstReal, EstimateRequest, EstimateResult, Located, Quality,
-    Sample, PATH_CAPACITY,
+    run_estimate, run_estimate_with, EstReal, EstimateError, EstimateRequest, EstimateResult,
+    Located, Quality, Sample, PATH_CAPACITY,
 };
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),

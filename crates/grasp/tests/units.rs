@@ -120,7 +120,7 @@ fn torque_loop_limits_and_recovers_without_windup() {
 
 #[test]
 fn config_refuses_nonsense_and_history_is_sane() {
-    assert!(HISTORY >= 32);
+    const { assert!(HISTORY >= 32) };
     let mut c = ControllerConfig::DEFAULT;
     c.drive.gear_ratio = f64::NAN;
     assert!(c.params().is_err());
