@@ -71,7 +71,7 @@ impl DriveParams {
         stiction_nm: 60e-6,
         viscous_nm_s_per_rad: 2.0e-9,
         stick_speed_rad_s: 0.2,
-        substeps: 8,
+        substeps: 4,
     };
 
     /// The same drive with friction, backlash and gear losses switched off (η = 1).
@@ -203,43 +203,42 @@ impl DriveParams {
     ) {
         let n = self.substeps.max(1);
         let h = dt_s / f64::from(n);
-        let jm = self.rotor_inertia_kgm2;
         let kt = self.kt_nm_per_a;
+        // Per-period constants (soft-float division is expensive on the target).
+        let h_over_l = h / self.l_h;
+        let inv_el = 1.0 / (1.0 + h * r_ohm / self.l_h);
+        let h_over_j = h / self.rotor_inertia_kgm2;
+        let inv_visc = 1.0 / (1.0 + h * self.viscous_nm_s_per_rad / self.rotor_inertia_kgm2);
+        let inv_n = 1.0 / self.gear_ratio;
+        let fwd_gain = inv_n / self.eff_drive;
+        let back_gain = self.eff_back * inv_n;
+        let duty_v = match input {
+            Input::Duty(d) if d.is_finite() => d.clamp(-1.0, 1.0) * self.supply_v,
+            _ => 0.0,
+        };
+        let forced_i = match input {
+            Input::Current(i) if i.is_finite() => i.clamp(-100.0, 100.0),
+            Input::MotorTorque(t) if t.is_finite() => (t / kt).clamp(-100.0, 100.0),
+            _ => 0.0,
+        };
         for _ in 0..n {
             // Electrical.
             match input {
-                Input::Duty(d) => {
-                    let d = if d.is_finite() {
-                        d.clamp(-1.0, 1.0)
-                    } else {
-                        0.0
-                    };
-                    let v = d * self.supply_v;
+                Input::Duty(_) => {
                     let emf = kt * st.speed_rad_s;
                     // Implicit Euler on L di/dt = v − R i − emf (stable for any h).
-                    st.current_a =
-                        (st.current_a + h / self.l_h * (v - emf)) / (1.0 + h * r_ohm / self.l_h);
-                    st.voltage_v = v;
+                    st.current_a = (st.current_a + h_over_l * (duty_v - emf)) * inv_el;
+                    st.voltage_v = duty_v;
                 }
-                Input::Current(i) => {
-                    st.current_a = if i.is_finite() {
-                        i.clamp(-100.0, 100.0)
-                    } else {
-                        0.0
-                    };
-                    st.voltage_v = r_ohm * st.current_a + kt * st.speed_rad_s;
-                }
-                Input::MotorTorque(t) => {
-                    let i = if t.is_finite() { t / kt } else { 0.0 };
-                    st.current_a = i.clamp(-100.0, 100.0);
+                Input::Current(_) | Input::MotorTorque(_) => {
+                    st.current_a = forced_i;
                     st.voltage_v = r_ohm * st.current_a + kt * st.speed_rad_s;
                 }
                 Input::Off => {
                     // Diodes clamp the winding to ±supply against the current: fast decay.
                     let v = -self.supply_v * sign(st.current_a);
                     let emf = kt * st.speed_rad_s;
-                    let next =
-                        (st.current_a + h / self.l_h * (v - emf)) / (1.0 + h * r_ohm / self.l_h);
+                    let next = (st.current_a + h_over_l * (v - emf)) * inv_el;
                     st.current_a = if next * st.current_a <= 0.0 {
                         0.0
                     } else {
@@ -249,7 +248,7 @@ impl DriveParams {
                 }
             }
             // Mechanical.
-            let gear = gear_zero_rad + st.angle_rad / self.gear_ratio;
+            let gear = gear_zero_rad + st.angle_rad * inv_n;
             let theta_a = self.finger_angle(gear, load.theta_a_zero_rad);
             let engaged = theta_a != load.theta_a_zero_rad || self.backlash_rad == 0.0;
             let t_out = if engaged {
@@ -259,10 +258,9 @@ impl DriveParams {
             };
             let t_out = if t_out.is_finite() { t_out } else { 0.0 };
             let tm = kt * st.current_a;
-            let nn = self.gear_ratio;
             // Reflected load: driving (power to the finger) vs back-driven.
-            let refl_fwd = t_out / (nn * self.eff_drive);
-            let refl_back = t_out * self.eff_back / nn;
+            let refl_fwd = t_out * fwd_gain;
+            let refl_back = t_out * back_gain;
             let w = st.speed_rad_s;
             if st.stuck || w.abs() < self.stick_speed_rad_s {
                 // Karnopp band: the shaft is (nearly) stopped. Impending motion in + must beat the
@@ -271,10 +269,10 @@ impl DriveParams {
                 let load_neg = if t_out >= 0.0 { refl_back } else { refl_fwd };
                 if tm - load_pos - self.stiction_nm > 0.0 {
                     st.stuck = false;
-                    st.speed_rad_s = w.max(0.0) + h / jm * (tm - load_pos - self.coulomb_nm);
+                    st.speed_rad_s = w.max(0.0) + h_over_j * (tm - load_pos - self.coulomb_nm);
                 } else if tm - load_neg + self.stiction_nm < 0.0 {
                     st.stuck = false;
-                    st.speed_rad_s = w.min(0.0) + h / jm * (tm - load_neg + self.coulomb_nm);
+                    st.speed_rad_s = w.min(0.0) + h_over_j * (tm - load_neg + self.coulomb_nm);
                 } else {
                     st.stuck = true;
                     st.speed_rad_s = 0.0;
@@ -287,8 +285,7 @@ impl DriveParams {
                 };
                 let fric = self.coulomb_nm * sign(w);
                 // Viscous term implicit.
-                let w_new =
-                    (w + h / jm * (tm - refl - fric)) / (1.0 + h * self.viscous_nm_s_per_rad / jm);
+                let w_new = (w + h_over_j * (tm - refl - fric)) * inv_visc;
                 if w_new * w < 0.0 {
                     // Reversal inside the substep: stop; the band logic decides the next substep.
                     st.speed_rad_s = 0.0;

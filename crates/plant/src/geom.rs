@@ -8,7 +8,7 @@
 //! `x2 = dφ/dθ2` follows from differentiating `|Oc − Ob|² = b²`.
 
 use crate::PlantError;
-use libm::{acos, atan2, cos, sin, sqrt};
+use libm::{acos, atan2, sincos, sqrt};
 
 /// Geometry, springs and joint limits of the two-phalanx linkage finger.
 ///
@@ -141,7 +141,7 @@ impl FingerGeom {
             return Err(PlantError::NonFinite);
         }
         let psi = theta2_rad - self.phi2_rad;
-        let (sp, cp) = (sin(psi), cos(psi));
+        let (sp, cp) = sincos(psi);
         let obx = self.l1_m + self.c_m * cp;
         let oby = self.c_m * sp;
         let d = sqrt(obx * obx + oby * oby);
@@ -152,8 +152,13 @@ impl FingerGeom {
         if !(cb.abs() <= 1.0) {
             return Err(PlantError::NotAssemblable);
         }
+        // φ = α − β with α = atan2(Ob), β = acos(cb) ∈ [0, π]; sin φ and cos φ follow
+        // algebraically instead of by two more trig calls (this runs soft-float on the M4).
         let phi = atan2(oby, obx) - acos(cb);
-        let (sf, cf) = (sin(phi), cos(phi));
+        let sb = sqrt((1.0 - cb * cb).max(0.0));
+        let (ca, sa) = (obx / d, oby / d);
+        let cf = ca * cb + sa * sb;
+        let sf = sa * cb - ca * sb;
         let wx = self.a_m * cf - obx;
         let wy = self.a_m * sf - oby;
         // d/dφ of Oc and d/dθ2 of Ob.
@@ -212,6 +217,7 @@ impl V2 {
         sqrt(self.dot(self))
     }
     pub(crate) fn unit_at(angle_rad: f64) -> V2 {
-        V2::new(cos(angle_rad), sin(angle_rad))
+        let (s, c) = sincos(angle_rad);
+        V2::new(c, s)
     }
 }

@@ -18,7 +18,7 @@
 //! `g_c = 0` (Newton, `dg/dθ2 = x2 J1 − J2`), then T_a and λ follow from the 2×2 balance.
 //! Two active constraints lock the finger: it then behaves as a stiff spring `k_lock`.
 
-use crate::geom::{FingerGeom, V2};
+use crate::geom::{FingerGeom, Linkage, V2};
 use crate::PlantError;
 
 /// Which phalanx.
@@ -233,9 +233,35 @@ impl Kin {
         self.gap_ext(c, theta1, theta2, false)
     }
 
+    /// Gaps of all constraints at one configuration (index = [`Constraint::slot`]), sharing
+    /// the trigonometry of the two phalanx frames.
+    pub fn gaps(&self, theta1: f64, theta2: f64) -> [Option<Gap>; 6] {
+        let fr = self.frames(theta1, theta2);
+        let mut out = [None; 6];
+        for (slot, c) in out.iter_mut().zip(Constraint::ALL) {
+            *slot = self.gap_with(c, theta1, theta2, false, fr);
+        }
+        out
+    }
+
     /// [`Kin::gap`]; with `line` the contact gap is the signed distance to the phalanx's whole
     /// line (the segment extended past both ends), used to locate a contact leaving its phalanx.
     pub fn gap_ext(&self, c: Constraint, theta1: f64, theta2: f64, line: bool) -> Option<Gap> {
+        let fr = match c {
+            Constraint::Contact(_) => self.frames(theta1, theta2),
+            _ => (V2::default(), V2::default(), V2::default()),
+        };
+        self.gap_with(c, theta1, theta2, line, fr)
+    }
+
+    fn gap_with(
+        &self,
+        c: Constraint,
+        theta1: f64,
+        theta2: f64,
+        line: bool,
+        (o2, u1, u2): (V2, V2, V2),
+    ) -> Option<Gap> {
         let f = &self.finger;
         let stop = |gap: f64, j: [f64; 2]| Some(Gap { gap, j, k_m: 0.0 });
         match c {
@@ -245,7 +271,6 @@ impl Kin {
             Constraint::Theta2Max => stop(f.theta2_max_rad - theta2, [0.0, 1.0]),
             Constraint::Contact(ph) => {
                 let obj = self.object?;
-                let (o2, u1, u2) = self.frames(theta1, theta2);
                 let (base, u, len) = match ph {
                     Phalanx::Proximal => (V2::new(0.0, 0.0), u1, f.l1_m),
                     Phalanx::Distal => (o2, u2, f.l2_m),
@@ -303,14 +328,13 @@ impl Kin {
         };
         match active {
             Active::None => {
-                let t2 = newton_secant(guess, |t2| {
+                let (t2, l) = newton_eval(guess, true, |t2| {
                     let l = f.linkage(t2)?;
                     let a = f.k1_nm_per_rad * (theta_a_rad - l.phi_rad - f.theta01_rad);
                     let val = a * l.x2 - f.k2_nm_per_rad * (t2 - f.theta02_rad);
                     // dF/dθ2 without the small dx2/dθ2 term: always negative, Newton stays safe.
-                    Ok((val, -(f.k1_nm_per_rad * l.x2 * l.x2 + f.k2_nm_per_rad)))
+                    Ok((val, -(f.k1_nm_per_rad * l.x2 * l.x2 + f.k2_nm_per_rad), l))
                 })?;
-                let l = f.linkage(t2)?;
                 let t1 = theta_a_rad - l.phi_rad;
                 Ok(Pose {
                     theta_a_rad,
@@ -350,15 +374,15 @@ impl Kin {
         line: bool,
     ) -> Result<Pose, PlantError> {
         let f = &self.finger;
-        let t2 = newton(theta2_guess, |t2| {
+        let (t2, (l, g)) = newton_eval(theta2_guess, false, |t2| {
             let l = f.linkage(t2)?;
             let t1 = theta_a_rad - l.phi_rad;
             let g = self
                 .gap_ext(c, t1, t2, line)
                 .ok_or(PlantError::BadPlacement)?;
-            Ok((g.gap, l.x2 * g.j[0] - g.j[1]))
+            Ok((g.gap, l.x2 * g.j[0] - g.j[1], (l, g)))
         })?;
-        self.balance_ext(theta_a_rad, t2, c, line)
+        self.balance_from(theta_a_rad, t2, c, l, g)
     }
 
     fn balance_at_lock(&self, ta: f64, c: Constraint, guess: f64) -> Result<Pose, PlantError> {
@@ -390,12 +414,25 @@ impl Kin {
         c: Constraint,
         line: bool,
     ) -> Result<Pose, PlantError> {
-        let f = &self.finger;
-        let l = f.linkage(theta2_rad)?;
+        let l = self.finger.linkage(theta2_rad)?;
         let t1 = theta_a_rad - l.phi_rad;
         let g = self
             .gap_ext(c, t1, theta2_rad, line)
             .ok_or(PlantError::BadPlacement)?;
+        self.balance_from(theta_a_rad, theta2_rad, c, l, g)
+    }
+
+    /// The balance with the linkage and gap already evaluated at θ2.
+    fn balance_from(
+        &self,
+        theta_a_rad: f64,
+        theta2_rad: f64,
+        c: Constraint,
+        l: Linkage,
+        g: Gap,
+    ) -> Result<Pose, PlantError> {
+        let f = &self.finger;
+        let t1 = theta_a_rad - l.phi_rad;
         let a = f.k1_nm_per_rad * (t1 - f.theta01_rad);
         let b = f.k2_nm_per_rad * (theta2_rad - f.theta02_rad);
         let d = l.x2 * g.j[0] - g.j[1];
@@ -432,26 +469,31 @@ impl Kin {
     }
 }
 
-/// Newton with an approximate derivative, upgraded to the secant slope once two iterates are
-/// far enough apart (superlinear instead of linear convergence: fewer linkage evaluations).
-pub(crate) fn newton_secant(
+/// Newton step size below which the evaluated point is accepted (rad). The point returned is
+/// the last one evaluated (so its payload is exact there): its error is below this step.
+const TOL_EVAL: f64 = 1e-11;
+
+/// Newton that returns the last evaluated point with the payload computed there (no extra
+/// evaluation to rebuild the solution). With `secant`, the given derivative is treated as an
+/// approximation and replaced by the secant slope once two iterates are far enough apart.
+pub(crate) fn newton_eval<P>(
     x0: f64,
-    mut f: impl FnMut(f64) -> Result<(f64, f64), PlantError>,
-) -> Result<f64, PlantError> {
+    secant: bool,
+    mut f: impl FnMut(f64) -> Result<(f64, f64, P), PlantError>,
+) -> Result<(f64, P), PlantError> {
     let mut x = x0;
     let mut prev: Option<(f64, f64)> = None;
     for _ in 0..MAX_ITER {
-        let (v, d_approx) = f(x)?;
-        if !v.is_finite() || !d_approx.is_finite() {
+        let (v, d_given, payload) = f(x)?;
+        if !v.is_finite() || !d_given.is_finite() {
             return Err(PlantError::NonFinite);
         }
-        let mut d = d_approx;
-        if let Some((xp, vp)) = prev {
+        let mut d = d_given;
+        if let (true, Some((xp, vp))) = (secant, prev) {
             let dx = x - xp;
             if dx.abs() > 1e-9 {
                 let s = (v - vp) / dx;
-                // Trust the secant only if it agrees in sign and roughly in size.
-                if s * d_approx > 0.0 && (s / d_approx) > 0.2 && (s / d_approx) < 5.0 {
+                if s * d_given > 0.0 && (s / d_given) > 0.2 && (s / d_given) < 5.0 {
                     d = s;
                 }
             }
@@ -460,11 +502,11 @@ pub(crate) fn newton_secant(
             return Err(PlantError::Singular);
         }
         let step = (v / d).clamp(-MAX_STEP, MAX_STEP);
+        if step.abs() < TOL_EVAL {
+            return Ok((x, payload));
+        }
         prev = Some((x, v));
         x -= step;
-        if step.abs() < TOL_THETA {
-            return Ok(x);
-        }
     }
     Err(PlantError::NoConvergence)
 }

@@ -1,6 +1,6 @@
 //! Following the finger as θa moves: active-set changes, each located by bisection.
 
-use crate::kin::{Active, Constraint, Kin, Phalanx, Pose};
+use crate::kin::{Active, Constraint, Gap, Kin, Phalanx, Pose};
 use crate::PlantError;
 
 /// Bisection tolerance on θa for every event (rad). Events are reported at the feasible side
@@ -112,6 +112,8 @@ pub struct Tracker {
     /// Last accepted pose.
     pub pose: Pose,
     armed: [bool; 6],
+    /// dθ2/dθa of the last accepted move in the same active set (predictor for Newton).
+    slope: f64,
 }
 
 impl Tracker {
@@ -122,6 +124,7 @@ impl Tracker {
             kin,
             pose,
             armed: [false; 6],
+            slope: 0.0,
         };
         for c in Constraint::ALL {
             if let Some(g) = kin.gap(c, pose.theta1_rad, pose.theta2_rad) {
@@ -141,12 +144,18 @@ impl Tracker {
             kin,
             pose,
             armed: [false; 6],
+            slope: 0.0,
         };
         t.rearm();
         t
     }
 
     fn rearm(&mut self) {
+        let gaps = self.kin.gaps(self.pose.theta1_rad, self.pose.theta2_rad);
+        self.rearm_with(&gaps);
+    }
+
+    fn rearm_with(&mut self, gaps: &[Option<Gap>; 6]) {
         for c in Constraint::ALL {
             let active = match self.pose.active {
                 Active::One(a) => a == c,
@@ -157,7 +166,7 @@ impl Tracker {
                 self.armed[c.slot()] = false;
                 continue;
             }
-            if let Some(g) = self.kin.gap(c, self.pose.theta1_rad, self.pose.theta2_rad) {
+            if let Some(g) = gaps.get(c.slot()).copied().flatten() {
                 if g.gap >= 0.0 {
                     self.armed[c.slot()] = true;
                 } else if g.gap < -1e-9 {
@@ -186,8 +195,15 @@ impl Tracker {
                 }
                 _ => None,
             };
+            // First-order predictor from the last move: saves a Newton evaluation per step.
+            let guess = old.theta2_rad + self.slope * (theta_a_rad - old.theta_a_rad);
+            let guess = if guess.is_finite() && (guess - old.theta2_rad).abs() < 0.1 {
+                guess
+            } else {
+                old.theta2_rad
+            };
             let p = match (line, old.active) {
-                (Some(c), _) => self.kin.solve_one(theta_a_rad, c, old.theta2_rad, true)?,
+                (Some(c), _) => self.kin.solve_one(theta_a_rad, c, guess, true)?,
                 // Locked: the geometry is frozen; only the structural spring moves.
                 (
                     None,
@@ -202,7 +218,7 @@ impl Tracker {
                         + self.kin.finger.k_lock_nm_per_rad * (theta_a_rad - ta_lock),
                     ..old
                 },
-                (None, _) => self.kin.solve(theta_a_rad, old.active, old.theta2_rad)?,
+                (None, _) => self.kin.solve(theta_a_rad, old.active, guess)?,
             };
             // 1. Release of the active constraint.
             match old.active {
@@ -287,11 +303,12 @@ impl Tracker {
             }
             // 3. A new constraint becomes active: take the earliest one along the move.
             let mut first_hit: Option<(Pose, Constraint, f64)> = None;
+            let gaps = self.kin.gaps(p.theta1_rad, p.theta2_rad);
             for c in Constraint::ALL {
                 if !self.armed[c.slot()] {
                     continue;
                 }
-                let Some(g) = self.kin.gap(c, p.theta1_rad, p.theta2_rad) else {
+                let Some(g) = gaps.get(c.slot()).copied().flatten() else {
                     continue;
                 };
                 if g.gap >= 0.0 {
@@ -362,8 +379,14 @@ impl Tracker {
                 self.armed[c.slot()] = false;
                 continue;
             }
+            let dth = p.theta_a_rad - old.theta_a_rad;
+            self.slope = if p.active == old.active && dth.abs() > 1e-12 {
+                (p.theta2_rad - old.theta2_rad) / dth
+            } else {
+                0.0
+            };
             self.pose = p;
-            self.rearm();
+            self.rearm_with(&gaps);
             return Ok(p);
         }
         Err(PlantError::NoConvergence)
