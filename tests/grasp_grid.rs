@@ -88,10 +88,20 @@ fn reference(c: &Case) -> Option<f64> {
     e.contact.k2
 }
 
-fn run_case(c: &Case) -> Res {
+/// The path fit (`Estimator::PathFit`) on the same request, f64 model: k2 (m) or why not.
+type Pf = Option<Result<f64, &'static str>>;
+
+fn run_case(c: &Case) -> (Res, Pf) {
     let s = scene(c);
     let o = run(&s, config(&s, c.dta), 20.0, 0.0, |_, _, _| {});
-    match (o.state, o.estimate) {
+    let pf = o.request.as_ref().map(|req| {
+        let m = pts::Model::<f64>::paper().expect("paper model");
+        match grasp::estimate::path_fit(&m, req) {
+            Ok(r) => r.k2_um.map(|k| f64::from(k) * 1e-6).ok_or("proximal"),
+            Err(e) => Err(e.kind()),
+        }
+    });
+    let res = match (o.state, o.estimate) {
         (State::Holding, Some(Ok(r))) => match (r.located, r.k2_um) {
             (grasp::Located::Distal, Some(k)) => Res::Ok {
                 k2_hat: f64::from(k) * 1e-6,
@@ -109,7 +119,8 @@ fn run_case(c: &Case) -> Res {
             Res::Fault(f, o.second_contact_s.is_some())
         }
         (s, _) => Res::Other(s),
-    }
+    };
+    (res, pf)
 }
 
 fn cell(r: &Res, k2: f64) -> String {
@@ -154,7 +165,7 @@ fn grid_of_objects_locations_and_steps() {
             }
         }
     }
-    let results: Mutex<Vec<Option<Res>>> = Mutex::new(vec![None; cases.len()]);
+    let results: Mutex<Vec<Option<(Res, Pf)>>> = Mutex::new(vec![None; cases.len()]);
     let next = AtomicUsize::new(0);
     let threads = std::thread::available_parallelism()
         .map(|n| n.get())
@@ -171,12 +182,12 @@ fn grid_of_objects_locations_and_steps() {
             });
         }
     });
-    let results: Vec<Res> = results
+    let (results, pathfit): (Vec<Res>, Vec<Pf>) = results
         .into_inner()
         .unwrap()
         .into_iter()
         .map(|r| r.expect("every case ran"))
-        .collect();
+        .unzip();
     println!(
         "\n{} closed-loop grasps in {:.1} s on {threads} threads",
         cases.len(),
@@ -238,14 +249,53 @@ fn grid_of_objects_locations_and_steps() {
             }
         }
     }
+    // The path fit on the same requests (every grasp that settled), error vs the initial
+    // location; the two-point columns above for comparison.
+    let mut pf_summary = Vec::new();
+    for realistic in [false, true] {
+        println!(
+            "\n== path fit (Estimator::PathFit) on the same runs, plant {}: error vs initial (% of l2) ==",
+            if realistic { "realistic" } else { "ideal" }
+        );
+        for &radius in &RADII {
+            for &dta in &DTAS {
+                let name = if radius == 0.0 {
+                    "vertex".to_string()
+                } else {
+                    format!("R={:.1}cm", radius * 100.0)
+                };
+                print!("{:>14}", format!("{name} {dta:.1}"));
+                let mut mx = 0.0f64;
+                let mut n = 0usize;
+                for (c, pf) in cases.iter().zip(&pathfit) {
+                    if c.realistic != realistic || c.radius != radius || c.dta != dta {
+                        continue;
+                    }
+                    match pf {
+                        Some(Ok(k)) => {
+                            let e = (k - c.k2) / L2 * 100.0;
+                            mx = mx.max(e.abs());
+                            n += 1;
+                            print!(" {e:>+11.1}");
+                        }
+                        Some(Err(kind)) => print!(" {:>11}", &kind[..kind.len().min(11)]),
+                        None => print!(" {:>11}", "-"),
+                    }
+                }
+                println!();
+                pf_summary.push((mx, n));
+            }
+        }
+    }
+
     println!("\nmax |error| over the located contacts (% of l2):");
     println!(
-        "{:>10} {:>8} {:>6} {:>9} {:>9} {:>12} {:>6}",
-        "plant", "object", "ΔT_a", "initial", "final", "vs q-static", "ok"
+        "{:>10} {:>8} {:>6} {:>9} {:>9} {:>12} {:>6} {:>12}",
+        "plant", "object", "ΔT_a", "initial", "final", "vs q-static", "ok", "pathfit init"
     );
-    for (realistic, radius, dta, m) in &summary {
+    for ((realistic, radius, dta, m), pf) in summary.iter().zip(&pf_summary) {
         println!(
-            "{:>10} {:>8} {:>6.1} {:>9.1} {:>9.1} {:>12.2} {:>3}/{}",
+            "{:>10} {:>8} {:>6.1} {:>9.1} {:>9.1} {:>12.2} {:>3}/{} {:>8.1} ({})",
             if *realistic { "realistic" } else { "ideal" },
             if *radius == 0.0 {
                 "vertex".to_string()
@@ -257,7 +307,9 @@ fn grid_of_objects_locations_and_steps() {
             m.1,
             m.2,
             m.3,
-            m.4
+            m.4,
+            pf.0,
+            pf.1
         );
     }
 
