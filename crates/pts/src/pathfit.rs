@@ -123,6 +123,10 @@ pub struct PathFitConfig {
     /// finger on its contact stiffness is a slow oscillator (≈ 2 Hz for the paper's finger on
     /// an RE10 with 3072:1), so θ̈a from the samples' second differences is removed. 0: off.
     pub inertia_kgm2: f64,
+    /// A sample is used only while its θa stays within this (rad) of every later sample's:
+    /// drops the overshoot after impact (≈ 10 mrad on the paper's finger), keeps the
+    /// oscillation about the path.
+    pub envelope_tol_rad: f64,
 }
 
 impl PathFitConfig {
@@ -144,6 +148,7 @@ impl PathFitConfig {
         tip_margin_frac_l2: 0.02,
         contact_angle_sigma_rad: 0.02,
         inertia_kgm2: 7.0e-9 * 3072.0 * 3072.0,
+        envelope_tol_rad: 2e-3,
     };
 }
 
@@ -669,16 +674,25 @@ fn corrected_rev<R: Real, I: DoubleEndedIterator<Item = PathSample<R>>>(
 }
 
 /// The lower envelope in time of samples given backwards: a sample is kept when its θa is
-/// below every later sample's.
+/// below every later sample's plus `tol` (the inertial overshoot after impact is dropped,
+/// the small oscillation about the path, whose torque J θ̈a removed, is kept), and differs
+/// from the previously kept one (one sample per stiction plateau: the last, in time).
 fn envelope<R: Real, I: Iterator<Item = PathSample<R>>>(
     samples: I,
+    tol: R,
 ) -> impl Iterator<Item = PathSample<R>> {
     let mut min: Option<R> = None;
+    let mut last: Option<R> = None;
+    let eps = R::from_f64(1e-7);
     samples.filter(move |s| {
-        let keep = min.is_none_or(|m| s.theta_a_rad < m);
+        let th = s.theta_a_rad;
+        let below = min.is_none_or(|m| th < m + tol);
+        let moved = last.is_none_or(|l| (th - l).abs() > eps);
+        let keep = below && moved;
         if keep {
-            min = Some(s.theta_a_rad);
+            last = Some(th);
         }
+        min = Some(min.map_or(th, |m| m.min(th)));
         keep
     })
 }
@@ -718,7 +732,8 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
     let mut sum_th = [R::zero(); MAX_BINS];
     let mut cnt = [0u32; MAX_BINS];
     let inertia = conv(cfg.inertia_kgm2)?;
-    for s in envelope(corrected_rev(samples.clone(), inertia)) {
+    let tol = conv(cfg.envelope_tol_rad)?;
+    for s in envelope(corrected_rev(samples.clone(), inertia), tol) {
         if s.theta_a_rad < lo {
             continue;
         }
@@ -756,17 +771,31 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
     if nb < MIN_BINS {
         return Err(PathFitError::TooFewSamples);
     }
-    // Within-bin scatter about the bin mean (over-estimates the noise by the trend a little).
+    // Within-bin scatter about the local trend (slope from the neighbouring bin means): the
+    // noise estimate must not contain the path's own rise across a bin.
+    let mut slope = [R::zero(); MAX_BINS];
+    for (i, sl) in slope.iter_mut().enumerate().take(nb) {
+        let a = w.bins.get(i.saturating_sub(1));
+        let b = w.bins.get((i + 1).min(nb - 1));
+        if let (Some(a), Some(b)) = (a, b) {
+            let dth = b.dta - a.dta;
+            if dth > R::from_f64(1e-7) {
+                *sl = (b.t - a.t) / dth;
+            }
+        }
+    }
     let mut ss = R::zero();
-    for s in envelope(corrected_rev(samples, inertia)) {
+    for s in envelope(corrected_rev(samples, inertia), tol) {
         if s.theta_a_rad < lo {
             continue;
         }
-        if let Some(b) = idx_map
+        let j = idx_map
             .get(bin_of(s.theta_a_rad))
-            .and_then(|&j| w.bins.get(j))
-        {
-            let d = (s.torque_nm - b.t) * w.ks;
+            .copied()
+            .unwrap_or(usize::MAX);
+        if let (Some(b), Some(&sl)) = (w.bins.get(j), slope.get(j)) {
+            let trend = sl * (s.theta_a_rad - theta_a_c - b.dta);
+            let d = (s.torque_nm - b.t - trend) * w.ks;
             ss = ss + d * d;
         }
     }
