@@ -242,3 +242,17 @@ fn no_object_ends_in_no_contact() {
     run(&mut c, &mut hw, 120_000, |_, _| {});
     assert_eq!(c.state(), State::Fault(FaultReason::NoContact));
 }
+
+#[test]
+fn drive_that_cannot_follow_is_a_stall() {
+    // The board's supply is 1 V, the configuration says 6 V: the duty saturates and the
+    // torque never arrives.
+    let mut c = Controller::new(cfg(0.2)).unwrap();
+    let mut hw = Mock::new(DriveConfig {
+        bus_v: 1.0,
+        ..drive()
+    });
+    run(&mut c, &mut hw, 120_000, |_, _| {});
+    assert_eq!(c.state(), State::Fault(FaultReason::Stall));
+    assert!(hw.off);
+}
