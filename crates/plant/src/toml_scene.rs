@@ -173,12 +173,28 @@ pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
     let t: SceneT = toml::from_str(text).map_err(|e| {
         let msg = e.message().to_string();
         // serde names the unknown key in the message: "unknown field `x`, expected …".
-        let key = msg
+        let field = msg
             .split('`')
             .nth(1)
             .filter(|_| msg.starts_with("unknown field"))
-            .unwrap_or("")
-            .to_string();
+            .unwrap_or("");
+        // Qualify it with the table it sits in (the last `[table]` header before the error).
+        let table = e
+            .span()
+            .and_then(|sp| text.get(..sp.start))
+            .and_then(|before| {
+                before.lines().rev().find_map(|l| {
+                    let l = l.trim();
+                    l.strip_prefix('[')
+                        .and_then(|r| r.strip_suffix(']'))
+                        .map(str::trim)
+                })
+            });
+        let key = match (field, table) {
+            ("", _) => String::new(),
+            (f, Some(t)) => format!("{t}.{f}"),
+            (f, None) => f.to_string(),
+        };
         err(&key, msg)
     })?;
     let mut s = Scene::DEFAULT;
@@ -253,7 +269,8 @@ pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
         g.encoder_cpt = int(x.encoder_cpt, g.encoder_cpt, "sensors.encoder_cpt")?;
         g.adc_bits = int(x.adc_bits, g.adc_bits, "sensors.adc_bits")?;
         if let Some(seed) = x.seed {
-            g.seed = u64::try_from(seed).map_err(|_| err("sensors.seed", "must be ≥ 0"))?;
+            // A 64-bit pattern: TOML integers are i64, so the top bit reads as a sign.
+            g.seed = seed as u64;
         }
     }
     if let Some(c) = t.command {
@@ -426,7 +443,7 @@ pub fn to_toml_string(s: &Scene) -> String {
         o,
         "[sensors]\nencoder_cpt = {}\nshunt_ohm = {:?}\namp_gain = {:?}\noffset_v = {:?}\noffset_error_v = {:?}\ngain_error = {:?}\nnoise_v_rms = {:?}\nadc_vref_v = {:?}\nadc_bits = {}\nseed = {}\n",
         x.encoder_cpt, x.shunt_ohm, x.amp_gain, x.offset_v, x.offset_error_v, x.gain_error,
-        x.noise_v_rms, x.adc_vref_v, x.adc_bits, x.seed & (i64::MAX as u64)
+        x.noise_v_rms, x.adc_vref_v, x.adc_bits, x.seed as i64
     );
     let t = |v: f64| {
         if v.is_finite() {

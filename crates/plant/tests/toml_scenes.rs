@@ -36,7 +36,10 @@ fn rejects_unknown_keys_and_bad_values_by_key() {
     let e = from_toml_str("dt = 1e-4").unwrap_err();
     assert_eq!(e.key, "dt");
     let e = from_toml_str("[drive]\nr_ohms = 3.0").unwrap_err();
-    assert_eq!(e.key, "r_ohms");
+    assert_eq!(e.key, "drive.r_ohms");
+    let e = from_toml_str("name = \"x\"\n[object]\nkind = \"none\"\n\n[faults]\nshort_at = 1.0")
+        .unwrap_err();
+    assert_eq!(e.key, "faults.short_at");
     let e = from_toml_str("[drive]\nr_ohm = -3.0").unwrap_err();
     assert_eq!(e.key, "drive.r_ohm");
     let e = from_toml_str("[sensors]\nadc_bits = 40").unwrap_err();
@@ -79,6 +82,18 @@ fn csv_trace_has_the_columns_and_the_contact() {
     assert!((theta - -0.223_771).abs() < 1e-4);
     // The scene still builds a plant after the round trip through the file format.
     Plant::new(&s).unwrap();
+}
+
+#[test]
+fn any_seed_round_trips() {
+    let mut s = scenes::table2();
+    for seed in [0, 1, u64::MAX, 1 << 63, 0x5EED_F1A6_0000_0001] {
+        s.sensors.seed = seed;
+        assert_eq!(
+            from_toml_str(&to_toml_string(&s)).unwrap().sensors.seed,
+            seed
+        );
+    }
 }
 
 #[test]
