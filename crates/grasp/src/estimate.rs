@@ -293,8 +293,8 @@ pub fn two_point<R: Real>(
     })
 }
 
-/// Samples on each side of the knee used for the line fits.
-const FIT_SAMPLES: usize = 12;
+/// Free-motion samples used before the impact (samples).
+pub const FIT_SAMPLES: usize = 12;
 
 /// The free-motion line θa = a + b·T_a (rad, N·m) before the impact: the last
 /// [`FIT_SAMPLES`] samples up to `contact.tick` (the approach runs at a limited, constant
