@@ -1,5 +1,6 @@
 //! `pts estimate --trace` and `pts trace --from-defmt` as commands.
 
+use crate::method::Method;
 use crate::replay::{self, TraceMeta};
 use crate::trace::{self, located_name, quality_name, Trace};
 use serde_json::{json, Value};
@@ -28,10 +29,20 @@ pub fn load_and_replay(
     finger: Option<&Path>,
     dta: Option<f64>,
     dt_s: Option<f64>,
+    method: Method,
 ) -> Result<(Trace, replay::Replay, f64), String> {
-    let file = crate::load_finger(finger)?;
+    let mut file = crate::load_finger(finger)?;
     let text = read_text(path)?;
     let meta = TraceMeta::find(&text);
+    // A trace from `pts sim` says which drive constants its controller used: without a
+    // finger file, replay with those (e.g. an ideal-drive scene has η = 1).
+    if let (None, Some(d)) = (finger, meta.and_then(|m| m.drive)) {
+        d.apply(&mut file)
+            .map_err(|e| format!("{}: the # pts-sim line: {e}", path.display()))?;
+        if let Err(e) = pts::config::FingerFile::from_toml_str(&file.to_toml_string()) {
+            return Err(format!("{}: the # pts-sim line: {e}", path.display()));
+        }
+    }
     let conv = |i: f64| file.torque_from_current(i);
     let tr = trace::read_csv(&text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
     let dta = dta.or(meta.map(|m| m.dta_nm)).unwrap_or(DEFAULT_DTA_NM);
@@ -44,8 +55,8 @@ pub fn load_and_replay(
         }
     }
     let dt_s = dt_s.or(meta.map(|m| m.dt_s));
-    let rep =
-        replay::replay(&tr, &file, dta, dt_s).map_err(|e| format!("{}: {e}", path.display()))?;
+    let rep = replay::replay(&tr, &file, dta, dt_s, method)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     Ok((tr, rep, dta))
 }
 
@@ -60,8 +71,9 @@ pub fn run(
     dta: Option<f64>,
     dt_s: Option<f64>,
     json_out: bool,
+    method: Method,
 ) -> Result<(), String> {
-    let (tr, rep, dta) = load_and_replay(path, finger, dta, dt_s)?;
+    let (tr, rep, dta) = load_and_replay(path, finger, dta, dt_s, method)?;
     let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
     let fault = match rep.state {
         grasp::State::Fault(r) => Some(r.kind()),
@@ -94,7 +106,7 @@ pub fn run(
                         c["quality"] = json!(quality_name(r.quality));
                     }
                     Some(Err(e)) => {
-                        c["estimate_error"] = json!(e.kind());
+                        c["estimate_error"] = json!(e.kind);
                     }
                     None => {}
                 }
@@ -107,6 +119,7 @@ pub fn run(
             "t_s": [n(t0), n(t1)],
             "dt_s": n(rep.dt_s),
             "dta_cmd": n(dta),
+            "method": method.name(),
             "exact_replay": rep.raw,
             "state": trace::state_name(rep.state),
             "contacts": contacts,
@@ -119,10 +132,11 @@ pub fn run(
         eprintln!("warning: {w}");
     }
     println!(
-        "{}: {} rows, t = {t0:.4} … {t1:.4} s, control period {} s, ΔT_a = {dta} N·m{}",
+        "{}: {} rows, t = {t0:.4} … {t1:.4} s, control period {} s, ΔT_a = {dta} N·m, {} estimate{}",
         path.display(),
         tr.rows.len(),
         rep.dt_s,
+        method.name(),
         if rep.raw {
             ", raw encoder/ADC columns"
         } else {
@@ -145,7 +159,7 @@ pub fn run(
             println!("contact 1 at t = {t:.4} s: θa,c = {thc:.6} rad, T_a,c = {tac:.4} N·m");
             match est {
                 Some(Ok(r)) => println!("  {}", crate::sim::describe(r)),
-                Some(Err(e)) => println!("  estimate refused: {} ({e})", e.kind()),
+                Some(Err(e)) => println!("  estimate refused: {} ({e})", e.kind),
                 None => println!("  the step did not settle: no estimate"),
             }
         }
@@ -201,11 +215,12 @@ pub fn plot_signals(
     path: &Path,
     finger: Option<&Path>,
     dta: Option<f64>,
+    method: Method,
     window: (Option<f64>, Option<f64>),
     out: &Path,
     size: crate::plot::Size,
 ) -> Result<(), String> {
-    let (mut tr, rep, dta) = load_and_replay(path, finger, dta, None)?;
+    let (mut tr, rep, dta) = load_and_replay(path, finger, dta, None, method)?;
     for w in tr.warnings.iter().chain(&rep.warnings) {
         eprintln!("warning: {w}");
     }
@@ -233,7 +248,10 @@ pub fn plot_signals(
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     );
-    let title = format!("{name}: grasp replayed (ΔT_a = {dta} N·m)");
+    let title = format!(
+        "{name}: grasp replayed (ΔT_a = {dta} N·m, {} estimate)",
+        method.name()
+    );
     crate::plot::signals(out, size, &title, &sig)?;
     eprintln!("wrote {}", out.display());
     Ok(())

@@ -3,6 +3,7 @@
 
 pub mod estimate_cmd;
 pub mod eval;
+pub mod method;
 pub mod path;
 pub mod plot;
 pub mod replay;

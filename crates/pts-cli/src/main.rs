@@ -52,6 +52,9 @@ enum Cmd {
         /// Machine-readable output (one JSON object).
         #[arg(long)]
         json: bool,
+        /// The estimator the controller runs on the settled step.
+        #[arg(long, value_enum, default_value = "two-point")]
+        method: pts_cli::method::Method,
     },
     /// Turn a decoded defmt log (text) into a trace CSV for `pts estimate` and `pts plot`.
     Trace {
@@ -116,6 +119,9 @@ struct SimArgs {
     /// Sweep: use the ideal drive and sensors (no friction, backlash, noise).
     #[arg(long)]
     ideal: bool,
+    /// The estimator the controller runs on the settled step.
+    #[arg(long, value_enum, default_value = "two-point")]
+    method: pts_cli::method::Method,
 }
 
 #[derive(Subcommand)]
@@ -134,6 +140,9 @@ enum PlotCmd {
         /// ΔT_a of the controller (N·m); default: from the trace, else 0.2.
         #[arg(long)]
         dta: Option<f64>,
+        /// The estimator the controller runs on the settled step.
+        #[arg(long, value_enum, default_value = "two-point")]
+        method: pts_cli::method::Method,
         /// Start of the time window (s); e.g. shortly before contact.
         #[arg(long)]
         from_s: Option<f64>,
@@ -190,7 +199,8 @@ fn main() -> ExitCode {
             dta,
             dt_s,
             json,
-        } => pts_cli::estimate_cmd::run(&trace, finger.as_deref(), dta, dt_s, json),
+            method,
+        } => pts_cli::estimate_cmd::run(&trace, finger.as_deref(), dta, dt_s, json, method),
         Cmd::Trace {
             from_defmt,
             out,
@@ -264,6 +274,7 @@ fn run_plot(what: PlotCmd) -> Result<(), String> {
             trace,
             finger,
             dta,
+            method,
             from_s,
             to_s,
             out,
@@ -272,6 +283,7 @@ fn run_plot(what: PlotCmd) -> Result<(), String> {
             &trace,
             finger.as_deref(),
             dta,
+            method,
             (from_s, to_s),
             &out,
             size,
@@ -294,6 +306,7 @@ impl From<SimArgs> for pts_cli::sim_cmd::Args {
             radii_cm: a.radii_cm,
             k2_pct: a.k2_pct,
             ideal: a.ideal,
+            method: a.method,
         }
     }
 }

@@ -12,19 +12,91 @@ use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware,
 use pts::config::FingerFile;
 
 /// Settings of a `pts sim` run, written as a `# pts-sim key=value …` comment line at the top
-/// of the CSV so that a replay uses the same controller settings.
+/// of the CSV so that a replay uses the same controller settings and drive constants.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TraceMeta {
     /// ΔT_a commanded (N·m).
     pub dta_nm: f64,
     /// Control period (s).
     pub dt_s: f64,
+    /// The drive constants the controller was built with, when recorded.
+    pub drive: Option<MetaDrive>,
+}
+
+/// Drive constants in a `# pts-sim` line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MetaDrive {
+    /// Motor turns per θa turn.
+    pub gear_ratio: f64,
+    /// Efficiency (driving).
+    pub efficiency: f64,
+    /// Torque constant (N·m/A).
+    pub kt_nm_per_a: f64,
+    /// Terminal resistance (Ω).
+    pub resistance_ohm: f64,
+    /// Bridge supply (V).
+    pub bus_v: f64,
+    /// Encoder counts per motor turn (×4).
+    pub counts_per_rev: f64,
+    /// A per ADC code.
+    pub amps_per_code: f64,
+    /// ADC code at zero current.
+    pub zero_code: f64,
+}
+
+impl MetaDrive {
+    /// From the controller's drive configuration.
+    pub fn of(d: &DriveConfig) -> Self {
+        MetaDrive {
+            gear_ratio: d.gear_ratio,
+            efficiency: d.efficiency,
+            kt_nm_per_a: d.kt_nm_per_a,
+            resistance_ohm: d.resistance_ohm,
+            bus_v: d.bus_v,
+            counts_per_rev: d.encoder_counts_per_rev,
+            amps_per_code: d.amps_per_code,
+            zero_code: d.adc_zero_code,
+        }
+    }
+
+    /// Puts these constants into a finger description; `Err` names what does not fit.
+    pub fn apply(&self, f: &mut FingerFile) -> Result<(), String> {
+        let int = |v: f64, what: &str| -> Result<u32, String> {
+            (v.fract() == 0.0 && v >= 0.0 && v <= f64::from(u32::MAX))
+                .then_some(v as u32)
+                .ok_or_else(|| format!("{what} = {v} is not a count"))
+        };
+        f.drive.gear_ratio = self.gear_ratio;
+        f.drive.efficiency = self.efficiency;
+        f.motor.kt_nm_per_a = self.kt_nm_per_a;
+        f.motor.resistance_ohm = self.resistance_ohm;
+        f.motor.supply_v = self.bus_v;
+        f.encoder.counts_per_rev = int(self.counts_per_rev, "counts_per_rev")?;
+        f.current_sense.amps_per_count = self.amps_per_code;
+        f.current_sense.zero_count = int(self.zero_code, "zero_code")?;
+        Ok(())
+    }
 }
 
 impl TraceMeta {
     /// The comment line.
     pub fn line(&self) -> String {
-        format!("# pts-sim dta_nm={} dt_s={}", self.dta_nm, self.dt_s)
+        let mut s = format!("# pts-sim dta_nm={} dt_s={}", self.dta_nm, self.dt_s);
+        if let Some(d) = &self.drive {
+            s += &format!(
+                " gear_ratio={} efficiency={} kt_nm_per_a={} resistance_ohm={} bus_v={} \
+                 counts_per_rev={} amps_per_code={} zero_code={}",
+                d.gear_ratio,
+                d.efficiency,
+                d.kt_nm_per_a,
+                d.resistance_ohm,
+                d.bus_v,
+                d.counts_per_rev,
+                d.amps_per_code,
+                d.zero_code
+            );
+        }
+        s
     }
 
     /// Finds the comment line in a CSV text.
@@ -34,11 +106,24 @@ impl TraceMeta {
             line.split_whitespace()
                 .find_map(|w| w.strip_prefix(k)?.strip_prefix('='))
                 .and_then(|v| v.parse::<f64>().ok())
-                .filter(|v| v.is_finite() && *v > 0.0)
+                .filter(|v| v.is_finite() && *v >= 0.0)
         };
+        let drive = (|| {
+            Some(MetaDrive {
+                gear_ratio: get("gear_ratio")?,
+                efficiency: get("efficiency")?,
+                kt_nm_per_a: get("kt_nm_per_a")?,
+                resistance_ohm: get("resistance_ohm")?,
+                bus_v: get("bus_v")?,
+                counts_per_rev: get("counts_per_rev")?,
+                amps_per_code: get("amps_per_code")?,
+                zero_code: get("zero_code")?,
+            })
+        })();
         Some(TraceMeta {
-            dta_nm: get("dta_nm")?,
-            dt_s: get("dt_s")?,
+            dta_nm: get("dta_nm").filter(|v| *v > 0.0)?,
+            dt_s: get("dt_s").filter(|v| *v > 0.0)?,
+            drive,
         })
     }
 }
@@ -47,7 +132,7 @@ impl TraceMeta {
 #[derive(Clone, Debug)]
 pub struct Replay {
     /// The estimate, or the estimator's refusal; `None` when no step settled.
-    pub estimate: Option<Result<EstimateResult, pts::PtsError>>,
+    pub estimate: Option<Result<EstimateResult, crate::sim::EstError>>,
     /// Trace time of the back-dated contact instant (s).
     pub contact_t_s: Option<f64>,
     /// (t, θa,c, T_a,c) of the contact the controller used.
@@ -124,6 +209,7 @@ pub fn replay(
     finger: &FingerFile,
     dta_nm: f64,
     dt_s: Option<f64>,
+    method: crate::method::Method,
 ) -> Result<Replay, String> {
     let mut warnings = vec![];
     let dt = match dt_s.or_else(|| median_dt(trace)) {
@@ -133,6 +219,7 @@ pub fn replay(
     let drive = drive_config(finger, dt)?;
     let cfg = ControllerConfig {
         drive,
+        estimator: method.estimator(),
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(dta_nm);
@@ -202,7 +289,7 @@ pub fn replay(
         if out.estimate_ready {
             if let Some(req) = ctl.take_request() {
                 let r = grasp::run_estimate_with(&model, &req);
-                rep.estimate = Some(r);
+                rep.estimate = Some(r.map_err(|e| crate::sim::EstError::new(e.kind(), &e)));
                 ctl.deliver(&mut hw, r);
             }
         }

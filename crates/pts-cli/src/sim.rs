@@ -8,7 +8,31 @@
 use crate::trace::{state_name, TraceRow};
 use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State, DUTY_MAX};
 use plant::{EventKind, Plant, Scene};
-use pts::PtsError;
+
+/// Why the estimator refused a measurement: its snake_case kind and a description.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EstError {
+    /// snake_case kind (`beyond_tip`, `ill_conditioned`, …).
+    pub kind: &'static str,
+    /// Debug form of the estimator's error.
+    pub detail: String,
+}
+
+impl EstError {
+    /// From the estimator's error (whatever its type: it has a `kind()` and `Debug`).
+    pub fn new(kind: &'static str, e: &dyn std::fmt::Debug) -> Self {
+        EstError {
+            kind,
+            detail: format!("{e:?}"),
+        }
+    }
+}
+
+impl std::fmt::Display for EstError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.detail)
+    }
+}
 
 /// `grasp::Hardware` on the simulated finger: the duty (or bridge off) applies to the next step.
 pub struct PlantHw {
@@ -112,6 +136,8 @@ pub struct SimOptions {
     pub extra_s: f64,
     /// Keep every tick in [`SimReport::rows`] (for the CSV and the plots).
     pub record: bool,
+    /// The estimator the controller's request names.
+    pub method: crate::method::Method,
 }
 
 /// A timed event from the controller or the plant, for people.
@@ -135,7 +161,9 @@ pub struct SimReport {
     /// Final controller state.
     pub state: State,
     /// The estimate (or the estimator's refusal).
-    pub estimate: Option<Result<EstimateResult, PtsError>>,
+    pub estimate: Option<Result<EstimateResult, EstError>>,
+    /// The estimator used.
+    pub method: crate::method::Method,
     /// Plant: first contact (t, phalanx name, k in m).
     pub first_contact: Option<(f64, &'static str, f64)>,
     /// Plant truth when the estimate was requested: contact location (m).
@@ -152,6 +180,8 @@ pub struct SimReport {
     pub l2_m: f64,
     /// Control period (s).
     pub dt_s: f64,
+    /// The drive constants the controller was built with.
+    pub drive: DriveConfig,
 }
 
 impl SimReport {
@@ -293,8 +323,10 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         .theta_a;
     let est_model = pts::Model::<grasp::EstReal>::new(&finger)
         .map_err(|e| format!("scene finger on the firmware back end: {e}"))?;
+    let drive = drive_config(scene, rest);
     let cfg = ControllerConfig {
-        drive: drive_config(scene, rest),
+        drive,
+        estimator: opts.method.estimator(),
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(opts.delta_ta_nm);
@@ -305,6 +337,7 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         scene: scene.name.to_string(),
         state: State::Init,
         estimate: None,
+        method: opts.method,
         first_contact: None,
         k_at_settle_m: None,
         contact: None,
@@ -313,6 +346,7 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         t_end_s: 0.0,
         l2_m: scene.finger.l2_m,
         dt_s: dt,
+        drive,
     };
     let max_ticks = (opts.max_s / dt).ceil().max(0.0) as u64;
     let extra_ticks = (opts.extra_s / dt).ceil().max(0.0) as u64;
@@ -326,7 +360,7 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
             rep.k_at_settle_m = Some(truth.k_m);
             if let Some(req) = ctl.take_request() {
                 let r = grasp::run_estimate_with(&est_model, &req);
-                rep.estimate = Some(r);
+                rep.estimate = Some(r.map_err(|e| EstError::new(e.kind(), &e)));
                 ctl.deliver(&mut hw, r);
             }
         }

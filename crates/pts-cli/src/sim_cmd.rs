@@ -34,6 +34,8 @@ pub struct Args {
     pub k2_pct: Vec<f64>,
     /// Ideal drive and sensors.
     pub ideal: bool,
+    /// Estimator compared with the truth.
+    pub method: crate::method::Method,
 }
 
 fn check_dta(dta: &[f64]) -> Result<(), String> {
@@ -73,6 +75,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         max_s: a.max_s,
         extra_s: 0.2,
         record: a.csv.is_some() || a.plot.is_some(),
+        method: a.method,
     })?;
     let wall = t0.elapsed().as_secs_f64();
     if let Some(path) = &a.csv {
@@ -82,6 +85,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         let meta = crate::replay::TraceMeta {
             dta_nm: a.dta[0],
             dt_s: rep.dt_s,
+            drive: Some(crate::replay::MetaDrive::of(&rep.drive)),
         };
         writeln!(w, "{}", meta.line())
             .and_then(|()| write_csv(&rep.rows, &mut w))
@@ -162,7 +166,7 @@ fn report_json(rep: &SimReport, dta: f64) -> Value {
             "ta_c": num(f64::from(r.ta_c_unm) / 1e6),
             "quality": quality_name(r.quality),
         }),
-        Some(Err(e)) => json!({"error": e.kind(), "message": e.to_string()}),
+        Some(Err(e)) => json!({"error": e.kind, "message": e.detail}),
         None => Value::Null,
     };
     json!({
@@ -175,6 +179,7 @@ fn report_json(rep: &SimReport, dta: f64) -> Value {
             "first_contact": rep.first_contact.map(|(t, ph, k)| json!({"t_s": num(t), "phalanx": ph, "k": num(k)})),
             "k_at_settle": rep.k_at_settle_m.map(num),
         },
+        "method": rep.method.name(),
         "error_pct_l2": rep.error_pct_l2().map(num),
         "events": rep.events.iter().map(|e| json!({
             "t_s": num(e.t_s), "source": e.source, "event": e.name, "detail": e.detail
@@ -208,11 +213,14 @@ fn print_report(rep: &SimReport, dta: f64, wall_s: f64) {
                 println!("          contact at settle k = {:.2} mm", k * 1e3);
             }
             match rep.error_pct_l2() {
-                Some(e) => println!("error:    k̂2 − k2,c = {e:+.2} % of l2"),
+                Some(e) => println!(
+                    "error:    k̂2 − k2,c = {e:+.2} % of l2 ({})",
+                    rep.method.name()
+                ),
                 None => println!("error:    n/a (no distal location to compare)"),
             }
         }
-        (Some(Err(e)), _) => println!("estimate refused: {} ({e})", e.kind()),
+        (Some(Err(e)), _) => println!("estimate refused: {} ({e})", e.kind),
         (None, _) => println!("no estimate"),
     }
     if let Some(f) = rep.fault() {
@@ -272,12 +280,13 @@ fn sweep(a: &Args) -> Result<(), String> {
             max_s: a.max_s,
             extra_s: 0.0,
             record: false,
+            method: a.method,
         });
         let (err, outcome) = match rep {
             Err(e) => (None, format!("scene: {e}")),
             Ok(rep) => match (&rep.estimate, rep.error_pct_l2(), rep.fault()) {
                 (_, Some(e), _) => (Some(e), "ok".to_string()),
-                (Some(Err(e)), _, _) => (None, e.kind().to_string()),
+                (Some(Err(e)), _, _) => (None, e.kind.to_string()),
                 (_, _, Some(f)) => (None, f.to_string()),
                 (Some(Ok(r)), None, None) => match rep.first_contact {
                     Some((_, ph, _)) if ph != "distal" => (None, format!("touched {ph}")),
@@ -310,6 +319,8 @@ fn sweep(a: &Args) -> Result<(), String> {
     };
     if a.json {
         let out = json!({
+            "method": a.method.name(),
+            "ideal": a.ideal,
             "l2": num(l2),
             "cells": cells.iter().map(|c| json!({
                 "radius": num(c.radius_cm / 100.0),
@@ -322,7 +333,8 @@ fn sweep(a: &Args) -> Result<(), String> {
         println!("{out}");
     } else {
         println!(
-            "location error k̂2 − k2,c (% of l2), closed loop{}; rows: object, contact location; columns: ΔT_a (N·m)",
+            "location error k̂2 − k2,c (% of l2), {} estimate, closed loop{}; rows: object, contact location; columns: ΔT_a (N·m)",
+            a.method.name(),
             if a.ideal { ", ideal drive" } else { "" }
         );
         let w = cells
@@ -379,7 +391,7 @@ fn sweep(a: &Args) -> Result<(), String> {
                 width: 1000,
                 height: 700,
             },
-            HEAT_TITLE,
+            &heat_title(a.method.name(), a.ideal),
             &table(&flat),
         )?;
         eprintln!("wrote {}", path.display());
@@ -390,7 +402,12 @@ fn sweep(a: &Args) -> Result<(), String> {
 /// A sweep result: (radius cm, k2,c % of l2, ΔT_a N·m, signed error % of l2 or no estimate).
 pub type SweepCell = (f64, f64, f64, Option<f64>);
 
-const HEAT_TITLE: &str = "Two-point estimate: location error, closed loop";
+fn heat_title(method: &str, ideal: bool) -> String {
+    format!(
+        "{method} estimate: location error, closed loop{}",
+        if ideal { ", ideal drive" } else { "" }
+    )
+}
 
 fn uniq(v: impl Iterator<Item = f64>) -> Vec<f64> {
     let mut out: Vec<f64> = vec![];
@@ -506,7 +523,12 @@ pub fn plot_heat(
     if cells.is_empty() {
         return Err(format!("{}: the sweep has no cells", sweep.display()));
     }
-    plot::heat_map(out, size, HEAT_TITLE, &table(&cells))?;
+    let method = v
+        .get("method")
+        .and_then(Value::as_str)
+        .unwrap_or("two-point");
+    let ideal = v.get("ideal").and_then(Value::as_bool).unwrap_or(false);
+    plot::heat_map(out, size, &heat_title(method, ideal), &table(&cells))?;
     eprintln!("wrote {}", out.display());
     Ok(())
 }

@@ -242,3 +242,31 @@ fn defmt_log_becomes_a_trace() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("no telemetry sample lines"));
 }
+
+#[test]
+fn pathfit_method_on_the_replay_matches_the_closed_loop_one() {
+    let csv = dir().join("table2_ideal_pathfit.csv");
+    let sim = json_of(&pts(&[
+        "sim",
+        "--scene",
+        "table2_ideal",
+        "--dta",
+        "0.8",
+        "--method",
+        "pathfit",
+        "--csv",
+        csv.to_str().unwrap(),
+        "--json",
+    ]));
+    assert_eq!(sim["method"], "pathfit");
+    let est = &sim["estimate"];
+    // Ideal drive: the path fit finds the Table 2 contact (k2,c = 29.27 mm) within 1 % of l2.
+    assert!((f(est, "k2") - 0.02927).abs() < 0.01 * 0.075, "{est}");
+    assert!(f(&sim, "error_pct_l2").abs() < 1.0, "{sim}");
+    let rep = json_of(&estimate(&csv, &["--method", "pathfit"]));
+    assert_eq!(rep["method"], "pathfit");
+    let c = &rep["contacts"][0];
+    for k in ["k2", "kc_hat", "dta", "dtheta_a", "phalanx"] {
+        assert_eq!(c[k], est[k], "{k}: replay {c} vs sim {est}");
+    }
+}
