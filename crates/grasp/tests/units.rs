@@ -131,3 +131,16 @@ fn config_refuses_nonsense_and_history_is_sane() {
     c.sample_s = 1.0; // 10 000 ticks per sample
     assert!(c.params().is_err());
 }
+
+#[test]
+fn memory_footprint_is_bounded() {
+    use core::mem::size_of;
+    let c = size_of::<grasp::Controller>();
+    let r = size_of::<grasp::EstimateRequest>();
+    let e = size_of::<grasp::Event>();
+    println!("Controller {c} B, EstimateRequest {r} B, Event {e} B (host layout)");
+    // Fits a small Cortex-M RAM with room to spare (target layout is no larger: i64 fields
+    // align to 8 on both).
+    assert!(c < 8 * 1024, "Controller {c} B");
+    assert!(r < 4 * 1024, "EstimateRequest {r} B");
+}
