@@ -161,6 +161,9 @@ enum PlotCmd {
         /// The JSON written by `pts sim --sweep --json`.
         #[arg(long)]
         sweep: PathBuf,
+        /// Top of the colour scale (% of l2), to compare several maps; default: the largest cell.
+        #[arg(long)]
+        max: Option<f64>,
         /// Output file (.png or .svg).
         #[arg(long, short)]
         out: PathBuf,
@@ -288,7 +291,12 @@ fn run_plot(what: PlotCmd) -> Result<(), String> {
             &out,
             size,
         ),
-        PlotCmd::Heat { sweep, out, size } => pts_cli::sim_cmd::plot_heat(&sweep, &out, size),
+        PlotCmd::Heat {
+            sweep,
+            max,
+            out,
+            size,
+        } => pts_cli::sim_cmd::plot_heat(&sweep, &out, size, max),
     }
 }
 

@@ -531,6 +531,8 @@ pub struct Table {
     pub value_name: String,
     /// Optional note per cell, printed after the value (e.g. "(4/5)"); may be empty.
     pub notes: Vec<Vec<String>>,
+    /// Top of the colour scale; `None`: the largest cell.
+    pub vmax: Option<f64>,
 }
 
 /// Blue (0) → yellow → red (max) colour scale.
@@ -589,13 +591,17 @@ fn draw_heat<DB: DrawingBackend>(
     let (w, _) = root.dim_in_pixel();
     let (main, bar) = root.split_horizontally(w.saturating_sub(w / 8 + 40));
     let max = t
-        .cells
-        .iter()
-        .flatten()
-        .flatten()
-        .copied()
-        .filter(|v| v.is_finite())
-        .fold(0.0f64, f64::max);
+        .vmax
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .unwrap_or_else(|| {
+            t.cells
+                .iter()
+                .flatten()
+                .flatten()
+                .copied()
+                .filter(|v| v.is_finite())
+                .fold(0.0f64, f64::max)
+        });
     let (nr, nc) = (t.rows.len(), t.cols.len());
     // Cell (r, c) is centred on the integer point (c, r): the mesh's integer key points
     // carry the parameter values.
@@ -656,7 +662,7 @@ fn draw_heat<DB: DrawingBackend>(
                 .unwrap_or_default();
             let text = match cell {
                 Some(v) if v.is_finite() => format!("{v:.1}{note}"),
-                _ => format!("no estimate{note}"),
+                _ => format!("none{note}"),
             };
             let dark = matches!(cell, Some(v) if max > 0.0 && (*v / max < 0.2 || *v / max > 0.8));
             let style = ("sans-serif", fs)

@@ -405,7 +405,11 @@ pub type SweepCell = (f64, f64, f64, Option<f64>);
 fn heat_title(method: &str, ideal: bool) -> String {
     format!(
         "{method} estimate: location error, closed loop{}",
-        if ideal { ", ideal drive" } else { "" }
+        if ideal {
+            ", ideal drive"
+        } else {
+            ", realistic drive"
+        }
     )
 }
 
@@ -449,6 +453,7 @@ pub fn table(cells: &[SweepCell]) -> plot::Table {
             cols: dtas,
             value_name: "|estimated k2 − k2,c| (% of l2)".into(),
             notes: vec![],
+            vmax: None,
         }
     } else {
         plot::Table {
@@ -475,13 +480,14 @@ pub fn table(cells: &[SweepCell]) -> plot::Table {
                             if ok == n {
                                 String::new()
                             } else {
-                                format!("({ok}/{n} located)")
+                                format!("({ok}/{n})")
                             }
                         })
                         .collect()
                 })
                 .collect(),
             value_name: "max |estimated k2 − k2,c| (% of l2)".into(),
+            vmax: None,
         }
     }
 }
@@ -491,6 +497,7 @@ pub fn plot_heat(
     sweep: &std::path::Path,
     out: &std::path::Path,
     size: plot::Size,
+    vmax: Option<f64>,
 ) -> Result<(), String> {
     let text = std::fs::read_to_string(sweep)
         .map_err(|e| format!("cannot read {}: {e}", sweep.display()))?;
@@ -528,7 +535,9 @@ pub fn plot_heat(
         .and_then(Value::as_str)
         .unwrap_or("two-point");
     let ideal = v.get("ideal").and_then(Value::as_bool).unwrap_or(false);
-    plot::heat_map(out, size, &heat_title(method, ideal), &table(&cells))?;
+    let mut t = table(&cells);
+    t.vmax = vmax;
+    plot::heat_map(out, size, &heat_title(method, ideal), &t)?;
     eprintln!("wrote {}", out.display());
     Ok(())
 }
