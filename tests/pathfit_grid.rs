@@ -96,6 +96,14 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         if o.estimate_ready {
             if let Some(req) = c.take_request() {
                 let (th_c, t_c) = grasp::estimate::contact_point(&req);
+                if let Ok(path) = std::env::var("PATHFIT_DUMP") {
+                    let mut out = format!("{th_c:.9} {t_c:.9}\n");
+                    for s in samples(&req) {
+                        out +=
+                            &format!("{:.9} {:.9} {:.9}\n", s.time_s, s.theta_a_rad, s.torque_nm);
+                    }
+                    std::fs::write(path, out).expect("dump");
+                }
                 if std::env::var("PATHFIT_TRACE").is_ok() {
                     println!(
                         "contact_point θa,c {th_c:.6} T_a,c {t_c:.5}; knee {:?}; end {:?}",
