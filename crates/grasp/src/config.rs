@@ -154,6 +154,9 @@ pub struct ControllerConfig {
     /// estimator also finds beyond a tip contact) means the finger touched a second time and
     /// is locked. Between the tip stiffness and this, the estimate is out of range.
     pub second_contact_stiffness_nm_per_rad: f64,
+    /// Least θa travel over the late half of the step (rad); less is a `NoMotion` fault
+    /// (a locked finger on the plant, 200 N·m/rad, still moves 0.25 mrad for 0.05 N·m).
+    pub min_step_motion_rad: f64,
     /// Second contact: the late half of the step this many times stiffer than the early one.
     pub second_contact_ratio: u16,
     /// Loss of contact: |ω̂a| above this in contact (rad/s); in contact the step ramp moves
@@ -214,6 +217,7 @@ impl ControllerConfig {
         settle_timeout_s: 6.0,
         estimate_timeout_s: 1.0,
         second_contact_stiffness_nm_per_rad: 80.0,
+        min_step_motion_rad: 1e-4,
         second_contact_ratio: 5,
         loss_speed_rad_s: 0.6,
         approach_theta_a_max_rad: 1.0,
@@ -271,6 +275,7 @@ impl ControllerConfig {
             self.second_contact_stiffness_nm_per_rad,
             self.loss_margin_rad,
             self.loss_speed_rad_s,
+            self.min_step_motion_rad,
             self.approach_theta_a_max_rad,
             self.overcurrent_a,
             self.emf_mismatch_v,
@@ -377,6 +382,7 @@ impl ControllerConfig {
             second_k_unm_per_rad: to_i64(self.second_contact_stiffness_nm_per_rad * 1e6),
             loss_margin_urad: to_i32(self.loss_margin_rad * 1e6),
             second_ratio: u32::from(self.second_contact_ratio.max(1)),
+            min_motion_urad: to_i32(self.min_step_motion_rad * 1e6),
             loss_speed_urad: to_i32(self.loss_speed_rad_s * 1e6 * self.sample_s),
             approach_theta_max_urad: to_i32(self.approach_theta_a_max_rad * 1e6),
             overcurrent_ua: to_i64(self.overcurrent_a * 1e6),
@@ -486,6 +492,8 @@ pub struct Params {
     pub estimate_timeout_ticks: u32,
     /// Second-contact stiffness (µN·m/rad).
     pub second_k_unm_per_rad: i64,
+    /// Least late-half travel (µrad).
+    pub min_motion_urad: i32,
     /// Second-contact stiffness ratio late/early.
     pub second_ratio: u32,
     /// Loss-of-contact speed (µrad per sample).

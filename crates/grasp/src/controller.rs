@@ -68,6 +68,12 @@ pub enum FaultReason {
         /// The stiffness seen (µN·m/rad).
         kc_unm_per_rad: i32,
     },
+    /// The second half of the step moved θa less than the minimum: held by friction (ΔT_a
+    /// below the transmission's stiction band) or locked; no stiffness can be measured.
+    NoMotion {
+        /// θa travel over the late half of the step (µrad).
+        dtheta_a_urad: i32,
+    },
     /// The finger moved further than a contact allows: the object is gone.
     LossOfContact {
         /// θa beyond the contact angle (µrad).
@@ -94,6 +100,7 @@ impl FaultReason {
             FaultReason::SettleTimeout => "settle_timeout",
             FaultReason::EstimateTimeout => "estimate_timeout",
             FaultReason::SecondContact { .. } => "second_contact",
+            FaultReason::NoMotion { .. } => "no_motion",
             FaultReason::LossOfContact { .. } => "loss_of_contact",
             FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
         }
@@ -998,6 +1005,15 @@ impl Controller {
         // A second contact locks the finger: the late half of the step is far stiffer than
         // any single contact, or far stiffer than the early half (a proximal first contact,
         // K ≈ K_c,prox, then the distal phalanx touching too).
+        // The finger did not move over the late half: held by transmission stiction (ΔT_a
+        // below the friction band) or locked; the step cannot measure a stiffness.
+        let dth_late = i64::from(end.theta_a_urad) - i64::from(self.seat2.theta_a_urad);
+        if dth_late < i64::from(self.p.min_motion_urad) {
+            self.pending = Some(FaultReason::NoMotion {
+                dtheta_a_urad: sat_i32(dth_late),
+            });
+            return;
+        }
         let late = i64::from(self.kc_late_unm_per_rad());
         let early = i64::from(stiffness(&self.seat, &self.seat2));
         if late > self.p.second_k_unm_per_rad
