@@ -36,7 +36,8 @@
 //! Faults (→ [`State::Fault`], bridge off, reason in [`FaultReason`]): encoder jump or
 //! encoder/back-EMF mismatch (stuck encoder), ADC code or offset, over-current, stall,
 //! no contact within the torque ceiling or the finger's range, settle or estimate timeout,
-//! second contact (late half of the step far stiffer than any contact or than the early
+//! no motion over the late half of the step (friction or locked), second contact (late
+//! half of the step far stiffer than any contact or than the early
 //! half), loss of contact (θa beyond what the contact stiffness allows, or fast), and an
 //! estimate out of range.
 //!
