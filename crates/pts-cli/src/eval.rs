@@ -153,6 +153,11 @@ impl Evaluator {
         render(id, answer)
     }
 
+    /// The answer to a line that is not valid UTF-8.
+    pub fn not_utf8(&self) -> String {
+        render(None, Err(Fail::bad("the line is not valid UTF-8")))
+    }
+
     fn eval_object(&self, obj: &Map<String, Value>) -> Answer {
         let op = match obj.get("op") {
             Some(Value::String(s)) => s.as_str(),

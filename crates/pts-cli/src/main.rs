@@ -18,7 +18,20 @@ struct Cli {
 enum Cmd {
     /// Batch evaluator for scripts: one JSON request per line on stdin, one answer per line on stdout.
     ///
-    /// Ops: closure, kc, free, invert, estimate, path. SI units. "K1"/"K2" override the springs.
+    /// SI units. Any request may add "K1"/"K2" (N·m/rad) to override the joint springs and an
+    /// "id" that is echoed back. Requests → answers:
+    ///
+    ///   {"op":"closure","theta1","theta2"} → gamma, theta_a, x2, dx2
+    ///   {"op":"kc","theta1","theta2","ta","phalanx":1|2,"k"} → kc
+    ///   {"op":"free","ta"} → theta1, theta2, theta_a, kc
+    ///   {"op":"invert","theta1","theta2","ta","kc"} → phalanx none|proximal|distal, k2|null
+    ///   {"op":"estimate","theta_a_c","ta_c","theta_a","ta"} → kc_hat, phalanx, k2, theta1_c, theta2_c
+    ///   {"op":"path","theta1_c","phalanx":1|2,"k_c","radius","dta"} → theta_a_c, ta_c, theta_a, k, dtheta_a
+    ///
+    /// A line that cannot be answered gets {"ok":false,"error":"<kind>","message":…} and the
+    /// stream goes on; the exit status is 0 unless stdin or stdout fail. "path" is the plant's
+    /// independent f64 solver whatever --numeric says.
+    #[command(verbatim_doc_comment)]
     Eval {
         /// Finger description (TOML); default: the paper's prototype.
         #[arg(long)]
@@ -229,11 +242,29 @@ fn main() -> ExitCode {
 fn run_eval(finger: Option<PathBuf>, numeric: Numeric) -> Result<(), String> {
     let file = pts_cli::load_finger(finger.as_deref())?;
     let ev = Evaluator::new(file.finger, numeric);
-    let stdin = std::io::stdin().lock();
+    let mut stdin = std::io::stdin().lock();
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-    for line in stdin.lines() {
-        let line = line.map_err(|e| format!("reading stdin: {e}"))?;
-        writeln!(out, "{}", ev.eval_line(&line)).map_err(|e| format!("writing stdout: {e}"))?;
+    let mut buf = Vec::new();
+    loop {
+        buf.clear();
+        let n = stdin
+            .read_until(b'\n', &mut buf)
+            .map_err(|e| format!("reading stdin: {e}"))?;
+        if n == 0 {
+            break;
+        }
+        if buf.last() == Some(&b'\n') {
+            buf.pop();
+        }
+        if buf.last() == Some(&b'\r') {
+            buf.pop();
+        }
+        // A line that is not UTF-8 is a malformed request like any other, not a failed stdin.
+        let answer = match std::str::from_utf8(&buf) {
+            Ok(line) => ev.eval_line(line),
+            Err(_) => ev.not_utf8(),
+        };
+        writeln!(out, "{answer}").map_err(|e| format!("writing stdout: {e}"))?;
         // Scripts may talk to us line by line through a pipe: answer each line now.
         out.flush().map_err(|e| format!("writing stdout: {e}"))?;
     }

@@ -552,6 +552,30 @@ fn malformed_lines_are_bad_requests_and_the_stream_goes_on() {
 }
 
 #[test]
+fn invalid_utf8_and_crlf_lines_do_not_stop_the_stream() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_pts"))
+        .arg("eval")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let input: &[u8] = b"{\"op\":\"free\",\"ta\":0}\r\n\xff\xfe{\"op\"\n{\"op\":\"free\",\"ta\":0}";
+    child.stdin.take().unwrap().write_all(input).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    let answers: Vec<Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(answers.len(), 3, "{text}");
+    assert_eq!(answers[0]["ok"], true);
+    assert_eq!(kind_of(&answers[1]), "bad_request");
+    // The last line has no newline: still answered.
+    assert_eq!(answers[2]["ok"], true);
+}
+
+#[test]
 fn id_is_echoed() {
     let out = run_eval(
         &[],
@@ -684,4 +708,16 @@ fn fixed_back_end_within_pts_tolerances() {
     // A spring the fixed-point type cannot hold, and the toggle, are errors there too.
     assert_eq!(out[6]["ok"], false, "{}", out[6]);
     assert_eq!(kind_of(&out[7]), "toggle");
+}
+
+#[test]
+fn finger_command_prints_a_file_that_reads_back() {
+    let o = Command::new(env!("CARGO_BIN_EXE_pts"))
+        .arg("finger")
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let text = String::from_utf8(o.stdout).unwrap();
+    let f = pts::config::FingerFile::from_toml_str(&text).unwrap();
+    assert_eq!(f, pts::config::FingerFile::paper());
 }

