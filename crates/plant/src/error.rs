@@ -27,6 +27,8 @@ pub enum PlantError {
     LossOfContact,
     /// Path: a joint reached its mechanical stop.
     JointLimit,
+    /// Path: the contact path folds (infinite stiffness): the finger jams against the object.
+    Jammed,
     /// Unknown scene name or unknown key (std TOML loader: the key is in the message).
     Unknown(&'static str),
 }
@@ -46,6 +48,7 @@ impl PlantError {
             PlantError::BehindJoint => "behind_joint",
             PlantError::LossOfContact => "loss_of_contact",
             PlantError::JointLimit => "joint_limit",
+            PlantError::Jammed => "jammed",
             PlantError::Unknown(_) => "unknown",
         }
     }

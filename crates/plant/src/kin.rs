@@ -288,11 +288,13 @@ impl Kin {
                     let e = centre.sub(q);
                     let dist = e.norm();
                     let dir = if dist > 1e-15 { e.scale(1.0 / dist) } else { n };
-                    if obj.radius_m <= 0.0 {
-                        (dist, dir, q)
+                    // Past an end the object meets the phalanx's corner. Only from the left
+                    // (h ≥ 0): once the centre crosses the phalanx line the corner has slid over
+                    // the object and leaves it (a vertex: at once, zero radius).
+                    if h >= 0.0 {
+                        (dist - obj.radius_m, dir, q)
                     } else {
-                        let s = if h >= 0.0 { 1.0 } else { -1.0 };
-                        (s * dist - obj.radius_m, dir.scale(s), q)
+                        (dist, dir, q)
                     }
                 };
                 // Material velocities of p: rotation about O1 (θ1) and about O2 (θ2, distal only).

@@ -91,7 +91,8 @@ pub const PATH_TORQUE_TOL_NM: f64 = 1e-12;
 
 /// Frictionless quasi-static path: the object is placed tangent at `spec`, then T_a is raised
 /// (or lowered) by `dta_nm` (N·m). Fails with a typed error on a second contact, the contact
-/// passing the tip or behind the joint, loss of contact or a joint stop before the target torque.
+/// passing the tip or behind the joint, loss of contact, a joint stop or a jam (fold of the
+/// contact path) before the target torque.
 pub fn quasi_static_path(
     finger: &FingerGeom,
     spec: &ContactSpec,
@@ -158,6 +159,7 @@ pub fn quasi_static_path_with(
                 EventKind::BehindJoint { .. } => PlantError::BehindJoint,
                 EventKind::LossOfContact { .. } => PlantError::LossOfContact,
                 EventKind::JointLimit { .. } => PlantError::JointLimit,
+                EventKind::Jammed { .. } => PlantError::Jammed,
                 _ => PlantError::NoConvergence,
             });
         }

@@ -7,6 +7,9 @@ use crate::PlantError;
 /// of the bracket, within this distance of the true crossing.
 pub const EVENT_TOL_RAD: f64 = 1e-10;
 const MAX_BISECT: usize = 80;
+/// A constraint force (N or N·m) still this large where it "turns negative" marks a fold of
+/// the constrained path, not a release.
+const JAM_LAMBDA: f64 = 1e-3;
 
 /// What happened to the finger.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,6 +61,12 @@ pub enum EventKind {
         /// Which stop.
         constraint: Constraint,
     },
+    /// The constrained path folds (dθa/dθ2 = 0: infinite stiffness, e.g. a phalanx corner pushing
+    /// straight into a small cylinder): the finger is locked as by a second constraint.
+    Jammed {
+        /// The constraint whose path folded.
+        constraint: Constraint,
+    },
     /// A locked finger unloaded below its lock angle.
     Unlocked,
     /// The plant's solver failed and the plant froze its geometry (typed reason).
@@ -80,6 +89,7 @@ impl EventKind {
             EventKind::SecondContact { .. } => "second_contact",
             EventKind::JointLimit { .. } => "joint_limit",
             EventKind::LimitReleased { .. } => "limit_released",
+            EventKind::Jammed { .. } => "jammed",
             EventKind::Unlocked => "unlocked",
             EventKind::SolverFailure(_) => "solver_failure",
             EventKind::OverCurrent { .. } => "over_current",
@@ -202,8 +212,8 @@ impl Tracker {
             } else {
                 old.theta2_rad
             };
-            let p = match (line, old.active) {
-                (Some(c), _) => self.kin.solve_one(theta_a_rad, c, guess, true)?,
+            let solved = match (line, old.active) {
+                (Some(c), _) => self.kin.solve_one(theta_a_rad, c, guess, true),
                 // Locked: the geometry is frozen; only the structural spring moves.
                 (
                     None,
@@ -212,21 +222,68 @@ impl Tracker {
                         torque_nm,
                         ..
                     },
-                ) => Pose {
+                ) => Ok(Pose {
                     theta_a_rad,
                     torque_nm: torque_nm
                         + self.kin.finger.k_lock_nm_per_rad * (theta_a_rad - ta_lock),
                     ..old
-                },
-                (None, _) => self.kin.solve(theta_a_rad, old.active, guess)?,
+                }),
+                (None, _) => self.kin.solve(theta_a_rad, old.active, guess),
+            };
+            let p = match (solved, old.active) {
+                (Ok(p), _) => p,
+                (Err(_), Active::One(c)) => {
+                    // The constrained configuration stopped existing inside this step. Find the
+                    // last solvable pose; if the free finger at the target clears the object it
+                    // snapped off (a cylinder slipping off a corner), otherwise it is jammed.
+                    let at = self.bisect(old, theta_a_rad, |k, pose| {
+                        Ok(match k.solve(pose, old.active, old.theta2_rad) {
+                            Ok(q) if q.lambda >= 0.0 => (1.0, q),
+                            _ => (-1.0, old),
+                        })
+                    })?;
+                    let free = self.kin.solve(theta_a_rad, Active::None, at.theta2_rad);
+                    let clear = free.as_ref().is_ok_and(|f| {
+                        self.kin
+                            .gap(c, f.theta1_rad, f.theta2_rad)
+                            .is_none_or(|g| g.gap >= 0.0)
+                    });
+                    match free {
+                        Ok(f) if clear => {
+                            let kind = match c {
+                                Constraint::Contact(ph) => EventKind::LossOfContact {
+                                    phalanx: ph,
+                                    k_m: at.k_m,
+                                },
+                                other => EventKind::LimitReleased { constraint: other },
+                            };
+                            emit(ev(&at, kind));
+                            self.pose = f;
+                            self.slope = 0.0;
+                            self.rearm();
+                        }
+                        _ => self.jam(at, c, theta_a_rad, emit),
+                    }
+                    continue;
+                }
+                (Err(e), _) => return Err(e),
             };
             // 1. Release of the active constraint.
             match old.active {
                 Active::One(c) if p.lambda < 0.0 => {
                     let at = self.bisect(old, theta_a_rad, |k, pose| {
-                        let q = k.solve(pose, old.active, old.theta2_rad)?;
-                        Ok((q.lambda, q))
+                        // Unsolvable counts as past the event.
+                        Ok(match k.solve(pose, old.active, old.theta2_rad) {
+                            Ok(q) => (q.lambda, q),
+                            Err(_) => (-1.0, old),
+                        })
                     })?;
+                    if at.lambda > JAM_LAMBDA {
+                        // λ jumped from large positive to negative: not a release but a fold of
+                        // the contact path (infinite stiffness, the Newton branch switched).
+                        self.jam(at, c, theta_a_rad, emit);
+                        continue;
+                    }
                     let kind = match c {
                         Constraint::Contact(ph) => EventKind::LossOfContact {
                             phalanx: ph,
@@ -390,6 +447,23 @@ impl Tracker {
             return Ok(p);
         }
         Err(PlantError::NoConvergence)
+    }
+
+    /// Locks the finger at `at`: the path of constraint `c` folds there (dθa/dθ2 = 0, the
+    /// stiffness is infinite), so it behaves like a second constraint.
+    fn jam(&mut self, at: Pose, c: Constraint, target: f64, emit: &mut dyn FnMut(Event)) {
+        emit(ev(&at, EventKind::Jammed { constraint: c }));
+        self.pose = Pose {
+            active: Active::Two {
+                first: c,
+                second: c,
+                theta_a_rad: at.theta_a_rad,
+                torque_nm: at.torque_nm,
+                dir: if target >= at.theta_a_rad { 1 } else { -1 },
+            },
+            ..at
+        };
+        self.slope = 0.0;
     }
 
     fn len(&self, ph: Phalanx) -> f64 {

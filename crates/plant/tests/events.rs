@@ -282,3 +282,42 @@ fn leaving_the_stops() {
     assert!((th1.torque_nm - K1 * -0.05).abs() < 1e-6, "{th1:?}");
     assert_eq!(p.truth().contact, ContactState::Free);
 }
+
+/// Cylinders past the tip: the corner rests on them; a small one jams the corner (the
+/// contact path folds) instead of failing; unloading always ends in the loss of contact at
+/// MODEL.md's θa,c (λ = 0 where the free path touched).
+#[test]
+fn corner_contacts_never_fail() {
+    for (k, r) in [(0.07, 0.05), (0.072, 0.01), (0.074, 0.0975)] {
+        let s = Scene {
+            object: ObjectSpec::Touching(ContactSpec {
+                theta1_c_rad: 1.2797,
+                phalanx: Phalanx::Distal,
+                k_c_m: k,
+                radius_m: r,
+            }),
+            start_theta_a_rad: Some(-0.23),
+            ..Scene::DEFAULT.ideal()
+        };
+        let mut p = Plant::new(&s).unwrap();
+        let ev = run(&mut p, 60_000, |i, _| {
+            Input::Duty(if i < 40_000 { 1.0 } else { -0.5 })
+        });
+        let names: Vec<_> = ev
+            .iter()
+            .map(|e| e.kind.name())
+            .filter(|n| *n != "over_current")
+            .collect();
+        assert!(!names.contains(&"solver_failure"), "{names:?}");
+        assert_eq!(names[..2], ["first_contact", "beyond_tip"], "{names:?}");
+        let loss = find(&ev, "loss_of_contact");
+        assert!(
+            (loss.theta_a_rad - THETA_A_C).abs() < 2e-6,
+            "k={k} R={r}: {loss:?}"
+        );
+        assert_eq!(p.truth().contact, ContactState::Free);
+        if r == 0.01 {
+            assert!(names.contains(&"jammed"), "{names:?}");
+        }
+    }
+}
