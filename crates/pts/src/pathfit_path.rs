@@ -125,6 +125,8 @@ pub struct PathModel<R> {
     pub tac: R,
     s2c: R,
     c2c: R,
+    s2b: R,
+    c2b: R,
     gamma_c: R,
     d1c: R,
     d2c: R,
@@ -235,6 +237,8 @@ impl<R: Real> PathModel<R> {
             tac: cfg.ta,
             s2c: cfg.theta2.sin(),
             c2c: cfg.theta2.cos(),
+            s2b: cfg.theta2.sin(),
+            c2b: cfg.theta2.cos(),
             gamma_c,
             d1c: cfg.theta1 - conv(f.theta01)?,
             d2c: cfg.theta2 - conv(f.theta02)?,
@@ -263,7 +267,11 @@ impl<R: Real> PathModel<R> {
 
     /// Moves the contact to another θa,c (the closure table is kept: it is indexed by θ2).
     pub fn set_contact(&mut self, model: &Model<R>, theta_a_c: R) -> Result<(), PtsError> {
-        let cfg = model.free_from_theta_a(theta_a_c)?;
+        let cfg = if self.k1 > R::zero() {
+            self.free_near(model, theta_a_c)?
+        } else {
+            model.free_from_theta_a(theta_a_c)?
+        };
         self.gamma_c = cfg.theta1 + cfg.theta2 - self.phi2 - theta_a_c;
         let k2p = self.k2 - cfg.ta * cfg.dx2;
         self.kfree = self.k1 * k2p / (k2p + self.k1 * cfg.x2 * cfg.x2);
@@ -273,11 +281,50 @@ impl<R: Real> PathModel<R> {
         self.theta1c = cfg.theta1;
         self.theta2c = cfg.theta2;
         self.tac = cfg.ta;
-        self.s2c = cfg.theta2.sin();
-        self.c2c = cfg.theta2.cos();
+        // sin/cos θ2c from the reference node by angle addition (no library trigonometry).
+        let (so, co) = sin_cos_small(self.off, &self.pc);
+        self.s2c = self.s2b * co + self.c2b * so;
+        self.c2c = self.c2b * co - self.s2b * so;
         self.d1c = cfg.theta1 - self.theta01;
         self.d2c = cfg.theta2 - self.theta02;
         Ok(())
+    }
+
+    /// Free motion at θa (the same equilibrium as [`Model::free_from_theta_a`]: g(θ2) =
+    /// K2(θ2 − θ02) − K1(θ1 − θ01) x2 = 0, θ1 = θa − θ2 + φ2 + γ), by Newton from the current
+    /// contact's θ2 on the closure table: no trigonometry, 1–2 steps for a nearby θa.
+    fn free_near(&mut self, model: &Model<R>, theta_a: R) -> Result<Config<R>, PtsError> {
+        let to_pts = |e: PathFail| match e {
+            PathFail::Model(p) => p,
+            _ => PtsError::OutOfRange,
+        };
+        let mut th2 = self.theta2c;
+        let tol = self.accept * R::from_f64(0.01);
+        let mut it = 0usize;
+        while it < MAX_PATH_NEWTON {
+            it += 1;
+            let (gamma, x2, dx2) = self.interp(model, th2 - self.theta2b).map_err(to_pts)?;
+            let th1 = theta_a - th2 + self.phi2 + gamma;
+            let ta = self.k1 * (th1 - self.theta01);
+            let g = self.k2 * (th2 - self.theta02) - ta * x2;
+            let dg = self.k2 - ta * dx2 + self.k1 * x2 * x2;
+            if !(dg > self.eps_det) {
+                return Err(PtsError::NoConvergence);
+            }
+            let step = g / dg;
+            if step.abs() <= tol {
+                return Ok(Config {
+                    theta1: th1,
+                    theta2: th2,
+                    theta_a,
+                    ta,
+                    x2,
+                    dx2,
+                });
+            }
+            th2 = th2 - step;
+        }
+        Err(PtsError::NoConvergence)
     }
 
     /// Distal phalanx length (m).
@@ -318,8 +365,13 @@ impl<R: Real> PathModel<R> {
 
     /// γ(θ2c+δ2) − γc, x2 and dx2/dθ2 by cubic Hermite interpolation of the table.
     fn closure_at(&mut self, model: &Model<R>, d2: R) -> Result<(R, R, R), PathFail> {
+        let (gamma, x2, dx2) = self.interp(model, d2 + self.off)?;
+        Ok((gamma - self.gamma_c, x2, dx2))
+    }
+
+    /// γ, x2, dx2/dθ2 at θ2 = θ2b + `d2` from the table (cubic Hermite).
+    fn interp(&mut self, model: &Model<R>, d2: R) -> Result<(R, R, R), PathFail> {
         let mut lo = -(self.h + self.h);
-        let d2 = d2 + self.off;
         if !d2.is_finite() || d2 > self.max_delta || d2 < lo {
             return Err(PathFail::OutOfRange);
         }
@@ -347,7 +399,7 @@ impl<R: Real> PathModel<R> {
         let gamma = h00 * a.gamma + h10 * self.h * ga + h01 * b.gamma + h11 * self.h * gb;
         let x2 = h00 * a.x2 + h10 * self.h * a.dx2 + h01 * b.x2 + h11 * self.h * b.dx2;
         let dx2 = (g00 * (a.x2 - b.x2)) * self.inv_h + g10 * a.dx2 + g11 * b.dx2;
-        Ok((gamma - self.gamma_c, x2, dx2))
+        Ok((gamma, x2, dx2))
     }
 
     /// The tangent of the path at (δφ, δ2) for (k2,c, R): dδ/dθa (rad/rad).
