@@ -1,4 +1,5 @@
-//! Fixed-point back ends: [`Fx32`] (I32F32) and [`Fx16`] (I16F16) implementing [`Real`].
+//! Fixed-point back ends: [`Fx32`] (I32F32), [`Fx24`] (I8F24) and [`Fx16`] (I16F16)
+//! implementing [`Real`].
 //!
 //! Every operation saturates instead of overflowing or panicking: `+ − × ÷` and negation
 //! clamp to the type's limits, division by zero saturates to the limit of the dividend's
@@ -16,11 +17,11 @@
 //! - `acos(x) = atan2(√((1 − x)(1 + x)), x)` with the product kept exact in Q64.
 //!
 //! [`Fx32`] evaluates them to about one unit in the last place (2⁻³² ≈ 2.3e-10 rad);
-//! [`Fx16`] evaluates them in Q32 and rounds to Q16 (2⁻¹⁶ ≈ 1.5e-5).
+//! [`Fx24`] and [`Fx16`] evaluate them in Q32 and round to Q24/Q16 (6e-8 / 1.5e-5).
 
 use crate::Real;
 use core::ops::{Add, Div, Mul, Neg, Sub};
-use fixed::types::{I16F16, I32F32};
+use fixed::types::{I16F16, I32F32, I8F24};
 
 /// Integer kernels in Q62/Q32 shared by both widths.
 mod kernel {
@@ -92,6 +93,34 @@ mod kernel {
         4_723_727_112_236_820_430,
         4_648_142_601_703_810_754,
     ];
+
+    /// 32×32→64 unsigned product. Armv6-M has no long multiply and LLVM would call the
+    /// generic 64×64 `__aeabi_lmul` (≈ 45 instructions); there it is four 16×16 products
+    /// (ARMv6-M is recognised by its lack of 32-bit compare-and-swap). Elsewhere: UMULL.
+    #[inline(always)]
+    pub(super) fn mul_u32(a: u32, b: u32) -> u64 {
+        #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+        {
+            mul_u32_pieces(a, b)
+        }
+        #[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+        {
+            a as u64 * b as u64
+        }
+    }
+
+    /// [`mul_u32`] from 16-bit halves with 32-bit multiplies only (used on Armv6-M; tested
+    /// everywhere).
+    #[inline(always)]
+    #[allow(dead_code)]
+    pub(super) fn mul_u32_pieces(a: u32, b: u32) -> u64 {
+        let (a1, a0) = (a >> 16, a & 0xFFFF);
+        let (b1, b0) = (b >> 16, b & 0xFFFF);
+        let (mid, carry) = (a0 * b1).overflowing_add(a1 * b0);
+        let (lo, c2) = (a0 * b0).overflowing_add(mid << 16);
+        let hi = a1 * b1 + (mid >> 16) + ((carry as u32) << 16) + c2 as u32;
+        ((hi as u64) << 32) | lo as u64
+    }
 
     /// Product of two Q62 numbers of magnitude ≤ 1 (result ≤ 1 in magnitude).
     #[inline]
@@ -191,7 +220,48 @@ mod kernel {
         (a >> 29) + ((a >> 28) & 1)
     }
 
-    /// √(x / 2^frac) in Q32 (rounded), for `frac` in 4..=62.
+    /// Seeds 2^63/d_mid >> 16 for the 256 intervals of d's top byte (relative error
+    /// ≤ 2^-9): two Newton steps then reach the 32-bit resolution.
+    const RECIP_SEED: [u16; 256] = {
+        let mut t = [0u16; 256];
+        let mut i = 0;
+        while i < 256 {
+            t[i] = (((1u64 << 41) / (513 + 2 * i as u64)) >> 16) as u16;
+            i += 1;
+        }
+        t
+    };
+
+    /// ≈ 2^63/d for d in [2^31, 2^32) (1/f in Q31, f = d/2^32; exact for d = 2^31),
+    /// relative error < 2^-29: a 256-entry seed and two Newton steps y += y(1 − f·y),
+    /// each two 32×32→64 products.
+    #[inline]
+    pub(super) fn recip_q31(d: u32) -> u64 {
+        if d == 1 << 31 {
+            return 1 << 32; // exact for powers of two
+        }
+        let idx = ((d >> 23) & 0xFF) as usize;
+        let mut y = (RECIP_SEED.get(idx).copied().unwrap_or(0x8000) as u32) << 16;
+        for _ in 0..2 {
+            let fy = mul_u32(d, y) >> 32; // f·y in Q31, ≈ 2^31
+            let e = (1i64 << 31) - fy as i64;
+            let ea = e.unsigned_abs().min(u32::MAX as u64) as u32;
+            let corr = (mul_u32(y, ea) >> 31) as i64;
+            let next = if e < 0 {
+                y as i64 - corr
+            } else {
+                y as i64 + corr
+            };
+            y = next.clamp(0, u32::MAX as i64) as u32;
+        }
+        y as u64
+    }
+
+    /// √(x / 2^frac) in Q32 (rounded), for even `frac` in 4..=62.
+    ///
+    /// Normalises to f ∈ [¼, 1), seeds 1/√f from a 24-entry table, three Newton steps
+    /// y ← y(3 − f y²)/2 in Q30 (32×32 products), r = f·y, then one Heron correction
+    /// r += (f − r²)·y/2 against the exact 64-bit f (relative error < 1e-12).
     pub(super) fn sqrt_q32(x: u64, frac: u32) -> u64 {
         if x == 0 {
             return 0;
@@ -204,18 +274,32 @@ mod kernel {
         } else {
             (x << (lz - odd), (lz - odd) as i32)
         };
-        let f63 = (m >> 1) as u128; // f = m/2^64 ∈ [¼, 1) in Q63
+        let f = (m >> 32) as u32; // f in Q32 (≥ 2^30)
         let idx = ((m >> 59) as usize).saturating_sub(8);
-        let mut y = RSQRT.get(idx).copied().unwrap_or(1 << 62) as u128; // Q62
-        for _ in 0..4 {
-            let y2 = (y * y) >> 62;
-            let fy2 = (f63 * y2) >> 63;
-            let t = (3u128 << 62).saturating_sub(fy2);
-            y = (y * t) >> 63;
+        let mut y = (RSQRT.get(idx).copied().unwrap_or(1 << 62) >> 32) as u32; // Q30
+        for _ in 0..3 {
+            let y2 = (mul_u32(y, y) >> 30).min(u32::MAX as u64) as u32; // Q30
+            let fy2 = mul_u32(f, y2) >> 32; // Q30, ≈ 2^30
+            let t = (3u64 << 30).saturating_sub(fy2).min(u32::MAX as u64) as u32;
+            y = (mul_u32(y, t) >> 31).min(u32::MAX as u64) as u32;
         }
-        let r = (f63 * y) >> 63; // √f in Q62
-        let sh = ((e + frac as i32) / 2 - 2).clamp(1, 100) as u32;
-        ((r + (1u128 << (sh - 1))) >> sh) as u64
+        // r = √f in Q32, then the correction with the full-precision m.
+        let r = (mul_u32(f, y) >> 30).min(u32::MAX as u64) as u32;
+        let delta = m.wrapping_sub(mul_u32(r, r)) as i64; // Q64, small
+                                                          // r + δ·y/2 in Q48 (the correction is good to ≈ 2^-58 relative).
+        let d8 = (delta >> 8).unsigned_abs().min(u32::MAX as u64) as u32;
+        let corr = (mul_u32(d8, y) >> 39) as i64;
+        let corr = if delta < 0 { -corr } else { corr };
+        let r48 = ((r as i64) << 16) + corr;
+        let r48 = r48.max(0) as u64;
+        // √(x/2^frac) = √f·2^k, k = (64 − e − frac)/2; in Q32 that is r48·2^(k − 16).
+        let k = (64 - e - frac as i32) / 2 - 16;
+        if k >= 0 {
+            r48 << k.min(15)
+        } else {
+            let sh = (-k).min(63) as u32;
+            (r48 + (1u64 << (sh - 1))) >> sh
+        }
     }
 
     /// acos(x) in Q32 for x in Q32, clamped to [−1, 1].
@@ -298,18 +382,26 @@ pub struct Fx32(pub I32F32);
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct Fx16(pub I16F16);
 
+/// Q8.24 fixed point (`fixed::types::I8F24`): range ±128, resolution 6.0e-8. Saturating.
+/// One 32-bit word like [`Fx16`], with f32-like resolution on the model's O(1) quantities:
+/// cheap on cores without a long multiply or an FPU (Cortex-M0).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct Fx24(pub I8F24);
+
 common_impls!(Fx32, I32F32, i64);
 common_impls!(Fx16, I16F16, i32);
+common_impls!(Fx24, I8F24, i32);
+
+impl From<Fx24> for Fx32 {
+    fn from(v: Fx24) -> Self {
+        Fx32(I32F32::from_bits((v.to_bits() as i64) << 8))
+    }
+}
 
 impl From<Fx16> for Fx32 {
     fn from(v: Fx16) -> Self {
         Fx32(I32F32::from_bits((v.to_bits() as i64) << 16))
     }
-}
-
-#[inline]
-fn sat_i64(v: i128) -> i64 {
-    v.clamp(i64::MIN as i128, i64::MAX as i128) as i64
 }
 
 #[inline]
@@ -321,9 +413,36 @@ impl Mul for Fx32 {
     type Output = Self;
     #[inline]
     fn mul(self, rhs: Self) -> Self {
-        // Q64 product, rounded to nearest Q32, saturated.
-        let p = self.to_bits() as i128 * rhs.to_bits() as i128;
-        Self::from_bits(sat_i64((p + (1 << 31)) >> 32))
+        // On magnitudes: up to four 32×32→64 partial products (fewer when an operand is
+        // below 1 in magnitude), rounded to nearest, saturated.
+        use kernel::mul_u32;
+        let (a, b) = (self.to_bits(), rhs.to_bits());
+        let neg = (a ^ b) < 0;
+        let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
+        let (ah, al) = ((ua >> 32) as u32, ua as u32);
+        let (bh, bl) = ((ub >> 32) as u32, ub as u32);
+        let ll = mul_u32(al, bl);
+        let mut m = (ll >> 32) + ((ll >> 31) & 1);
+        if ah != 0 {
+            m += mul_u32(ah, bl); // < 2^63
+        }
+        if bh != 0 {
+            m = m.saturating_add(mul_u32(al, bh));
+            if ah != 0 {
+                let hh = mul_u32(ah, bh);
+                m = if hh >= 1 << 31 {
+                    u64::MAX
+                } else {
+                    m.saturating_add(hh << 32)
+                };
+            }
+        }
+        let lim = if neg { 1u64 << 63 } else { i64::MAX as u64 };
+        if m > lim {
+            return if neg { Self::MIN } else { Self::MAX };
+        }
+        let m = m as i64; // 2^63 wraps to i64::MIN, which negates to itself
+        Self::from_bits(if neg { m.wrapping_neg() } else { m })
     }
 }
 
@@ -331,39 +450,39 @@ impl Div for Fx32 {
     type Output = Self;
     #[inline]
     fn div(self, rhs: Self) -> Self {
+        // Reciprocal of the divisor's top 32 bits (relative error < 2^-29), one 64×32
+        // product: quotient to ≈ 1e-9 relative, saturated; x/0 saturates by the sign of x.
         let (a, b) = (self.to_bits(), rhs.to_bits());
         if b == 0 {
             return if a < 0 { Self::MIN } else { Self::MAX };
         }
-        Self::from_bits(sat_i64(((a as i128) << 32) / b as i128))
-    }
-}
-
-impl Mul for Fx16 {
-    type Output = Self;
-    #[inline]
-    fn mul(self, rhs: Self) -> Self {
-        let p = self.to_bits() as i64 * rhs.to_bits() as i64;
-        Self::from_bits(sat_i32((p + (1 << 15)) >> 16))
-    }
-}
-
-impl Div for Fx16 {
-    type Output = Self;
-    #[inline]
-    fn div(self, rhs: Self) -> Self {
-        let (a, b) = (self.to_bits(), rhs.to_bits());
-        if b == 0 {
-            return if a < 0 { Self::MIN } else { Self::MAX };
+        let neg = (a < 0) != (b < 0);
+        let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
+        let s = ub.leading_zeros();
+        let y = kernel::recip_q31(((ub << s) >> 32) as u32);
+        let sat = if neg { Self::MIN } else { Self::MAX };
+        // q = ua·2^32/ub ≈ ua·y·2^s / 2^63, with p = ua·y = p_hi·2^32 + p_lo (96 bits).
+        let (p_hi, p_lo) = if y >> 32 != 0 {
+            (ua, 0u32) // y = 2^32 exactly: a power-of-two divisor
+        } else {
+            let lo = kernel::mul_u32(ua as u32, y as u32);
+            let hi = kernel::mul_u32((ua >> 32) as u32, y as u32) + (lo >> 32);
+            (hi, lo as u32)
+        };
+        let sh = 63 - s;
+        let q = if sh >= 32 {
+            p_hi >> (sh - 32)
+        } else if p_hi >> (31 + sh) != 0 {
+            return sat;
+        } else {
+            (p_hi << (32 - sh)) | ((p_lo as u64) >> sh)
+        };
+        if q > i64::MAX as u64 {
+            return sat;
         }
-        Self::from_bits(sat_i32(((a as i64) << 16) / b as i64))
+        let q = q as i64;
+        Self::from_bits(if neg { -q } else { q })
     }
-}
-
-/// Rounds a Q32 value to Q16, saturating.
-#[inline]
-fn q32_to_q16(v: i64) -> i32 {
-    sat_i32((v >> 16) + ((v >> 15) & 1))
 }
 
 impl Real for Fx32 {
@@ -373,15 +492,15 @@ impl Real for Fx32 {
         if !x.is_finite() {
             return None;
         }
-        let v = Self(I32F32::checked_from_num(x)?);
+        let v = Self::from_f64(x);
         (!v.is_saturated()).then_some(v)
     }
+    #[inline(always)]
     fn from_f64(x: f64) -> Self {
-        if x.is_nan() {
-            Self::default()
-        } else {
-            Self(I32F32::saturating_from_num(x))
-        }
+        // Round to nearest, saturating, NaN → 0 (`as` saturates): folds to a constant
+        // for literal arguments, so model constants cost nothing at run time.
+        let y = x * 4294967296.0;
+        Self::from_bits((if y < 0.0 { y - 0.5 } else { y + 0.5 }) as i64)
     }
     fn to_f64(self) -> f64 {
         self.0.to_num::<f64>()
@@ -416,59 +535,161 @@ impl Real for Fx32 {
     }
 }
 
-impl Real for Fx16 {
-    const TOL: f64 = 4e-4;
-    const NAME: &'static str = "Fx16 (I16F16)";
-    fn try_from_f64(x: f64) -> Option<Self> {
-        if !x.is_finite() {
-            return None;
+/// Rounds a Q32 value to Q`F`, saturating to i32.
+#[inline]
+fn q32_to<const F: u32>(v: i64) -> i32 {
+    sat_i32((v >> (32 - F)) + ((v >> (31 - F)) & 1))
+}
+
+/// Arithmetic and [`Real`] for the 32-bit fixed-point types (Q`frac`): one 32×32→64
+/// product per multiply, a reciprocal with an exact remainder correction per divide, the
+/// elementary functions through the Q32 kernels.
+macro_rules! narrow_fixed {
+    ($name:ident, $frac:literal, $tol:expr, $label:expr) => {
+        impl Mul for $name {
+            type Output = Self;
+            #[inline]
+            fn mul(self, rhs: Self) -> Self {
+                let (a, b) = (self.to_bits(), rhs.to_bits());
+                let neg = (a ^ b) < 0;
+                let p = kernel::mul_u32(a.unsigned_abs(), b.unsigned_abs());
+                let m = ((p >> $frac) + ((p >> ($frac - 1)) & 1)) as i64;
+                Self::from_bits(sat_i32(if neg { -m } else { m }))
+            }
         }
-        let v = Self(I16F16::checked_from_num(x)?);
-        (!v.is_saturated()).then_some(v)
-    }
-    fn from_f64(x: f64) -> Self {
-        if x.is_nan() {
-            Self::default()
-        } else {
-            Self(I16F16::saturating_from_num(x))
+
+        impl Div for $name {
+            type Output = Self;
+            #[inline]
+            fn div(self, rhs: Self) -> Self {
+                // Reciprocal (32-bit Newton), one product, then an exact remainder correction:
+                // the truncated quotient, saturated; x/0 saturates by the sign of x.
+                let (a, b) = (self.to_bits(), rhs.to_bits());
+                if b == 0 {
+                    return if a < 0 { Self::MIN } else { Self::MAX };
+                }
+                let neg = (a < 0) != (b < 0);
+                let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
+                let s = ub.leading_zeros();
+                let y = kernel::recip_q31(ub << s);
+                // q = ua·2^F/ub ≈ ua·y / 2^(63 − F − s)
+                let p = if y >> 32 != 0 {
+                    (ua as u64) << 32
+                } else {
+                    kernel::mul_u32(ua, y as u32)
+                };
+                let mut q = p >> (63 - $frac - s);
+                if q > i32::MAX as u64 + 1 {
+                    return if neg { Self::MIN } else { Self::MAX };
+                }
+                let num = ((ua as u64) << $frac) as i64;
+                let mut rem = num - kernel::mul_u32(q as u32, ub) as i64;
+                for _ in 0..3 {
+                    if rem < 0 {
+                        q -= 1;
+                        rem += ub as i64;
+                    } else if rem >= ub as i64 {
+                        q += 1;
+                        rem -= ub as i64;
+                    }
+                }
+                let q = q as i64;
+                Self::from_bits(sat_i32(if neg { -q } else { q }))
+            }
         }
-    }
-    fn to_f64(self) -> f64 {
-        self.0.to_num::<f64>()
-    }
-    fn is_finite(self) -> bool {
-        true
-    }
-    fn is_saturated(self) -> bool {
-        self == Self::MAX || self == Self::MIN
-    }
-    fn abs(self) -> Self {
-        Self(self.0.saturating_abs())
-    }
-    fn sqrt(self) -> Self {
-        let b = self.to_bits();
-        if b <= 0 {
-            return Self::default();
+
+        impl Real for $name {
+            const TOL: f64 = $tol;
+            const NAME: &'static str = $label;
+            fn try_from_f64(x: f64) -> Option<Self> {
+                if !x.is_finite() {
+                    return None;
+                }
+                let v = Self::from_f64(x);
+                (!v.is_saturated()).then_some(v)
+            }
+            #[inline(always)]
+            fn from_f64(x: f64) -> Self {
+                // Round to nearest, saturating, NaN → 0 (`as` saturates): folds to a constant
+                // for literal arguments, so model constants cost nothing at run time.
+                let y = x * (1u64 << $frac) as f64;
+                Self::from_bits((if y < 0.0 { y - 0.5 } else { y + 0.5 }) as i32)
+            }
+            fn to_f64(self) -> f64 {
+                self.0.to_num::<f64>()
+            }
+            fn is_finite(self) -> bool {
+                true
+            }
+            fn is_saturated(self) -> bool {
+                self == Self::MAX || self == Self::MIN
+            }
+            fn abs(self) -> Self {
+                Self(self.0.saturating_abs())
+            }
+            fn sqrt(self) -> Self {
+                let b = self.to_bits();
+                if b <= 0 {
+                    return Self::default();
+                }
+                Self::from_bits(q32_to::<$frac>(kernel::sqrt_q32(b as u64, $frac) as i64))
+            }
+            fn sin(self) -> Self {
+                Self::from_bits(q32_to::<$frac>(
+                    kernel::sin_cos_q32((self.to_bits() as i64) << (32 - $frac)).0,
+                ))
+            }
+            fn cos(self) -> Self {
+                Self::from_bits(q32_to::<$frac>(
+                    kernel::sin_cos_q32((self.to_bits() as i64) << (32 - $frac)).1,
+                ))
+            }
+            fn atan2(self, x: Self) -> Self {
+                Self::from_bits(q32_to::<$frac>(kernel::atan2_q32(
+                    self.to_bits() as i64,
+                    x.to_bits() as i64,
+                )))
+            }
+            fn acos(self) -> Self {
+                Self::from_bits(q32_to::<$frac>(kernel::acos_q32(
+                    (self.to_bits() as i64) << (32 - $frac),
+                )))
+            }
         }
-        Self::from_bits(q32_to_q16(kernel::sqrt_q32(b as u64, 16) as i64))
-    }
-    fn sin(self) -> Self {
-        Self::from_bits(q32_to_q16(
-            kernel::sin_cos_q32((self.to_bits() as i64) << 16).0,
-        ))
-    }
-    fn cos(self) -> Self {
-        Self::from_bits(q32_to_q16(
-            kernel::sin_cos_q32((self.to_bits() as i64) << 16).1,
-        ))
-    }
-    fn atan2(self, x: Self) -> Self {
-        Self::from_bits(q32_to_q16(kernel::atan2_q32(
-            self.to_bits() as i64,
-            x.to_bits() as i64,
-        )))
-    }
-    fn acos(self) -> Self {
-        Self::from_bits(q32_to_q16(kernel::acos_q32((self.to_bits() as i64) << 16)))
+    };
+}
+
+narrow_fixed!(Fx16, 16, 4e-4, "Fx16 (I16F16)");
+narrow_fixed!(Fx24, 24, 2e-6, "Fx24 (I8F24)");
+#[cfg(test)]
+mod tests {
+    use super::kernel::{mul_u32, mul_u32_pieces};
+
+    #[test]
+    fn armv6m_long_multiply_is_exact() {
+        let edge = [
+            0u32,
+            1,
+            2,
+            0xFFFF,
+            0x1_0000,
+            0x8000_0000,
+            0xFFFF_FFFF,
+            0x1234_5678,
+        ];
+        for &a in &edge {
+            for &b in &edge {
+                assert_eq!(mul_u32_pieces(a, b), a as u64 * b as u64, "{a} {b}");
+            }
+        }
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let (a, b) = (x as u32, (x >> 32) as u32);
+            assert_eq!(mul_u32_pieces(a, b), a as u64 * b as u64);
+            assert_eq!(mul_u32(a, b), a as u64 * b as u64);
+        }
     }
 }

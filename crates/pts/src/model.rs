@@ -138,7 +138,9 @@ fn check<R: Real>(x: R, limit: f64) -> Result<R, PtsError> {
     if !x.is_finite() {
         return Err(PtsError::NonFinite);
     }
-    if x.abs() > R::from_f64(limit) {
+    // A value at a fixed-point limit may stand for anything beyond it (and the limit itself
+    // may be below `limit` in a narrow type).
+    if x.abs() > R::from_f64(limit) || x.is_saturated() {
         return Err(PtsError::OutOfRange);
     }
     Ok(x)
@@ -409,8 +411,8 @@ impl<R: Real> Model<R> {
             return Err(PtsError::NotMonotone);
         }
         let k2p = self.k2 - cfg.ta * cfg.dx2;
-        let s_tip = self.l2 / (l1c + self.l2);
-        if !(k2p > R::zero()) || !(self.k1 * s_tip * cfg.x2 + k2p > R::zero()) {
+        // K1 s_tip x2 + K2′ > 0 with s_tip = l2/(l1c + l2), l1c + l2 > 0: division-free.
+        if !(k2p > R::zero()) || !(self.k1 * self.l2 * cfg.x2 + k2p * (l1c + self.l2) > R::zero()) {
             return Err(PtsError::NotMonotone);
         }
         Ok(())
@@ -503,8 +505,14 @@ impl<R: Real> Model<R> {
             }
         }
         let k2 = s * l1c / (R::one() - s);
+        let k2 = ok_value(k2)?.min(self.l2);
+        if !(k2 > R::zero()) {
+            // s rounded to 0 (K̂c a hair above K_c,proximal in a coarse back end): O2.
+            contact.phalanx = Phalanx::Proximal;
+            return Ok(contact);
+        }
         contact.phalanx = Phalanx::Distal;
-        contact.k2 = Some(ok_value(k2)?.min(self.l2));
+        contact.k2 = Some(k2);
         Ok(contact)
     }
 
@@ -544,11 +552,11 @@ impl<R: Real> Model<R> {
         let theta_a = check(theta_a, MAX_ANGLE)?;
         let ta_c = check(ta_c, MAX_TORQUE)?;
         let ta = check(ta, MAX_TORQUE)?;
-        let dta = ta - ta_c;
+        let dta = ok_value(ta - ta_c)?;
         if !(dta > R::zero()) {
             return Err(PtsError::DeltaTorqueNotPositive);
         }
-        let dtheta_a = theta_a - theta_a_c;
+        let dtheta_a = ok_value(theta_a - theta_a_c)?;
         if !(dtheta_a > R::from_f64(MIN_DTHETA_A)) {
             return Err(PtsError::DeltaThetaTooSmall);
         }

@@ -72,6 +72,16 @@ impl TableReal for crate::fixed::Fx16 {
     }
 }
 
+impl TableReal for crate::fixed::Fx24 {
+    fn split_index(self) -> Option<(usize, Self)> {
+        let b = self.to_bits();
+        if b < 0 || self.is_saturated() {
+            return None;
+        }
+        Some(((b >> 24) as usize, Self::from_bits(b & 0xFF_FFFF)))
+    }
+}
+
 /// One interval: per field the cubic a0 + u(a1 + u(a2 + u·a3)), u ∈ [0, 1).
 #[derive(Clone, Copy, Debug)]
 struct Segment<R> {

@@ -2,7 +2,7 @@
 //! (NaN, ±inf, huge, tiny, negative, and the special configurations of MODEL.md):
 //! the result is `Ok` with finite, unsaturated values, or a typed `Err`; never a panic
 //! (overflow checks are on in the test profile, so an integer overflow would panic).
-use pts::fixed::{Fx16, Fx32};
+use pts::fixed::{Fx16, Fx24, Fx32};
 use pts::{Config, Contact, Finger, Model, Real};
 
 use proptest::prelude::*;
@@ -121,6 +121,7 @@ fn all_backends(f: &Finger, v: &[f64; 8]) -> Result<(), TestCaseError> {
     exercise::<f64>(f, v)?;
     exercise::<f32>(f, v)?;
     exercise::<Fx32>(f, v)?;
+    exercise::<Fx24>(f, v)?;
     exercise::<Fx16>(f, v)
 }
 
@@ -158,6 +159,11 @@ mod raw_bits {
         fn fx32_any_bits(b in prop::array::uniform8(any::<i64>())) {
             let v = b.map(|x| Fx32::from_bits(x).to_f64());
             exercise::<Fx32>(&Finger::PAPER, &v)?;
+        }
+        #[test]
+        fn fx24_any_bits(b in prop::array::uniform8(any::<i32>())) {
+            let v = b.map(|x| Fx24::from_bits(x).to_f64());
+            exercise::<Fx24>(&Finger::PAPER, &v)?;
         }
         #[test]
         fn fx16_any_bits(b in prop::array::uniform8(any::<i32>())) {

@@ -1,6 +1,6 @@
 //! The free-motion table against the f64 model's Newton solve, and the table-based
 //! estimate against the f64 reference estimate.
-use pts::fixed::{Fx16, Fx32};
+use pts::fixed::{Fx16, Fx24, Fx32};
 use pts::table::{FreeTable, TableReal};
 use pts::{Finger, Model, Real};
 
@@ -44,6 +44,9 @@ fn table_matches_newton() {
     let e = table_error::<f32>(2000);
     println!("f32 table: {e:?}");
     assert!(e.iter().all(|&x| x < 2e-6), "{e:?}");
+    let e = table_error::<Fx24>(2000);
+    println!("Fx24 table: {e:?}");
+    assert!(e.iter().all(|&x| x < 2e-6), "{e:?}");
     let e = table_error::<Fx16>(2000);
     println!("Fx16 table: {e:?}");
     assert!(e.iter().all(|&x| x < 2e-4), "{e:?}");
@@ -75,10 +78,10 @@ fn measurement(ta_c: f64, k2: f64, dta: f64) -> Option<[f64; 4]> {
 
 /// Max |Δk2|/l2 and max relative ΔK̂c of the table estimate on `R` against the f64
 /// Newton estimate, over a grid of contact torques, locations and steps.
-fn estimate_error<R: TableReal>() -> (usize, usize, f64, f64) {
+fn estimate_error<R: TableReal>() -> (usize, usize, f64, f64, usize) {
     let m = Model::<f64>::paper().unwrap();
     let t = FreeTable::<R>::new(&Finger::PAPER).unwrap();
-    let (mut n, mut both, mut ek, mut ec) = (0, 0, 0.0f64, 0.0f64);
+    let (mut n, mut both, mut ek, mut ec, mut mism) = (0, 0, 0.0f64, 0.0f64, 0);
     for i in 0..=30 {
         for j in 0..=30 {
             let ta_c = 1.5 * i as f64 / 30.0;
@@ -100,22 +103,37 @@ fn estimate_error<R: TableReal>() -> (usize, usize, f64, f64) {
                         ec = ec.max(((g.kc_hat.to_f64() - w.kc_hat) / w.kc_hat).abs());
                     }
                 }
-                (Err(a), Err(b)) => assert_eq!(a, b),
-                (w, g) => panic!("{} f64 {w:?} vs {g:?}", R::NAME),
+                (Err(a), Err(b)) if a == b => {}
+                _ => mism += 1,
             }
         }
     }
-    (n, both, ek, ec)
+    (n, both, ek, ec, mism)
 }
 
 #[test]
 fn table_estimate_matches_f64_reference() {
-    let (n, both, ek, ec) = estimate_error::<Fx32>();
-    println!("Fx32 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}");
-    assert!(both * 10 >= n * 6 && ek < 1e-4 && ec < 1e-4);
-    let (n, both, ek, ec) = estimate_error::<f64>();
-    println!("f64 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}");
-    assert!(both * 10 >= n * 6 && ek < 1e-6 && ec < 1e-9);
+    let (n, both, ek, ec, mism) = estimate_error::<Fx32>();
+    println!("Fx32 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}, {mism} mismatches");
+    assert!(both * 10 >= n * 6 && ek < 1e-4 && ec < 1e-4 && mism == 0);
+    let (n, both, ek, ec, mism) = estimate_error::<f32>();
+    println!("f32 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}, {mism} mismatches");
+    assert!(both * 10 >= n * 6 && ek < 1e-4 && ec < 1e-4 && mism == 0);
+    let (n, both, ek, ec, mism) = estimate_error::<f64>();
+    println!("f64 table: {both}/{n} distal, max dk2/l2 {ek:.2e}, max rel dKc {ec:.2e}, {mism} mismatches");
+    assert!(both * 10 >= n * 6 && ek < 1e-6 && ec < 1e-9 && mism == 0);
+    // The narrow types, for the record: Fx24 cannot hold K_c above 128 N·m/rad (contacts
+    // near the tip at T_a,c ≳ 1 N·m are refused); Fx16 lacks resolution.
+    for (name, r) in [
+        ("Fx24", estimate_error::<Fx24>()),
+        ("Fx16", estimate_error::<Fx16>()),
+    ] {
+        println!(
+            "{name} table: {}/{} distal, max dk2/l2 {:.2e}, max rel dKc {:.2e}, {} mismatches",
+            r.1, r.0, r.2, r.3, r.4
+        );
+        assert!(r.1 > 0);
+    }
 }
 
 proptest! {
@@ -161,6 +179,7 @@ proptest! {
         run::<f64>(&v)?;
         run::<f32>(&v)?;
         run::<Fx32>(&v)?;
+        run::<Fx24>(&v)?;
         run::<Fx16>(&v)?;
     }
 }
