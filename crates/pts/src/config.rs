@@ -208,7 +208,28 @@ impl FingerFile {
     pub fn from_toml_str(text: &str) -> Result<FingerFile, ConfigError> {
         let raw: RawFile = toml::from_str(text).map_err(|e| {
             let message = e.message().to_string();
-            let key = unknown_key(&message).unwrap_or_default();
+            // serde names the key alone; prefix the [table] it sits in.
+            let table = e
+                .span()
+                .and_then(|sp| text.get(..sp.start))
+                .filter(|before| {
+                    // An unknown table header names itself: no prefix.
+                    let line = before.rsplit('\n').next().unwrap_or(before);
+                    !line.trim_start().starts_with('[')
+                })
+                .and_then(|before| {
+                    before
+                        .lines()
+                        .rev()
+                        .map(str::trim)
+                        .find(|l| l.starts_with('[') && l.ends_with(']'))
+                        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string())
+                });
+            let key = match (unknown_key(&message), table) {
+                (Some(k), Some(t)) if !t.is_empty() => format!("{t}.{k}"),
+                (Some(k), _) => k,
+                (None, _) => String::new(),
+            };
             let located = match e.span() {
                 Some(span) => {
                     let line = text
@@ -604,10 +625,15 @@ mod tests {
     #[test]
     fn unknown_keys_are_named() {
         let e = FingerFile::from_toml_str("[springs]\nk3_nm_per_rad = 1.0\n").unwrap_err();
-        assert_eq!(e.key(), "k3_nm_per_rad", "{e}");
+        assert_eq!(e.key(), "springs.k3_nm_per_rad", "{e}");
         assert!(e.to_string().contains("k3_nm_per_rad"), "{e}");
         let e = FingerFile::from_toml_str("[gearbox]\nratio = 1.0\n").unwrap_err();
         assert_eq!(e.key(), "gearbox", "{e}");
+        let e = FingerFile::from_toml_str("[drive]\nefficiency = 0.5\n[gearbox]\nratio = 1.0\n")
+            .unwrap_err();
+        assert_eq!(e.key(), "gearbox", "{e}");
+        let e = FingerFile::from_toml_str("colour = \"red\"\n").unwrap_err();
+        assert_eq!(e.key(), "colour", "{e}");
     }
 
     #[test]
