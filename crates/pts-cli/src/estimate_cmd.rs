@@ -125,13 +125,13 @@ pub fn run(
             "contacts": contacts,
             "warnings": warnings,
         });
-        println!("{out}");
+        crate::outln!("{out}");
         return Ok(());
     }
     for w in &warnings {
         eprintln!("warning: {w}");
     }
-    println!(
+    crate::outln!(
         "{}: {} rows, t = {t0:.4} … {t1:.4} s, control period {} s, ΔT_a = {dta} N·m, {} estimate{}",
         path.display(),
         tr.rows.len(),
@@ -144,7 +144,7 @@ pub fn run(
         }
     );
     match (&rep.contact, &rep.estimate) {
-        (None, _) => println!(
+        (None, _) => crate::outln!(
             "no contact found (controller ended in {})",
             trace::state_name(rep.state)
         ),
@@ -156,16 +156,16 @@ pub fn run(
                 ),
                 _ => (*thc, *tac),
             };
-            println!("contact 1 at t = {t:.4} s: θa,c = {thc:.6} rad, T_a,c = {tac:.4} N·m");
+            crate::outln!("contact 1 at t = {t:.4} s: θa,c = {thc:.6} rad, T_a,c = {tac:.4} N·m");
             match est {
-                Some(Ok(r)) => println!("  {}", crate::sim::describe(r)),
-                Some(Err(e)) => println!("  estimate refused: {} ({e})", e.kind),
-                None => println!("  the step did not settle: no estimate"),
+                Some(Ok(r)) => crate::outln!("  {}", crate::sim::describe(r)),
+                Some(Err(e)) => crate::outln!("  estimate refused: {} ({e})", e.kind),
+                None => crate::outln!("  the step did not settle: no estimate"),
             }
         }
     }
     if let Some(f) = fault {
-        println!("  fault: {f}");
+        crate::outln!("  fault: {f}");
     }
     Ok(())
 }

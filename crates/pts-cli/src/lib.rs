@@ -1,6 +1,18 @@
 //! The `pts` host tool as a library: each subcommand is a module with plain functions, so the
 //! integration tests call the same code the binary runs.
 
+/// `println!` that ends the process quietly (status 141, as after SIGPIPE) when stdout is
+/// gone, e.g. `pts sim --sweep | head`, instead of panicking.
+#[macro_export]
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if writeln!(std::io::stdout(), $($arg)*).is_err() {
+            std::process::exit(141);
+        }
+    }};
+}
+
 pub mod estimate_cmd;
 pub mod eval;
 pub mod method;

@@ -226,9 +226,8 @@ fn main() -> ExitCode {
             pts_cli::estimate_cmd::from_defmt(&from_defmt, out.as_deref(), finger.as_deref(), dt_s)
         }
         Cmd::Plot { what } => run_plot(what),
-        Cmd::Finger { finger } => {
-            pts_cli::load_finger(finger.as_deref()).map(|f| print!("{}", f.to_toml_string()))
-        }
+        Cmd::Finger { finger } => pts_cli::load_finger(finger.as_deref())
+            .map(|f| pts_cli::outln!("{}", f.to_toml_string().trim_end())),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -53,7 +53,7 @@ fn check_dta(dta: &[f64]) -> Result<(), String> {
 pub fn run(a: &Args) -> Result<(), String> {
     if a.list {
         for n in plant::scenes::NAMES {
-            println!("{n}");
+            crate::outln!("{n}");
         }
         return Ok(());
     }
@@ -108,7 +108,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         eprintln!("wrote {}", path.display());
     }
     if a.json {
-        println!("{}", report_json(&rep, a.dta[0]));
+        crate::outln!("{}", report_json(&rep, a.dta[0]));
     } else {
         print_report(&rep, a.dta[0], wall);
     }
@@ -189,42 +189,46 @@ fn report_json(rep: &SimReport, dta: f64) -> Value {
 }
 
 fn print_report(rep: &SimReport, dta: f64, wall_s: f64) {
-    println!(
+    crate::outln!(
         "scene {}  ΔT_a = {dta} N·m  ({:.2} s simulated in {wall_s:.1} s)",
-        rep.scene, rep.t_end_s
+        rep.scene,
+        rep.t_end_s
     );
-    println!("events:");
+    crate::outln!("events:");
     for e in &rep.events {
-        println!(
+        crate::outln!(
             "  {:>8.4} s  {:<5} {:<18} {}",
-            e.t_s, e.source, e.name, e.detail
+            e.t_s,
+            e.source,
+            e.name,
+            e.detail
         );
     }
     match (&rep.estimate, rep.first_contact) {
         (Some(Ok(r)), truth) => {
-            println!("estimate: {}", sim::describe(r));
+            crate::outln!("estimate: {}", sim::describe(r));
             if let Some((t, ph, k)) = truth {
-                println!(
+                crate::outln!(
                     "truth:    first contact at {t:.4} s on the {ph} phalanx, k = {:.2} mm",
                     k * 1e3
                 );
             }
             if let Some(k) = rep.k_at_settle_m {
-                println!("          contact at settle k = {:.2} mm", k * 1e3);
+                crate::outln!("          contact at settle k = {:.2} mm", k * 1e3);
             }
             match rep.error_pct_l2() {
-                Some(e) => println!(
+                Some(e) => crate::outln!(
                     "error:    k̂2 − k2,c = {e:+.2} % of l2 ({})",
                     rep.method.name()
                 ),
-                None => println!("error:    n/a (no distal location to compare)"),
+                None => crate::outln!("error:    n/a (no distal location to compare)"),
             }
         }
-        (Some(Err(e)), _) => println!("estimate refused: {} ({e})", e.kind),
-        (None, _) => println!("no estimate"),
+        (Some(Err(e)), _) => crate::outln!("estimate refused: {} ({e})", e.kind),
+        (None, _) => crate::outln!("no estimate"),
     }
     if let Some(f) = rep.fault() {
-        println!("fault:    {f}");
+        crate::outln!("fault:    {f}");
     }
 }
 
@@ -330,9 +334,9 @@ fn sweep(a: &Args) -> Result<(), String> {
                 "outcome": c.outcome,
             })).collect::<Vec<_>>(),
         });
-        println!("{out}");
+        crate::outln!("{out}");
     } else {
-        println!(
+        crate::outln!(
             "location error k̂2 − k2,c (% of l2), {} estimate, closed loop{}; rows: object, contact location; columns: ΔT_a (N·m)",
             a.method.name(),
             if a.ideal { ", ideal drive" } else { "" }
@@ -347,7 +351,7 @@ fn sweep(a: &Args) -> Result<(), String> {
         for d in &a.dta {
             head += &format!("{:>w$}", format!("{d}"));
         }
-        println!("{head}");
+        crate::outln!("{head}");
         for &r in &a.radii_cm {
             let obj = if r == 0.0 {
                 "vertex".to_string()
@@ -367,7 +371,7 @@ fn sweep(a: &Args) -> Result<(), String> {
                     };
                     line += &format!("{txt:>w$}");
                 }
-                println!("{line}");
+                crate::outln!("{line}");
             }
             let mut line = format!("{:<22}", format!("{obj}, max |err|"));
             for &d in &a.dta {
@@ -376,9 +380,9 @@ fn sweep(a: &Args) -> Result<(), String> {
                     max_abs(r, d).map_or("-".to_string(), |v| format!("{v:.2}"))
                 );
             }
-            println!("{line}");
+            crate::outln!("{line}");
         }
-        println!("({} runs in {:.1} s)", total, t0.elapsed().as_secs_f64());
+        crate::outln!("({} runs in {:.1} s)", total, t0.elapsed().as_secs_f64());
     }
     if let Some(path) = &a.plot {
         let flat: Vec<SweepCell> = cells
