@@ -125,6 +125,9 @@ pub struct Gap {
     /// Contact location along the phalanx from its lower joint (m), unclamped projection of the
     /// object centre; 0 for stops.
     pub k_m: f64,
+    /// The object centre is on the phalanx's left (flexion) side, where contacts are modelled;
+    /// always true for stops. An object behind a phalanx never starts a contact.
+    pub left: bool,
 }
 
 /// Which constraints hold the finger.
@@ -263,7 +266,14 @@ impl Kin {
         (o2, u1, u2): (V2, V2, V2),
     ) -> Option<Gap> {
         let f = &self.finger;
-        let stop = |gap: f64, j: [f64; 2]| Some(Gap { gap, j, k_m: 0.0 });
+        let stop = |gap: f64, j: [f64; 2]| {
+            Some(Gap {
+                gap,
+                j,
+                k_m: 0.0,
+                left: true,
+            })
+        };
         match c {
             Constraint::Theta1Min => stop(theta1 - f.theta1_min_rad, [-1.0, 0.0]),
             Constraint::Theta1Max => stop(f.theta1_max_rad - theta1, [1.0, 0.0]),
@@ -307,6 +317,7 @@ impl Kin {
                     gap,
                     j: [nhat.dot(dp1), nhat.dot(dp2)],
                     k_m: k,
+                    left: h >= 0.0,
                 })
             }
         }

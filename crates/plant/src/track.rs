@@ -177,10 +177,10 @@ impl Tracker {
                 continue;
             }
             if let Some(g) = gaps.get(c.slot()).copied().flatten() {
-                if g.gap >= 0.0 {
-                    self.armed[c.slot()] = true;
-                } else if g.gap < -1e-9 {
+                if !g.left || g.gap < -1e-9 {
                     self.armed[c.slot()] = false;
+                } else if g.gap >= 0.0 {
+                    self.armed[c.slot()] = true;
                 }
             }
         }
@@ -304,11 +304,29 @@ impl Tracker {
                     dir,
                     ..
                 } if (theta_a_rad - ta_lock) * f64::from(dir) < 0.0 => {
-                    let at = self
-                        .kin
-                        .solve(ta_lock, Active::One(first), old.theta2_rad)?;
-                    emit(ev(&at, EventKind::Unlocked));
-                    self.pose = at;
+                    match self.kin.solve(ta_lock, Active::One(first), old.theta2_rad) {
+                        Ok(at) => {
+                            emit(ev(&at, EventKind::Unlocked));
+                            self.pose = at;
+                        }
+                        // The first constraint has no solution at the lock (a jam): release
+                        // into free motion at the lock angle.
+                        Err(_) => {
+                            let free = self.kin.solve(ta_lock, Active::None, old.theta2_rad)?;
+                            emit(ev(&free, EventKind::Unlocked));
+                            if let Constraint::Contact(ph) = first {
+                                emit(ev(
+                                    &free,
+                                    EventKind::LossOfContact {
+                                        phalanx: ph,
+                                        k_m: old.k_m,
+                                    },
+                                ));
+                            }
+                            self.pose = free;
+                        }
+                    }
+                    self.slope = 0.0;
                     self.rearm();
                     continue;
                 }

@@ -61,3 +61,61 @@ fn random_abuse_never_panics() {
         }
     }
 }
+
+/// Random objects (vertex or cylinder up to 15 cm, either phalanx, anywhere along it, contact
+/// anywhere on the closing path), closed at full duty then driven by random duties: the solver
+/// never fails (every outcome is a typed event: contact, loss, beyond tip, second contact,
+/// joint limit, jam).
+#[test]
+fn random_objects_never_break_the_solver() {
+    let mut rng = Rng::new(7);
+    for case in 0..80 {
+        let ph = if rng.uniform() < 0.3 {
+            plant::Phalanx::Proximal
+        } else {
+            plant::Phalanx::Distal
+        };
+        let len = if ph == plant::Phalanx::Proximal {
+            0.1
+        } else {
+            0.075
+        };
+        let spec = plant::ContactSpec {
+            theta1_c_rad: 0.9 + rng.uniform() * 1.2,
+            phalanx: ph,
+            k_c_m: len * (0.02 + 0.98 * rng.uniform()),
+            radius_m: if rng.uniform() < 0.3 {
+                0.0
+            } else {
+                0.15 * rng.uniform()
+            },
+        };
+        let base = if case % 2 == 0 {
+            plant::Scene::DEFAULT
+        } else {
+            plant::Scene::DEFAULT.ideal()
+        };
+        let s = plant::Scene {
+            object: plant::scene::ObjectSpec::Touching(spec),
+            start_theta_a_rad: Some(-0.6),
+            ..base
+        };
+        let Ok(mut p) = Plant::new(&s) else {
+            continue; // the object already cuts the finger at the start pose
+        };
+        let mut duty = 1.0;
+        for k in 0..40_000 {
+            if k >= 15_000 && k % 5000 == 0 {
+                duty = rng.uniform() * 2.4 - 1.2;
+            }
+            p.step_input(Input::Duty(duty));
+            while let Some(e) = p.poll_event() {
+                assert!(
+                    !matches!(e.kind, plant::EventKind::SolverFailure(_)),
+                    "case {case} {spec:?}: {e:?}"
+                );
+            }
+        }
+        assert!(!p.solver_failed());
+    }
+}
