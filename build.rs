@@ -18,6 +18,7 @@ fn main() {
     println!("cargo:rerun-if-changed=memory-mps2-an386.x");
     println!("cargo:rerun-if-env-changed=FINGER_TOML");
     println!("cargo:rerun-if-env-changed=FINGER_FW_SCENE");
+    println!("cargo:rerun-if-env-changed=FINGER_FW_INJECT");
 
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     let qemu = env::var_os("CARGO_FEATURE_QEMU").is_some();
@@ -46,6 +47,7 @@ fn main() {
     let mut src = String::new();
     finger_consts(&mut src);
     scene_consts(&mut src);
+    inject_consts(&mut src);
     fs::write(out.join("fw_config.rs"), src).expect("write fw_config.rs");
 }
 
@@ -133,6 +135,30 @@ fn scene_file_const(path: &str) -> String {
     let scene = plant::toml_scene::from_toml_file(std::path::Path::new(path))
         .unwrap_or_else(|e| panic!("FINGER_FW_SCENE={path}: {e}"));
     plant::toml_scene::to_rust_expr(&scene)
+}
+
+/// `FINGER_FW_INJECT=panic@TICK` or `hardfault@TICK`: a fault injected by the test command to
+/// check the last-resort handlers. Unset in every normal build.
+fn inject_consts(src: &mut String) {
+    let inject = match env::var("FINGER_FW_INJECT") {
+        Ok(v) if !v.is_empty() => {
+            let (kind, at) = v
+                .split_once('@')
+                .unwrap_or_else(|| panic!("FINGER_FW_INJECT={v}: expected KIND@TICK"));
+            let at: u32 = at
+                .parse()
+                .unwrap_or_else(|_| panic!("FINGER_FW_INJECT={v}: TICK must be a number"));
+            if kind != "panic" && kind != "hardfault" {
+                panic!("FINGER_FW_INJECT={v}: KIND is panic or hardfault");
+            }
+            format!("Some(({kind:?}, {at}))")
+        }
+        _ => "None".to_string(),
+    };
+    let _ = writeln!(
+        src,
+        "/// Fault injection (test command only).\npub const INJECT: Option<(&str, u32)> = {inject};"
+    );
 }
 
 fn scene_consts(src: &mut String) {

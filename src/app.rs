@@ -21,7 +21,7 @@
 mod app {
     use core::sync::atomic::Ordering;
 
-    use grasp::{Controller, State};
+    use grasp::Controller;
     use rtic_sync::channel::{Receiver, Sender};
     use rtic_sync::make_channel;
 
@@ -38,14 +38,12 @@ mod app {
     #[local]
     struct Local {
         tel_tx: Sender<'static, Msg, QUEUE>,
-        tel_tx_est: Sender<'static, Msg, QUEUE>,
         decimation: u32,
     }
 
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
         let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
-        let tel_tx_est = tel_tx.clone();
         #[cfg(feature = "qemu")]
         let (board, cfg) = platform::init(cx.core);
         #[cfg(not(feature = "qemu"))]
@@ -76,14 +74,7 @@ mod app {
             }
         };
         telemetry::spawn(tel_rx).ok();
-        (
-            Shared { ctrl, board },
-            Local {
-                tel_tx,
-                tel_tx_est,
-                decimation,
-            },
-        )
+        (Shared { ctrl, board }, Local { tel_tx, decimation })
     }
 
     /// Sleep between interrupts (on QEMU with `-icount sleep=off` the virtual clock then jumps
@@ -109,12 +100,8 @@ mod app {
         // Highest priority: these locks are free (no other task of this priority).
         board.lock(|board| {
             board.ack_sample();
-            if *done {
-                board_off(board);
-                platform::stop_sampling();
-                return;
-            }
             let tick = tm::TICKS.fetch_add(1, Ordering::Relaxed) + 1;
+            crate::fault::inject(tick);
             let out = ctrl.lock(|ctrl| {
                 let out = ctrl.tick(board);
                 while let Some(ev) = ctrl.poll_event() {
@@ -151,7 +138,9 @@ mod app {
             while let Some(p) = board.poll_plant_event() {
                 send(tel, Msg::Plant(p));
             }
-            if finished {
+            // The END report, once. The loop itself goes on: on the board the finger keeps
+            // holding (or stays safe); QEMU exits when the telemetry task has logged it.
+            if finished && !*done {
                 *done = true;
                 if let Some(t) = board.truth("end") {
                     send(tel, Msg::Truth(t));
@@ -161,7 +150,7 @@ mod app {
                     Msg::Done(Done {
                         status: ctl::status(out.state),
                         state: out.state,
-                        bridge_safe: board_safe(board, out.state),
+                        bridge_safe: board.is_safe(),
                         ticks: tick,
                     }),
                 );
@@ -177,23 +166,8 @@ mod app {
         }
     }
 
-    /// At the end of a run the bridge goes off whatever the final state.
-    fn board_off(board: &mut Board) {
-        use grasp::Hardware;
-        board.bridge_off();
-    }
-
-    /// What the END line reports as the bridge state: after a fault the controller must have
-    /// switched it off itself.
-    fn board_safe(board: &Board, state: State) -> bool {
-        match state {
-            State::Fault(_) | State::Done => board.is_safe(),
-            _ => true,
-        }
-    }
-
     /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample`.
-    #[task(priority = 2, shared = [ctrl, board], local = [tel_tx_est])]
+    #[task(priority = 2, shared = [ctrl, board])]
     async fn estimate(cx: estimate::Context) {
         let mut ctrl = cx.shared.ctrl;
         let mut board = cx.shared.board;
@@ -207,10 +181,6 @@ mod app {
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
         let _ = tm::record_max(&tm::EST_WORK_MAX, work);
-        if result.is_err() {
-            // The controller logs the refusal as a Fault event with the reason.
-            let _ = cx.local.tel_tx_est;
-        }
         (&mut ctrl, &mut board).lock(|c, b| c.deliver(b, result));
     }
 

@@ -136,7 +136,6 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
             if !finished {
                 continue;
             }
-            board.bridge_off();
             println!("{}", board.truth("end"));
             println!(
                 "END status={} state={:?} bridge_safe={} ticks={tick}",

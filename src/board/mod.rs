@@ -220,16 +220,6 @@ impl Hardware for Board {
     }
 }
 
-/// Stops the sampling interrupt (the run is over): no more end-of-conversion interrupts.
-pub fn stop_sampling() {
-    // SAFETY: clears JEOCIE.
-    unsafe {
-        (*pac::ADC1::ptr())
-            .cr1()
-            .modify(|r, w| w.bits(r.bits() & !(1 << 7)))
-    };
-}
-
 /// Nothing to re-arm: the timer triggers the next conversion by itself.
 pub fn rearm_sampling() {}
 
@@ -256,6 +246,20 @@ pub fn safe_state() {
         a.moder().modify(|r, w| {
             w.bits((r.bits() & !((0b11 << 16) | (0b11 << 18))) | (0b01 << 16) | (0b01 << 18))
         });
+    }
+}
+
+/// Whether the bridge is off, read back from the hardware: TIM1 main output disabled and both
+/// pins GPIO outputs driven low.
+pub fn bridge_safe_now() -> bool {
+    // SAFETY: register reads.
+    unsafe {
+        let t = &*pac::TIM1::ptr();
+        let a = &*pac::GPIOA::ptr();
+        let moe_off = t.bdtr().read().bits() & (1 << 15) == 0;
+        let modes = (a.moder().read().bits() >> 16) & 0b1111;
+        let low = a.odr().read().bits() & ((1 << 8) | (1 << 9)) == 0;
+        moe_off && modes == 0b0101 && low
     }
 }
 

@@ -187,12 +187,6 @@ pub fn rearm_sampling() {
     cortex_m::peripheral::NVIC::unpend(pac::Interrupt::ADC);
 }
 
-/// Stops the sampling interrupt (the run is over).
-pub fn stop_sampling() {
-    // SAFETY: clears SysTick's enable bits; no other user.
-    unsafe { (*SYST::PTR).csr.write(0) };
-}
-
 /// A free-running cycle stamp (TIMER0 ticks, 40 instructions each at `-icount shift=0`).
 #[inline(always)]
 pub fn stamp() -> u32 {
@@ -203,6 +197,11 @@ pub fn stamp() -> u32 {
 /// Bridge to the safe state from any context (panic, HardFault): the plant sees it off.
 pub fn safe_state() {
     BRIDGE_SAFE.store(true, Ordering::SeqCst);
+}
+
+/// Whether the bridge is latched off (read back, for the fault reports).
+pub fn bridge_safe_now() -> bool {
+    BRIDGE_SAFE.load(Ordering::SeqCst)
 }
 
 /// End of the run: exit QEMU with the firmware's status.

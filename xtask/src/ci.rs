@@ -65,9 +65,13 @@ fn cargo(args: &[&str]) -> Res {
     util::run(util::cargo().args(args))
 }
 
-/// The host run of the same control path (src/host.rs) for a scene.
-fn host_run(scene: &str) -> Res<Vec<Frame>> {
-    let out = util::output(util::cargo().args([
+/// The host run of the same control path (src/host.rs) for a scene: its log and its exit
+/// status (the firmware's status convention).
+fn host_run(scene: &str) -> Res<(Vec<Frame>, i32)> {
+    // Build first, so a compile error is reported as such and not as an exit status.
+    util::run(util::cargo().args(["build", "-q", "-p", "finger-fw"]))?;
+    let scene = qemu::scene_arg(scene)?;
+    let (out, code) = util::output_code(util::cargo().args([
         "run",
         "-q",
         "-p",
@@ -75,16 +79,17 @@ fn host_run(scene: &str) -> Res<Vec<Frame>> {
         "--",
         "simulate",
         "--scene",
-        scene,
+        &scene,
     ]))?;
-    Ok(out
+    let frames = out
         .lines()
         .map(|l| Frame {
             ts: None,
             level: "HOST".into(),
             msg: l.to_string(),
         })
-        .collect())
+        .collect();
+    Ok((frames, code))
 }
 
 fn expect_end(frames: &[Frame]) -> Res<&Frame> {
@@ -99,10 +104,16 @@ fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64
             println!("{}", log::show(f))
         }
     })?;
-    let host = host_run(scene)?;
+    let (host, host_status) = host_run(scene)?;
     let q = &run.frames;
     let end = expect_end(q)?;
     let mut errs = Vec::new();
+    if host_status != run.status {
+        errs.push(format!(
+            "exit status differs: QEMU {} vs host {host_status}",
+            run.status
+        ));
+    }
 
     // The sequence of controller events: as required, and identical on both ISAs.
     let ev_q = log::events(q);
@@ -192,6 +203,36 @@ fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64
     }
 }
 
+/// A panic or HardFault injected into the QEMU firmware must reach the safe state, say so
+/// in the log and exit with its own status.
+fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
+    let elf = qemu::build_with("table2", Some(&format!("{kind}@{tick}")))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if !f.msg.starts_with("S ") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let line = log::last(&run.frames, tag).ok_or_else(|| format!("no {tag} line in the log"))?;
+    let mut errs = Vec::new();
+    if run.status != status {
+        errs.push(format!("exit status {} (expected {status})", run.status));
+    }
+    if word(&line.msg, "bridge_safe") != Some("true") {
+        errs.push(format!("bridge not in the safe state: {}", line.msg));
+    }
+    if line.ts != Some(u64::from(tick)) {
+        errs.push(format!(
+            "fault reported at tick {:?}, injected at {tick}",
+            line.ts
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
 /// Instructions per work stamp, from the firmware's calibration loop (CAL line); must agree
 /// with the icount arithmetic (1 ns per instruction, 40 ns per 25 MHz timer tick).
 pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
@@ -232,7 +273,9 @@ pub fn main(args: &[String]) -> Res<i32> {
             "warnings",
         ])
     });
-    st.run("cargo test --workspace", || cargo(&["test", "--workspace"]));
+    st.run("cargo test --workspace", || {
+        cargo(&["test", "--workspace", "--no-fail-fast"])
+    });
     for t in ["thumbv6m-none-eabi", "thumbv7em-none-eabihf"] {
         st.run(&format!("pts builds for {t}"), || {
             cargo(&["build", "-p", "pts", "--target", t])
@@ -280,6 +323,17 @@ pub fn main(args: &[String]) -> Res<i32> {
         &format!("QEMU fault scene {FAULT_SCENE}: ends in the safe state"),
         || scene_check(FAULT_SCENE, true, &mut work),
     );
+    // The numerics owner's benchmark gate (xtask/src/bench.rs), run as its own command so
+    // the two modules stay independent.
+    st.run("cargo xtask bench --check", || {
+        util::run(util::cargo().args(["run", "-q", "-p", "xtask", "--", "bench", "--check"]))
+    });
+    st.run("QEMU: injected panic -> bridge safe, exit 101", || {
+        inject_check("panic", 3000, 101, "PANIC")
+    });
+    st.run("QEMU: injected HardFault -> bridge safe, exit 102", || {
+        inject_check("hardfault", 3000, 102, "HARDFAULT")
+    });
 
     eprintln!(
         "\n==== summary ({:.0} s) ====",

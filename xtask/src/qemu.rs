@@ -93,6 +93,11 @@ pub fn scene_arg(scene: &str) -> Res<String> {
 
 /// Builds the QEMU firmware (release) for a scene; returns the ELF.
 pub fn build(scene: &str) -> Res<PathBuf> {
+    build_with(scene, None)
+}
+
+/// Builds the QEMU firmware with an injected fault (`panic@TICK`, `hardfault@TICK`).
+pub fn build_with(scene: &str, inject: Option<&str>) -> Res<PathBuf> {
     let mut cmd = util::cargo();
     cmd.args([
         "build",
@@ -105,7 +110,8 @@ pub fn build(scene: &str) -> Res<PathBuf> {
         "--features",
         "qemu",
     ])
-    .env("FINGER_FW_SCENE", scene_arg(scene)?);
+    .env("FINGER_FW_SCENE", scene_arg(scene)?)
+    .env("FINGER_FW_INJECT", inject.unwrap_or(""));
     util::run(&mut cmd)?;
     Ok(util::root()
         .join("target")

@@ -55,6 +55,19 @@ pub fn output(cmd: &mut Command) -> Res<String> {
     Ok(String::from_utf8_lossy(&out.stdout).into_owned())
 }
 
+/// Runs a command and captures stdout and its exit code (any code is returned, not an error).
+pub fn output_code(cmd: &mut Command) -> Res<(String, i32)> {
+    eprintln!("$ {}", show(cmd));
+    let out = cmd
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .map_err(|e| format!("cannot start `{}`: {e}", show(cmd)))?;
+    Ok((
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        out.status.code().unwrap_or(-1),
+    ))
+}
+
 fn check(cmd: &Command, status: ExitStatus) -> Res {
     if status.success() {
         Ok(())
