@@ -5,8 +5,10 @@
 //! * `size`: flash and static RAM of the board firmware against the budgets.
 //! * `qemu ELF`: run a firmware ELF in QEMU and print its decoded defmt log.
 
+mod bench;
 mod ci;
 mod demo;
+mod fuzz;
 mod log;
 mod qemu;
 mod size;
@@ -39,6 +41,8 @@ fn main() -> ExitCode {
             None => Err("usage: cargo xtask qemu ELF".into()),
         },
         // Subcommands of the numerics owner (xtask/src/bench.rs, xtask/src/fuzz.rs) go here.
+        Some("bench") => bench::main(rest),
+        Some("fuzz") => fuzz::main(rest),
         Some("help" | "--help" | "-h") | None => {
             print!("{USAGE}");
             Ok(0)

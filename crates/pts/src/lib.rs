@@ -28,5 +28,13 @@ pub use finger::Finger;
 pub use model::{Closure, Config, Contact, Estimate, Model, Phalanx};
 pub use real::Real;
 
-/// The numeric back end the firmware's estimator runs on (chosen from `cargo xtask bench`).
+/// The numeric back end of the firmware's estimator, `table::FreeTable<FirmwareReal>`
+/// (chosen from `cargo xtask bench`): `f32` where the core has a single-precision FPU
+/// (thumbv7em-none-eabihf: ≈ 820 instructions per estimate, k2 within 1.4e-5·l2 of f64),
+/// Q32.32 fixed point everywhere else (thumbv6m: no FPU, where soft-float f32 costs more
+/// than [`fixed::Fx32`]; and the host, where Fx32 is what the target-independent tests pin).
+#[cfg(target_abi = "eabihf")]
+pub type FirmwareReal = f32;
+/// The numeric back end of the firmware's estimator (see the `eabihf` definition).
+#[cfg(not(target_abi = "eabihf"))]
 pub type FirmwareReal = fixed::Fx32;
