@@ -350,17 +350,19 @@ fn grid_of_objects_locations_and_steps() {
     }
     for (realistic, radius, dta, m) in &summary {
         let (e_init, e_final, e_ref, ok, n) = *m;
-        // Measured (cargo test --test grasp_grid -- --nocapture): ideal, the closed loop is
-        // within 3.1 / 1.0 / 0.45 / 0.33 % l2 of the quasi-static two-point estimate for
+        // Measured (cargo test --test grasp_grid -- --nocapture), every static point of the
+        // estimate taken after the drive is seen sliding forward: ideal, the closed loop is
+        // within 4.9 / 1.44 / 0.56 / 0.52 % l2 of the quasi-static two-point estimate for
         // ΔT_a = 0.1 / 0.2 / 0.5 / 0.8 N·m (torque quantization 2.2 mN·m per ADC code without
-        // noise to dither it, and the back-dating, weigh most on the small steps); vs the
-        // final location within 2.9 / 1.9 / 3.5 / 5.9 %; vs the initial one, the paper's
-        // bias, up to 21 % (R = 5 cm, ΔT_a = 0.8). Bounds below keep a margin over those.
+        // noise to dither it, and the back-dating from the first loading point, weigh most on
+        // the small steps); vs the final location within 5.1 / 2.5 / 3.6 / 6.0 %; vs the
+        // initial one, the paper's bias, up to 21.3 % (R = 5 cm, ΔT_a = 0.8). Bounds keep a
+        // margin over those.
         let (b_ref, b_final) = match dta {
-            d if *d < 0.15 => (4.0, 4.0),
-            d if *d < 0.35 => (1.5, 3.0),
+            d if *d < 0.15 => (6.0, 6.5),
+            d if *d < 0.35 => (2.0, 3.0),
             d if *d < 0.65 => (0.75, 4.5),
-            _ => (0.6, 7.0),
+            _ => (0.75, 7.0),
         };
         if !realistic {
             assert!(
@@ -380,18 +382,43 @@ fn grid_of_objects_locations_and_steps() {
                 "ideal R={radius} ΔT={dta}: only {ok}/{n} located"
             );
         } else {
-            // Realistic: transmission stiction (≈ 0.11 N·m at the base link) biases every
-            // static point; measured up to 39 % l2 vs the final location, and small steps
-            // near the tip are refused (out of range) or read as locked. The bound keeps
-            // the closed loop from silently getting worse.
+            // Realistic: the transmission's stiction band (≈ 0.11 N·m at the base link, and
+            // η_back·η_drive ≈ 0.36 to back-drive) holds the finger wherever the impact left
+            // it; the loading points after the forward slide carry the same Coulomb offset as
+            // the approach, so it cancels in ΔT_a. Measured within 1.62 / 2.29 % l2 of the
+            // quasi-static two-point estimate for ΔT_a = 0.5 / 0.8 (was 14.2 / 10.5 with the
+            // impact's rest point as the first static point), 9/9 located at 0.5 and 8/9 at
+            // 0.8 (k2 = 0.9 l2 on R ≥ 2.5 cm reads beyond the tip, as in the ideal grid);
+            // vs the final location within 3.5 / 6.1 %. ΔT_a = 0.2: the slide out of the
+            // impact's stiction leaves room for the loading points only at k2 = 0.1 l2
+            // (within 0.78 % of the quasi-static estimate), elsewhere NoMotion; ΔT_a = 0.1
+            // is inside the band: NoMotion everywhere (was located 2/9 at 26–43 % l2).
+            let (b_ref_r, b_final_r, min_ok) = match dta {
+                d if *d < 0.15 => (0.0, 0.0, 0),
+                d if *d < 0.35 => (1.5, 3.0, 1),
+                d if *d < 0.65 => (2.25, 4.5, 9),
+                _ => (3.0, 7.0, 8),
+            };
             assert!(
-                e_final <= 45.0,
+                e_ref <= b_ref_r,
+                "realistic R={radius} ΔT={dta}: {e_ref} % l2 from the quasi-static estimate"
+            );
+            assert!(
+                e_final <= b_final_r,
                 "realistic R={radius} ΔT={dta}: {e_final} % l2 vs final"
             );
-            let min_ok = if *dta < 0.15 { 2 } else { 5 };
             assert!(
                 ok >= min_ok,
                 "realistic R={radius} ΔT={dta}: only {ok}/{n} located"
+            );
+        }
+    }
+    // Realistic steps inside the stiction band are refused as such, never located.
+    for (c, r) in cases.iter().zip(&results) {
+        if c.realistic && c.dta < 0.15 {
+            assert!(
+                matches!(r, Res::Fault(FaultReason::NoMotion { .. }, _)),
+                "{c:?}: {r:?}"
             );
         }
     }

@@ -83,9 +83,58 @@ fn table2_realistic_two_point_and_path_fit() {
         println!("table2 realistic ΔT_a 0.8, {est:?}: k2_hat {k2:.5} m, error {e:+.2} % of l2");
         errs.push(e);
     }
-    // Measured: two-point +22.6 % (friction); path fit +1.1 % at commit 7599292 (its
-    // accuracy is pts::pathfit's, tested there). Here: the selection reaches it and it
-    // is at least twice as close as the two-point estimate on this run.
-    assert!(errs[0] > 5.0 && errs[0] < 30.0, "two-point {}", errs[0]);
+    // Measured: two-point +17.0 % (the quasi-static two-point result is +16.35 %, MODEL.md;
+    // it was +22.6 % while the impact's rest point, held anywhere in the stiction band, was
+    // the first static point); path fit −4.7 % (+1.1 % at commit 7599292; its accuracy is
+    // pts::pathfit's, tested there). Here: the two-point estimate is within 1.5 % l2 of the
+    // quasi-static result (friction's honest cost: Coulomb cancels in ΔT_a, what is left is
+    // the sensor gain error and the back-dating), and the path fit, which the selection
+    // reaches, is at least twice as close as the two-point estimate on this run.
+    let qs = (K2_HAT_MODEL - k2_true) / L2 * 100.0;
+    assert!((errs[0] - qs).abs() < 1.5, "two-point {} vs {qs}", errs[0]);
     assert!(errs[1].abs() < errs[0].abs() / 2.0, "path fit {}", errs[1]);
+}
+
+#[test]
+fn table2_contact_event_is_the_true_contact() {
+    // The ContactDetected event reports the contact instant itself (not the detection, which
+    // comes ~36 ms and ~9 mrad later): against the plant's first contact, ideal and realistic
+    // (there, the encoder on the motor sees θa through the backlash: +1.0 mrad while
+    // approaching). Measured: ideal 0.3 ms / 0.10 mrad, realistic 4.0 ms / 0.51 mrad
+    // (the detection itself: 42 / 36 ms, 9.5 / 9.4 mrad).
+    for name in ["table2_ideal", "table2"] {
+        let scene = plant::scenes::by_name(name).expect("scene");
+        let mut truths: Vec<plant::Truth> = Vec::new();
+        let o = run(&scene, config(&scene, 0.8), 20.0, 0.0, |_, _, p| {
+            truths.push(p.truth())
+        });
+        let (tc, _) = o.first_contact.expect("plant contact");
+        let truth = truths
+            .iter()
+            .min_by(|a, b| (a.t_s - tc).abs().total_cmp(&(b.t_s - tc).abs()))
+            .expect("truth");
+        let (tick, theta) = o
+            .events
+            .iter()
+            .find_map(|e| match e {
+                grasp::Event::ContactDetected {
+                    contact_tick,
+                    theta_a_urad,
+                    ..
+                } => Some((*contact_tick, f64::from(*theta_a_urad) * 1e-6)),
+                _ => None,
+            })
+            .expect("contact event");
+        let t_ev = f64::from(tick) * scene.dt_s;
+        println!(
+            "{name}: event contact at {t_ev:.4} s θa {theta:.6}; plant {tc:.4} s θa {:.6}",
+            truth.theta_a_rad
+        );
+        assert!((t_ev - tc).abs() < 0.008, "{name}: {t_ev} vs {tc}");
+        assert!(
+            (theta - truth.theta_a_rad).abs() < 2e-3,
+            "{name}: θa,c {theta} vs {}",
+            truth.theta_a_rad
+        );
+    }
 }

@@ -132,10 +132,21 @@ pub struct ControllerConfig {
     /// Contact detection is armed once a window moved at least this far with a free-motion
     /// stiffness (rad).
     pub detect_arm_rad: f64,
-    /// After contact the reference is held at T_a,c + this while the impact dies out; the
-    /// first static point is taken there, a second one at max(2×this, ΔT_a/2) (N·m). 2×
-    /// must be below ΔT_a.
+    /// After contact the reference is held at T_a,c + this while the impact dies out (its
+    /// rest point is not used by the estimate); the loading points after the forward slide
+    /// must span at least this (N·m). 2× must be below ΔT_a.
     pub seat_above_nm: f64,
+    /// Loading points: after the impact has come to rest (held by the transmission's
+    /// stiction anywhere inside its band), the reference rises at this rate (N·m/s) until
+    /// the drive slides forward again; the static points of the estimate are taken after
+    /// that, so that all of them (and the approach) carry the same forward-sliding friction.
+    pub seat_ramp_nm_per_s: f64,
+    /// θa travel beyond the impact's rest point that shows the drive slides forward again
+    /// (rad); a few encoder counts above the noise.
+    pub slide_min_rad: f64,
+    /// Torque the reference keeps rising after the slide is seen, before it is held for the
+    /// first loading point (N·m): the drive leaves the stick-slip lurch and slides steadily.
+    pub slide_extra_nm: f64,
     /// The torque increase ΔT_a after contact (N·m).
     pub delta_ta_nm: f64,
     /// Shape of the increase.
@@ -146,7 +157,9 @@ pub struct ControllerConfig {
     pub settle_band_rad: f64,
     /// Settle: minimum time after the reference reached its target (s).
     pub settle_min_s: f64,
-    /// Settle must happen within this time after contact (s), otherwise a stall fault.
+    /// Settle must happen within this time after contact (s), otherwise a stall fault. Four
+    /// static points (impact rest, two loading points, end) take ≈ 7 s on a proximal
+    /// contact (K ≈ 2.6 N·m/rad, creep time B/K ≈ 0.4 s).
     pub settle_timeout_s: f64,
     /// The estimate must be delivered within this time after the request (s).
     pub estimate_timeout_s: f64,
@@ -209,12 +222,15 @@ impl ControllerConfig {
         detect_min_rise_nm: 0.003,
         detect_arm_rad: 2e-3,
         seat_above_nm: 0.01,
+        seat_ramp_nm_per_s: 0.25,
+        slide_min_rad: 1e-4,
+        slide_extra_nm: 0.005,
         delta_ta_nm: 0.2,
         step_shape: StepShape::Ramp(1.0),
         settle_window: 25,
         settle_band_rad: 5.0e-5,
         settle_min_s: 0.05,
-        settle_timeout_s: 6.0,
+        settle_timeout_s: 10.0,
         estimate_timeout_s: 1.0,
         second_contact_stiffness_nm_per_rad: 80.0,
         min_step_motion_rad: 1e-4,
@@ -266,6 +282,9 @@ impl ControllerConfig {
             self.detect_stiffness_nm_per_rad,
             self.delta_ta_nm,
             self.seat_above_nm,
+            self.seat_ramp_nm_per_s,
+            self.slide_min_rad,
+            self.slide_extra_nm,
             self.detect_min_rise_nm,
             self.detect_arm_rad,
             self.settle_band_rad,
@@ -305,6 +324,7 @@ impl ControllerConfig {
             self.second_contact_stiffness_nm_per_rad,
             self.overcurrent_a,
             self.release_rate_nm_per_s,
+            self.seat_ramp_nm_per_s,
         ];
         if positive.iter().any(|&v| v <= 0.0)
             || d.efficiency > 1.0
@@ -312,6 +332,8 @@ impl ControllerConfig {
             || !(0.0..4096.0).contains(&d.adc_zero_code)
             || self.kp_rel < 0.0
             || self.seat_above_nm < 0.0
+            || self.slide_min_rad < 0.0
+            || self.slide_extra_nm < 0.0
             || 2.0 * self.seat_above_nm >= self.delta_ta_nm
             || self.damping_nm_s_per_rad < 0.0
             || self.approach_speed_max_rad_s <= 0.0
@@ -372,6 +394,9 @@ impl ControllerConfig {
             detect_min_rise_unm: unm(self.detect_min_rise_nm),
             detect_arm_urad: to_i32(self.detect_arm_rad * 1e6),
             seat_above_unm: unm(self.seat_above_nm),
+            seat_ramp_q16: ramp(self.seat_ramp_nm_per_s),
+            slide_min_urad: to_i32(self.slide_min_rad * 1e6),
+            slide_extra_unm: unm(self.slide_extra_nm),
             delta_ta_unm: unm(self.delta_ta_nm),
             step_ramp_q16,
             settle_window: self.settle_window as usize,
@@ -411,6 +436,7 @@ impl ControllerConfig {
             || p.ff_duty_per_unm_q16 == 0
             || p.approach_ramp_q16 == 0
             || p.release_ramp_q16 == 0
+            || p.seat_ramp_q16 == 0
         {
             return Err(ConfigError::OutOfRange);
         }
@@ -476,6 +502,12 @@ pub struct Params {
     pub detect_arm_urad: i32,
     /// Seating: press above T_a,c (µN·m).
     pub seat_above_unm: i32,
+    /// Seating: reference ramp until the drive slides forward, µN·m per tick, Q16.
+    pub seat_ramp_q16: i64,
+    /// Seating: θa travel that shows the slide (µrad).
+    pub slide_min_urad: i32,
+    /// Seating: torque added after the slide is seen (µN·m).
+    pub slide_extra_unm: i32,
     /// ΔT_a (µN·m).
     pub delta_ta_unm: i32,
     /// Step ramp, µN·m per tick, Q16; 0 = a step.
