@@ -140,11 +140,16 @@ pub struct PathFitConfig {
     pub friction_prior_sigma_nm: f64,
     /// Refuse when the fitted contact ends within this fraction of l2 of the tip.
     pub tip_margin_frac_l2: f64,
-    /// Fit θa,c too, with this prior σ (rad) around the given value; ≤ 0 keeps θa,c fixed.
-    /// The finger's inertia carries it past the contact and the detection sees the kink
-    /// late, so the contact angle a controller reports can be off by several mrad; the
-    /// loading path, the free-motion curve and the friction prior pin it down.
+    /// σ (rad) of the given θa,c: it enters σ(k2,c), and is the prior when θa,c is fitted
+    /// ([`PathFitConfig::fit_contact_angle`]). The finger's inertia carries it past the
+    /// contact and the detection sees the kink late, so a controller's contact angle is off
+    /// by a few mrad (`grasp::estimate::contact_point_model`: 1.7–3.1 mrad late on the
+    /// realistic plant). ≤ 0: θa,c taken as exact.
     pub contact_angle_sigma_rad: f64,
+    /// Fit θa,c (else it stays where the caller put it and only its σ enters σ(k2,c)).
+    /// Off by default: on the realistic plant the model-based contact point of
+    /// `grasp::estimate::contact_point_model` is better than the fit, which drifts early.
+    pub fit_contact_angle: bool,
     /// Drive inertia reflected to the actuator (kg·m²): rotor inertia × gear ratio². The
     /// measured (current) torque also accelerates it, T_meas = T_path + J θ̈a + T_f, and the
     /// finger on its contact stiffness is a slow oscillator (≈ 2 Hz for the paper's finger on
@@ -172,7 +177,7 @@ impl PathFitConfig {
     pub const DEFAULT: PathFitConfig = PathFitConfig {
         bins: 12,
         dead_band_rad: 0.0,
-        skip_fraction: 0.08,
+        skip_fraction: 0.0,
         min_travel_rad: 2e-3,
         max_radius_m: 0.12,
         object: ObjectModel::Auto,
@@ -184,7 +189,8 @@ impl PathFitConfig {
         sigma_inflation: 1.5,
         friction_prior_sigma_nm: 0.003,
         tip_margin_frac_l2: 0.02,
-        contact_angle_sigma_rad: 0.02,
+        contact_angle_sigma_rad: 0.003,
+        fit_contact_angle: false,
         inertia_kgm2: 7.0e-9 * 3072.0 * 3072.0,
         envelope_tol_rad: 2e-3,
         approach_span_rad: 0.0,
@@ -476,8 +482,9 @@ where
         }
     }
     let sc = conv(cfg.contact_angle_sigma_rad)?;
-    let fit_contact = sc > zero;
-    if fit_contact {
+    let fit_contact = sc > zero && cfg.fit_contact_angle;
+    let has_tc = sc > zero;
+    if has_tc {
         w.prior[TC] = theta_a_c_rad;
         w.prior_w[TC] = s2_bins / (sc * sc);
         n_priors += 1;
@@ -583,14 +590,17 @@ where
 
     let npar = count(&set);
     let s2 = s2_of(fit.sse, npar);
-    let cov = invert_spd(&fit.a, &set).ok_or(PathFitError::NotDetermined)?;
+    // The covariance also carries θa,c's uncertainty (its prior) when it was not fitted.
+    let mut cset_final = set;
+    cset_final[TC] = has_tc;
+    let cov = invert_spd(&fit.a, &cset_final).ok_or(PathFitError::NotDetermined)?;
     let var_k = cov[K][K] * s2;
     let var_r = if object == FittedObject::Cylinder {
         cov[RAD][RAD] * s2
     } else {
         sigma_r_lin * sigma_r_lin / (l2 * l2)
     };
-    let var_tc = if fit_contact { cov[TC][TC] * s2 } else { zero };
+    let var_tc = if has_tc { cov[TC][TC] * s2 } else { zero };
     let infl = conv(cfg.sigma_inflation)?;
     let floor = conv(cfg.sigma_floor_m)?;
     let sig_stat = var_k.max(zero).sqrt() * l2 * infl;
@@ -768,7 +778,7 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
         return Err(PathFitError::NoMotion);
     }
     let span = conv(cfg.approach_span_rad)?;
-    let lo = if cfg.contact_angle_sigma_rad > 0.0 && span > R::zero() {
+    let lo = if cfg.fit_contact_angle && cfg.contact_angle_sigma_rad > 0.0 && span > R::zero() {
         theta_a_c - span
     } else {
         theta_a_c + dead + travel * conv(cfg.skip_fraction)?

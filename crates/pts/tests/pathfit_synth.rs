@@ -14,6 +14,8 @@ const L2: f64 = 0.075;
 const SYNTH: PathFitConfig = PathFitConfig {
     inertia_kgm2: 0.0,
     contact_angle_sigma_rad: 0.0,
+    // The synthetic stiction releases as a jump along the path: skip its first 8 %.
+    skip_fraction: 0.08,
     ..PathFitConfig::DEFAULT
 };
 
