@@ -102,6 +102,9 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
     {
         cfg.contact_angle_sigma_rad = v;
     }
+    if std::env::var("PATHFIT_CYL").is_ok() {
+        cfg.object = pts::pathfit::ObjectModel::Cylinder;
+    }
     if std::env::var("PATHFIT_FITC").is_ok() {
         cfg.fit_contact_angle = true;
     }
