@@ -7,6 +7,9 @@
 //!   thumbv6m assembly of [`tick_dyn`]): sensor conditioning ([`sensors`]), the torque loop
 //!   ([`torque_loop`]), the grasp state machine and fault supervision. Every transition is
 //!   an [`Event`].
+//! * [`offline`]: a recorded grasp that our controller did not produce (any profile, any
+//!   sample rate): contacts found by segmentation, each turned into the same
+//!   [`EstimateRequest`] for [`run_estimate`].
 //! * [`run_estimate`]: the low-priority part. It takes the [`EstimateRequest`] that `tick()`
 //!   hands out once the step has settled and runs the [`Estimator`] the configuration names
 //!   (the paper's two-point method, or `pts::pathfit` on the same samples) on
@@ -50,6 +53,7 @@
 pub mod config;
 pub mod controller;
 pub mod estimate;
+pub mod offline;
 pub mod sensors;
 pub mod torque_loop;
 
