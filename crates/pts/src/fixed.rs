@@ -109,6 +109,19 @@ mod kernel {
         }
     }
 
+    /// `a·b` for the integer word `a` of a Q32.32 value: most model quantities are below
+    /// 2^16 in magnitude, and there Armv6-M needs two 32-bit products instead of four.
+    #[inline(always)]
+    pub(super) fn mul_int_word(a: u32, b: u32) -> u64 {
+        #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+        if a >> 16 == 0 {
+            let lo = a * (b & 0xFFFF);
+            let mid = (a * (b >> 16)) as u64;
+            return (mid << 16) + lo as u64;
+        }
+        mul_u32(a, b)
+    }
+
     /// [`mul_u32`] from 16-bit halves with 32-bit multiplies only (used on Armv6-M; tested
     /// everywhere).
     #[inline(always)]
@@ -120,6 +133,54 @@ mod kernel {
         let (lo, c2) = (a0 * b0).overflowing_add(mid << 16);
         let hi = a1 * b1 + (mid >> 16) + ((carry as u32) << 16) + c2 as u32;
         ((hi as u64) << 32) | lo as u64
+    }
+
+    /// Leading zeros of a u64. Armv6-M has no CLZ instruction and the library call costs
+    /// ≈ 35 instructions; there a five-step binary search on the non-zero word.
+    #[inline(always)]
+    pub(super) fn clz64(x: u64) -> u32 {
+        #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+        {
+            clz64_search(x)
+        }
+        #[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+        {
+            x.leading_zeros()
+        }
+    }
+
+    /// [`clz64`] by binary search (used on Armv6-M; tested everywhere).
+    #[inline(always)]
+    #[allow(dead_code)]
+    pub(super) fn clz64_search(x: u64) -> u32 {
+        let (mut w, mut n) = if x >> 32 == 0 {
+            (x as u32, 32)
+        } else {
+            ((x >> 32) as u32, 0)
+        };
+        if w == 0 {
+            return 64;
+        }
+        if w >> 16 == 0 {
+            n += 16;
+            w <<= 16;
+        }
+        if w >> 24 == 0 {
+            n += 8;
+            w <<= 8;
+        }
+        if w >> 28 == 0 {
+            n += 4;
+            w <<= 4;
+        }
+        if w >> 30 == 0 {
+            n += 2;
+            w <<= 2;
+        }
+        if w >> 31 == 0 {
+            n += 1;
+        }
+        n
     }
 
     /// Product of two Q62 numbers of magnitude ≤ 1 (result ≤ 1 in magnitude).
@@ -266,7 +327,7 @@ mod kernel {
         if x == 0 {
             return 0;
         }
-        let lz = x.leading_zeros();
+        let lz = clz64(x);
         // m = x·2^e in [2^62, 2^64) with e + frac even.
         let odd = (lz + frac) & 1;
         let (m, e) = if lz == 0 && odd == 1 {
@@ -424,10 +485,10 @@ impl Mul for Fx32 {
         let ll = mul_u32(al, bl);
         let mut m = (ll >> 32) + ((ll >> 31) & 1);
         if ah != 0 {
-            m += mul_u32(ah, bl); // < 2^63
+            m += kernel::mul_int_word(ah, bl); // < 2^63
         }
         if bh != 0 {
-            m = m.saturating_add(mul_u32(al, bh));
+            m = m.saturating_add(kernel::mul_int_word(bh, al));
             if ah != 0 {
                 let hh = mul_u32(ah, bh);
                 m = if hh >= 1 << 31 {
@@ -458,7 +519,7 @@ impl Div for Fx32 {
         }
         let neg = (a < 0) != (b < 0);
         let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-        let s = ub.leading_zeros();
+        let s = kernel::clz64(ub);
         let y = kernel::recip_q31(((ub << s) >> 32) as u32);
         let sat = if neg { Self::MIN } else { Self::MAX };
         // q = ua·2^32/ub ≈ ua·y·2^s / 2^63, with p = ua·y = p_hi·2^32 + p_lo (96 bits).
@@ -570,7 +631,7 @@ macro_rules! narrow_fixed {
                 }
                 let neg = (a < 0) != (b < 0);
                 let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-                let s = ub.leading_zeros();
+                let s = kernel::clz64(ub as u64) - 32;
                 let y = kernel::recip_q31(ub << s);
                 // q = ua·2^F/ub ≈ ua·y / 2^(63 − F − s)
                 let p = if y >> 32 != 0 {
@@ -663,7 +724,7 @@ narrow_fixed!(Fx16, 16, 4e-4, "Fx16 (I16F16)");
 narrow_fixed!(Fx24, 24, 2e-6, "Fx24 (I8F24)");
 #[cfg(test)]
 mod tests {
-    use super::kernel::{mul_u32, mul_u32_pieces};
+    use super::kernel::{clz64, clz64_search, mul_int_word, mul_u32, mul_u32_pieces};
 
     #[test]
     fn armv6m_long_multiply_is_exact() {
@@ -690,6 +751,15 @@ mod tests {
             let (a, b) = (x as u32, (x >> 32) as u32);
             assert_eq!(mul_u32_pieces(a, b), a as u64 * b as u64);
             assert_eq!(mul_u32(a, b), a as u64 * b as u64);
+            let small = a >> (x % 32) as u32;
+            assert_eq!(mul_int_word(small, b), small as u64 * b as u64);
+            let y = x >> (x % 64);
+            assert_eq!(clz64_search(y), y.leading_zeros());
+            assert_eq!(clz64(y), y.leading_zeros());
         }
+        for k in 0..64 {
+            assert_eq!(clz64_search(1u64 << k), 63 - k);
+        }
+        assert_eq!(clz64_search(0), 64);
     }
 }
