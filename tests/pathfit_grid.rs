@@ -118,8 +118,14 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         if o.estimate_ready {
             if let Some(req) = c.take_request() {
                 // θa,c and T_a,c as the firmware's adapter (grasp::estimate::path_fit) gets them.
-                let (th_c, t_c) = grasp::estimate::contact_point_model(&m, &req)
+                let (mut th_c, t_c) = grasp::estimate::contact_point_model(&m, &req)
                     .unwrap_or_else(|| grasp::estimate::contact_point(&req));
+                if std::env::var("PATHFIT_TRUE_TC").is_ok() {
+                    // Diagnosis: the plant's true contact angle instead of the controller's.
+                    let t1 = plant::scenes::TABLE2_THETA1_C_RAD;
+                    let ta = pts::Finger::PAPER.k1 * (t1 - pts::Finger::PAPER.theta01);
+                    th_c = m.free_from_torque(ta).map_or(th_c, |c| c.theta_a);
+                }
                 if let Ok(path) = std::env::var("PATHFIT_DUMP") {
                     let mut out = format!("{th_c:.9} {t_c:.9}\n");
                     for s in samples(&req) {
