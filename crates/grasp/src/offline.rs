@@ -586,23 +586,27 @@ pub fn find_contact<R: pts::Real>(
         }
     }
     // The knee block: the last one at or below θa,c (its tick closes the free-motion data).
-    let mut knee = k_lo;
-    while knee > from && blocks.get(knee).is_some_and(|b| b.theta_a_rad > theta_c) {
-        knee -= 1;
-    }
-    let kb = *blocks.get(knee).ok_or(OfflineError::TooShort)?;
     // T_a,c on the free-motion curve shifted by the offset the estimator will measure: the
     // mean residual of the FIT_SAMPLES blocks up to the knee (so that its back-dating through
     // this point returns it).
-    let lo = (knee + 1)
-        .saturating_sub(crate::estimate::FIT_SAMPLES)
-        .max(from);
-    let est_off = blocks
-        .get(lo..=knee)
-        .map(|w| mean(w, |b| b.resid_nm))
-        .filter(|v| v.is_finite())
-        .unwrap_or(offset);
-    let ta_c = t_free(theta_c).ok_or(OfflineError::Model(PtsError::OutOfRange))? + est_off;
+    let knee_at = |theta_c: f64| -> Result<(usize, Block, f64), OfflineError> {
+        let mut knee = k_lo;
+        while knee > from && blocks.get(knee).is_some_and(|b| b.theta_a_rad > theta_c) {
+            knee -= 1;
+        }
+        let kb = *blocks.get(knee).ok_or(OfflineError::TooShort)?;
+        let lo = (knee + 1)
+            .saturating_sub(crate::estimate::FIT_SAMPLES)
+            .max(from);
+        let est_off = blocks
+            .get(lo..=knee)
+            .map(|w| mean(w, |b| b.resid_nm))
+            .filter(|v| v.is_finite())
+            .unwrap_or(offset);
+        let ta_c = t_free(theta_c).ok_or(OfflineError::Model(PtsError::OutOfRange))? + est_off;
+        Ok((knee, kb, ta_c))
+    };
+    let (mut knee, mut kb, mut ta_c) = knee_at(theta_c)?;
 
     // 3. Segment end: the torque (median over a static window: no electrical spike counts)
     // falls well below its running maximum while the finger no longer advances.
@@ -683,6 +687,7 @@ pub fn find_contact<R: pts::Real>(
 
     // 5. Quasi-static windows on the path between the detection and the end window.
     let margin = (0.05 * dta).max(2e-3);
+    let ta_c_knee = ta_c;
     let quasi = |w: &[Block]| -> Option<(f64, f64)> {
         let (slope, dev) = line_in_time(w)?;
         if dev > thband {
@@ -696,25 +701,66 @@ pub fn find_contact<R: pts::Real>(
             return None;
         }
         let t = mean(w, |b| b.torque_nm);
-        (t > ta_c + margin && t < t_end - margin).then(|| (t, mean(w, |b| b.theta_a_rad)))
+        (t > ta_c_knee - 0.1 && t < t_end - margin).then(|| (t, mean(w, |b| b.theta_a_rad)))
     };
-    // The seat is the knee itself (the controller's first static point, δ_seat = 0): the
-    // estimator's back-dating through it returns it. The second static point is the
+    // With static (or quasi-static) points on the path — a controller that held the torque
+    // after the contact, a slow ramp — back-date like the controller does: the parabola
+    // θa(T_a) through the first one, the one nearest mid-step and the end meets the shifted
+    // free-motion curve at the contact. This survives an impact that carries θa past the
+    // contact (the residual's rise then starts late). Otherwise the seat is the knee itself
+    // (δ_seat = 0, so the estimator's back-dating returns it) and the second point the
     // quasi-static window nearest mid-step, else the midpoint of the chord to the end.
-    let want = 0.5 * (ta_c + t_end);
-    let mut seat2: Option<(usize, f64)> = None;
-    let mut best = f64::INFINITY;
-    let mut k = det + 1;
-    while k + wq <= end.0 {
-        if let Some((t, _)) = blocks.get(k..k + wq).and_then(&quasi) {
-            let gap = (t - want).abs();
-            if gap < best {
-                best = gap;
-                seat2 = Some((k, t));
+    let quasi_from = |lo_t: f64, k0: usize| -> Option<(usize, f64, f64)> {
+        let mut k = k0;
+        while k + wq <= end.0 {
+            if let Some(w) = blocks.get(k..k + wq) {
+                if let Some((t, th)) = quasi(w) {
+                    if t > lo_t {
+                        return Some((k, t, th));
+                    }
+                }
+            }
+            k += 1;
+        }
+        None
+    };
+    let nearest = |want: f64, lo_t: f64, k0: usize| -> Option<(usize, f64, f64)> {
+        let mut best: Option<(usize, f64, f64)> = None;
+        let mut k = k0;
+        while k + wq <= end.0 {
+            if let Some((t, th)) = blocks.get(k..k + wq).and_then(&quasi) {
+                if t > lo_t && best.is_none_or(|b| (t - want).abs() < (b.1 - want).abs()) {
+                    best = Some((k, t, th));
+                }
+            }
+            k += 1;
+        }
+        best
+    };
+    let mut static_seats: Option<(usize, usize)> = None;
+    if let Some((k1, t1, th1)) = quasi_from(f64::NEG_INFINITY, det + 1) {
+        if let Some((k2, tb, thb)) = nearest(0.5 * (t1 + t_end), t1 + margin, k1 + wq) {
+            if let Some((th, t)) = back_date(&t_free, offset, (t1, th1), (tb, thb), (t_end, th_end))
+            {
+                if th >= th_lo - 0.03 {
+                    theta_c = th;
+                    let _ = t;
+                    let k = knee_at(theta_c)?;
+                    knee = k.0;
+                    kb = k.1;
+                    ta_c = k.2;
+                    static_seats = Some((k1, k2));
+                }
             }
         }
-        k += 1;
     }
+    let dta = t_end - ta_c;
+    if !(dta >= cfg.min_step_nm) {
+        return Err(OfflineError::StepTooSmall {
+            delta_ta_unm: micro(dta),
+        });
+    }
+    let want = 0.5 * (ta_c + t_end);
     let contact = Sample {
         tick: tick(&kb),
         theta_a_urad: micro(theta_c),
@@ -727,11 +773,25 @@ pub fn find_contact<R: pts::Real>(
         torque_unm: micro(want),
         torque_ref_unm: micro(want),
     };
-    let (seat2_s, static_pts) = match seat2.and_then(|(k2, _)| blocks.get(k2..k2 + wq)) {
-        Some(w) => (window_sample(w).unwrap_or(mid), true),
-        None => (mid, false),
+    let (seat_s, seat2_s, static_pts) = match static_seats {
+        Some((k1, k2)) => {
+            let s1 = blocks.get(k1..k1 + wq).and_then(window_sample);
+            let s2 = blocks.get(k2..k2 + wq).and_then(window_sample);
+            match (s1, s2) {
+                (Some(a), Some(b)) => (a, b, true),
+                _ => (contact, mid, false),
+            }
+        }
+        None => {
+            let s2 = nearest(want, ta_c + margin, det + 1)
+                .and_then(|(k2, _, _)| blocks.get(k2..k2 + wq))
+                .and_then(window_sample);
+            match s2 {
+                Some(b) => (contact, b, false),
+                None => (contact, mid, false),
+            }
+        }
     };
-    let seat_s = contact;
 
     // History up to the detection, the path after it.
     let mut pre: Vec<Sample, HISTORY> = Vec::new();
@@ -778,6 +838,45 @@ pub fn find_contact<R: pts::Real>(
         static_path_points: static_pts,
         request,
     })
+}
+
+/// Where the parabola θa(T_a) through three points (T, θ) on the path meets the free-motion
+/// curve shifted by `offset`: secant from the first point's torque downwards, as
+/// `estimate::contact_point_model` does. (θa,c rad, T_a,c N·m), or `None` when implausible.
+fn back_date(
+    t_free: &dyn Fn(f64) -> Option<f64>,
+    offset: f64,
+    p1: (f64, f64),
+    pb: (f64, f64),
+    p2: (f64, f64),
+) -> Option<(f64, f64)> {
+    let ((t1, th1), (tb, thb), (t2, th2)) = (p1, pb, p2);
+    if !(tb - t1 > 1e-4 && t2 - tb > 1e-4) {
+        return None;
+    }
+    let s1b = (thb - th1) / (tb - t1);
+    let sb2 = (th2 - thb) / (t2 - tb);
+    let c2 = (sb2 - s1b) / (t2 - t1);
+    let q = |t: f64| th1 + s1b * (t - t1) + c2 * (t - t1) * (t - tb);
+    let h = |t: f64| -> Option<f64> { Some(t - offset - t_free(q(t))?) };
+    let (mut a, mut b) = (t1, t1 - 0.01);
+    let (mut ha, mut hb) = (h(a)?, h(b)?);
+    for _ in 0..16 {
+        let d = hb - ha;
+        if !(d.abs() > 1e-15) {
+            break;
+        }
+        let c = b - hb * (b - a) / d;
+        a = b;
+        ha = hb;
+        b = c;
+        hb = h(b)?;
+        if hb.abs() < 1e-7 {
+            break;
+        }
+    }
+    let th = q(b);
+    (hb.abs() < 1e-5 && b <= t1 + 1e-3 && b > t1 - 0.2 && th <= th1 + 1e-4).then_some((th, b))
 }
 
 /// Every contact in the blocks, in order: calls `each` with each result (a contact's

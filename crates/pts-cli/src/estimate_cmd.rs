@@ -31,8 +31,21 @@ pub fn load_and_replay(
     dt_s: Option<f64>,
     method: Method,
 ) -> Result<(Trace, replay::Replay, f64), String> {
-    let mut file = crate::load_finger(finger)?;
     let text = read_text(path)?;
+    replay_text(path, &text, finger, dta, dt_s, method)
+}
+
+/// [`load_and_replay`] on text already read.
+pub fn replay_text(
+    path: &Path,
+    text: &str,
+    finger: Option<&Path>,
+    dta: Option<f64>,
+    dt_s: Option<f64>,
+    method: Method,
+) -> Result<(Trace, replay::Replay, f64), String> {
+    let text = text.to_string();
+    let mut file = crate::load_finger(finger)?;
     let meta = TraceMeta::find(&text);
     // A trace from `pts sim` says which drive constants its controller used: without a
     // finger file, replay with those (e.g. an ideal-drive scene has η = 1).
@@ -73,7 +86,13 @@ pub fn run(
     json_out: bool,
     method: Method,
 ) -> Result<(), String> {
-    let (tr, rep, dta) = load_and_replay(path, finger, dta, dt_s, method)?;
+    let text = read_text(path)?;
+    // A trace written by `pts sim` (our controller in the loop): replay that controller, bit
+    // for bit. Any other recorded grasp: find its contacts with grasp::offline.
+    if TraceMeta::find(&text).is_none() {
+        return run_segmented(path, &text, finger, dta, dt_s, json_out, method);
+    }
+    let (tr, rep, dta) = replay_text(path, &text, finger, dta, dt_s, method)?;
     let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
     let fault = match rep.state {
         grasp::State::Fault(r) => Some(r.kind()),
@@ -166,6 +185,128 @@ pub fn run(
     }
     if let Some(f) = fault {
         crate::outln!("  fault: {f}");
+    }
+    Ok(())
+}
+
+/// `pts estimate` on a trace without the `# pts-sim` line: the offline segmenter finds each
+/// contact, its step and settled end, and the firmware's estimator runs on each request.
+fn run_segmented(
+    path: &Path,
+    text: &str,
+    finger: Option<&Path>,
+    dta: Option<f64>,
+    dt_s: Option<f64>,
+    json_out: bool,
+    method: Method,
+) -> Result<(), String> {
+    let file = crate::load_finger(finger)?;
+    let conv = |i: f64| file.torque_from_current(i);
+    let tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    if replay::median_dt(&tr).is_none() {
+        return Err(format!(
+            "{}: the trace needs at least two rows with increasing t_s",
+            path.display()
+        ));
+    }
+    let seg =
+        replay::segment(&tr, &file, method).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut warnings = tr.warnings.clone();
+    if dta.is_some() || dt_s.is_some() {
+        warnings.push(
+            "no # pts-sim line: --dta/--dt-s are ignored (ΔT_a is measured from the trace)".into(),
+        );
+    }
+    let (t0, t1) = (
+        tr.rows.first().map_or(0.0, |r| r.t_s),
+        tr.rows.last().map_or(0.0, |r| r.t_s),
+    );
+    if json_out {
+        let contacts: Vec<Value> = seg
+            .contacts
+            .iter()
+            .map(|c| {
+                let mut v = json!({
+                    "t_s": n(c.t_s),
+                    "theta_a_c": n(c.theta_a_c),
+                    "ta_c": n(c.ta_c),
+                    "t_end_s": n(c.end_t_s),
+                    "fault": Value::Null,
+                });
+                match &c.estimate {
+                    Ok(r) => {
+                        v["theta_a_c"] = n(f64::from(r.theta_a_c_urad) / 1e6);
+                        v["ta_c"] = n(f64::from(r.ta_c_unm) / 1e6);
+                        v["phalanx"] = json!(located_name(r.located));
+                        v["k2"] = r.k2_um.map_or(Value::Null, |k| n(f64::from(k) / 1e6));
+                        v["kc_hat"] = n(f64::from(r.kc_hat_unm_per_rad) / 1e6);
+                        v["dta"] = n(f64::from(r.delta_ta_unm) / 1e6);
+                        v["dtheta_a"] = n(f64::from(r.delta_theta_a_urad) / 1e6);
+                        v["quality"] = json!(quality_name(r.quality));
+                    }
+                    Err(e) => v["estimate_error"] = json!(e.kind),
+                }
+                v
+            })
+            .collect();
+        let errors: Vec<Value> = seg.errors.iter().map(|(k, _)| json!(k)).collect();
+        let out = json!({
+            "trace": path.display().to_string(),
+            "rows": tr.rows.len(),
+            "t_s": [n(t0), n(t1)],
+            "block_s": n(seg.block_s),
+            "method": method.name(),
+            "segmented": true,
+            "exact_replay": false,
+            "contacts": contacts,
+            "segment_errors": errors,
+            "warnings": warnings,
+        });
+        println!("{out}");
+        return Ok(());
+    }
+    for w in &warnings {
+        eprintln!("warning: {w}");
+    }
+    println!(
+        "{}: {} rows, t = {t0:.4} … {t1:.4} s, no # pts-sim line: contacts found by segmentation \
+         ({} ms blocks), {} estimate",
+        path.display(),
+        tr.rows.len(),
+        seg.block_s * 1e3,
+        method.name(),
+    );
+    for (i, c) in seg.contacts.iter().enumerate() {
+        let (thc, tac) = match &c.estimate {
+            Ok(r) => (
+                f64::from(r.theta_a_c_urad) / 1e6,
+                f64::from(r.ta_c_unm) / 1e6,
+            ),
+            Err(_) => (c.theta_a_c, c.ta_c),
+        };
+        println!(
+            "contact {} at t = {:.4} s: θa,c = {thc:.6} rad, T_a,c = {tac:.4} N·m, settled at t = {:.4} s",
+            i + 1,
+            c.t_s,
+            c.end_t_s
+        );
+        match &c.estimate {
+            Ok(r) => println!("  {}", crate::sim::describe(r)),
+            Err(e) => println!("  estimate refused: {} ({e})", e.kind),
+        }
+    }
+    if seg.contacts.is_empty() && seg.errors.is_empty() {
+        println!("no contact found");
+    }
+    for (kind, detail) in &seg.errors {
+        println!(
+            "{}: {kind} ({detail})",
+            if seg.contacts.is_empty() {
+                "no contact found"
+            } else {
+                "after the last contact"
+            }
+        );
     }
     Ok(())
 }

@@ -326,3 +326,86 @@ pub fn replay(
     rep.state = ctl.state();
     Ok(rep)
 }
+
+/// One contact found by the offline segmenter (`grasp::offline`) in a trace our controller
+/// did not produce, with the estimate `grasp::run_estimate_with` made from its request.
+#[derive(Clone, Debug)]
+pub struct SegmentedContact {
+    /// Trace time of the contact (s).
+    pub t_s: f64,
+    /// θa,c (rad) and T_a,c (N·m) of the knee.
+    pub theta_a_c: f64,
+    /// T_a,c (N·m).
+    pub ta_c: f64,
+    /// Trace time of the settled end point (s).
+    pub end_t_s: f64,
+    /// The estimate, or the estimator's refusal.
+    pub estimate: Result<EstimateResult, crate::sim::EstError>,
+}
+
+/// What the segmenter found: the contacts, and the error that ended the search (if any).
+#[derive(Clone, Debug, Default)]
+pub struct Segmented {
+    /// Contacts in time order.
+    pub contacts: Vec<SegmentedContact>,
+    /// Why (more) contacts could not be used, as `kind: detail`.
+    pub errors: Vec<(&'static str, String)>,
+    /// Block length the trace was averaged into (s).
+    pub block_s: f64,
+}
+
+/// Finds every contact of a recorded grasp with `grasp::offline` (no controller replay: the
+/// trace may come from any profile, sample rate or driver) and runs the firmware's estimator
+/// on the request built for each.
+pub fn segment(
+    trace: &Trace,
+    finger: &FingerFile,
+    method: crate::method::Method,
+) -> Result<Segmented, String> {
+    use grasp::offline::{for_each_contact, make_blocks, Block, OfflineConfig, TraceSample};
+    let rows: Vec<TraceSample> = trace
+        .rows
+        .iter()
+        .map(|r| TraceSample {
+            t_s: r.t_s,
+            theta_a_rad: r.theta_a_rad,
+            torque_nm: r.torque_nm,
+        })
+        .collect();
+    let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
+    let mfw = pts::Model::<grasp::EstReal>::new(&finger.finger)
+        .map_err(|e| format!("finger on the firmware back end: {e}"))?;
+    let cfg = OfflineConfig::DEFAULT.with_estimator(method.estimator());
+    let mut scratch = vec![Block::default(); 1 << 16];
+    let (nb, block_s) = make_blocks(&m64, &cfg, &rows, &mut scratch)
+        .map_err(|e| format!("segmenting the trace: {} ({e:?})", e.kind()))?;
+    let blocks = &scratch[..nb];
+    let mut out = Segmented {
+        block_s,
+        ..Segmented::default()
+    };
+    for_each_contact(
+        &m64,
+        &cfg,
+        blocks,
+        block_s,
+        finger.rad_per_count(),
+        |r| match r {
+            Ok(seg) => {
+                let est = grasp::run_estimate_with(&mfw, &seg.request)
+                    .map_err(|e| crate::sim::EstError::new(e.kind(), &e));
+                out.contacts.push(SegmentedContact {
+                    t_s: seg.contact_t_s,
+                    theta_a_c: seg.theta_a_c_rad,
+                    ta_c: seg.ta_c_nm,
+                    end_t_s: blocks
+                        .get(seg.end.1.saturating_sub(1))
+                        .map_or(f64::NAN, |b| b.t_s),
+                    estimate: est,
+                });
+            }
+            Err(e) => out.errors.push((e.kind(), format!("{e:?}"))),
+        },
+    );
+    Ok(out)
+}

@@ -99,16 +99,21 @@ fn minimal_columns_and_current_reproduce_it_closely() {
     for (name, body) in [("minimal.csv", minimal), ("current.csv", current)] {
         let p = dir().join(name);
         std::fs::write(&p, body).unwrap();
-        let rep = json_of(&estimate(&p, &["--dta", "0.8"]));
+        // No `# pts-sim` line: the contact is found by grasp::offline's segmentation (not by
+        // replaying the controller), so close to, not equal to, the closed loop: measured
+        // k2 0.041531 m vs 0.042003 m (MODEL.md's quasi-static two-point: 0.041529 m),
+        // K̂c 9.9995 vs 10.156 N·m/rad.
+        let rep = json_of(&estimate(&p, &[]));
         assert_eq!(rep["exact_replay"], false);
+        assert_eq!(rep["segmented"], true);
         let c = &rep["contacts"][0];
         assert_eq!(c["phalanx"], est["phalanx"], "{name}: {rep}");
         assert!(
-            (f(c, "k2") - f(est, "k2")).abs() < 2e-4,
+            (f(c, "k2") - f(est, "k2")).abs() < 1e-3,
             "{name}: {c} vs {est}"
         );
         assert!(
-            (f(c, "kc_hat") / f(est, "kc_hat") - 1.0).abs() < 0.01,
+            (f(c, "kc_hat") / f(est, "kc_hat") - 1.0).abs() < 0.03,
             "{name}: {c} vs {est}"
         );
         assert!((f(c, "t_s") - f(&rep["contacts"][0], "t_s")).abs() < 1e-9);
