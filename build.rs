@@ -19,6 +19,7 @@ fn main() {
     println!("cargo:rerun-if-env-changed=FINGER_TOML");
     println!("cargo:rerun-if-env-changed=FINGER_FW_SCENE");
     println!("cargo:rerun-if-env-changed=FINGER_FW_INJECT");
+    println!("cargo:rerun-if-env-changed=FINGER_FW_ESTIMATOR");
 
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     let qemu = env::var_os("CARGO_FEATURE_QEMU").is_some();
@@ -48,6 +49,7 @@ fn main() {
     finger_consts(&mut src);
     scene_consts(&mut src);
     inject_consts(&mut src);
+    estimator_consts(&mut src);
     fs::write(out.join("fw_config.rs"), src).expect("write fw_config.rs");
 }
 
@@ -158,6 +160,22 @@ fn inject_consts(src: &mut String) {
     let _ = writeln!(
         src,
         "/// Fault injection (test command only).\npub const INJECT: Option<(&str, u32)> = {inject};"
+    );
+}
+
+/// `FINGER_FW_ESTIMATOR=two-point|path-fit`: the estimator linked into the firmware (default:
+/// the controller's default).
+fn estimator_consts(src: &mut String) {
+    let e = match env::var("FINGER_FW_ESTIMATOR").as_deref() {
+        Ok("two-point") => "Some(grasp::Estimator::TwoPoint)",
+        Ok("path-fit") => "Some(grasp::Estimator::PathFit)",
+        Ok("") | Err(_) => "None",
+        Ok(other) => panic!("FINGER_FW_ESTIMATOR={other}: two-point or path-fit"),
+    };
+    let _ = writeln!(
+        src,
+        "/// Estimator chosen at build time (None: the controller's default).\n\
+         pub const ESTIMATOR: Option<grasp::Estimator> = {e};"
     );
 }
 

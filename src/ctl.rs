@@ -8,7 +8,29 @@
 //!   sensors, exactly what a firmware for that hardware would be built with (the plant's error
 //!   terms stay unknown to it).
 
-pub use grasp::{run_estimate, ControllerConfig, DriveConfig, State};
+pub use grasp::{ControllerConfig, DriveConfig, State};
+use grasp::{EstimateError, EstimateRequest, EstimateResult, Estimator};
+
+/// The estimator of this build, fixed at build time (`FINGER_FW_ESTIMATOR=two-point|path-fit`,
+/// default: the controller's default). `grasp::run_estimate` picks it at run time from the
+/// request, which links both; choosing here lets the linker drop the other one: the path fit
+/// is ~65 KB of fixed-point code, the two-point method fits the 64 KiB flash budget.
+pub const ESTIMATOR: Estimator = match crate::config::ESTIMATOR {
+    Some(e) => e,
+    None => ControllerConfig::DEFAULT.estimator,
+};
+
+/// The estimate for a settled step with the build's estimator (same numbers as
+/// `grasp::run_estimate` for a request that names it).
+pub fn run_estimate(req: &EstimateRequest) -> Result<EstimateResult, EstimateError> {
+    match ESTIMATOR {
+        Estimator::TwoPoint => {
+            let model = pts::Model::<grasp::EstReal>::new(&grasp::estimate::FINGER)?;
+            grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
+        }
+        Estimator::PathFit => grasp::run_estimate(req),
+    }
+}
 
 /// True once the grasp has nothing left to do: estimate delivered (holding or released) or
 /// the safe state.
@@ -64,6 +86,7 @@ pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
 pub fn config(drive: DriveConfig) -> ControllerConfig {
     ControllerConfig {
         drive,
+        estimator: ESTIMATOR,
         ..ControllerConfig::DEFAULT
     }
 }
