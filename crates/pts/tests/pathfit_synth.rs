@@ -10,9 +10,13 @@ use pts::{Finger, Model};
 
 const L2: f64 = 0.075;
 
-/// The synthetic board is quasi-static (no drive inertia) and reports θa,c exactly.
+/// The synthetic board is quasi-static (no drive inertia, no backlash: the encoder reads
+/// the finger's θa), reports θa,c exactly and gives raw quantised samples (a repeated θa
+/// is slow motion, not a stiction plateau).
 const SYNTH: PathFitConfig = PathFitConfig {
     inertia_kgm2: 0.0,
+    encoder_lead_rad: 0.0,
+    drop_plateaus: false,
     contact_angle_sigma_rad: 0.0,
     // The synthetic stiction releases as a jump along the path: skip its first 8 %.
     skip_fraction: 0.08,
