@@ -1,0 +1,19 @@
+#!/bin/sh
+# Instruction count and peak stack of pts::pathfit::fit_path on thumbv7em (Cortex-M4F) under
+# unicorn, for every case file: f32 on the FPU (`run_f32`) and Fx32 (`run`).
+# Usage: crates/pts/benches/pathfit/count.sh [case files...]   (needs python3 + unicorn:
+# `cargo xtask bench` installs it). Builds into target/bench-pathfit.
+set -e
+here=$(cd "$(dirname "$0")" && pwd)
+root=$(cd "$here/../../../.." && pwd)
+CARGO_TARGET_DIR="$root/target/bench-pathfit" RUSTFLAGS="" \
+    cargo build --quiet --release --target thumbv7em-none-eabihf --manifest-path "$here/Cargo.toml"
+elf="$root/target/bench-pathfit/thumbv7em-none-eabihf/release/pathfit-icount"
+[ $# -gt 0 ] || set -- "$here"/cases/*.txt
+for c in "$@"; do
+    for entry in run_f32 run; do
+        printf '%s %s: ' "$(basename "$c")" "$entry"
+        python3 "$here/count.py" "$elf" "$c" "$entry" | tr '\n' ' '
+        echo
+    done
+done
