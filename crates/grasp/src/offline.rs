@@ -127,7 +127,7 @@ impl OfflineConfig {
         free_window: 25,
         arm_rad: 5e-4,
         free_slope_nm_per_rad: 0.5,
-        end_speed_rad_s: 4e-3,
+        end_speed_rad_s: 0.015,
         detect_excess_nm: 0.012,
         confirm: 5,
         static_window: 25,
@@ -502,7 +502,7 @@ pub fn find_contact<R: pts::Real>(
         let lag = wf / 2;
         let Some((off, sigma)) = ring
             .iter()
-            .filter(|e| e.0 > from && e.0 + lag <= i && e.0 + 64 > i)
+            .filter(|e| e.0 > from && e.0 + lag <= i)
             .max_by_key(|e| e.0)
             .map(|e| (e.1, e.2))
         else {
@@ -526,7 +526,7 @@ pub fn find_contact<R: pts::Real>(
                 }
                 let early = ring
                     .iter()
-                    .filter(|e| e.0 > from && e.0 + wf <= first && e.0 + 64 > first)
+                    .filter(|e| e.0 > from && e.0 + wf <= first)
                     .max_by_key(|e| e.0)
                     .map_or((off, sigma), |e| (e.1, e.2));
                 detect = Some((first, i, early.0, early.1));
