@@ -20,6 +20,7 @@ fn main() {
     println!("cargo:rerun-if-env-changed=FINGER_FW_SCENE");
     println!("cargo:rerun-if-env-changed=FINGER_FW_INJECT");
     println!("cargo:rerun-if-env-changed=FINGER_FW_ESTIMATOR");
+    println!("cargo:rerun-if-env-changed=FINGER_FW_DELTA_TA_NM");
 
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     let qemu = env::var_os("CARGO_FEATURE_QEMU").is_some();
@@ -176,6 +177,23 @@ fn estimator_consts(src: &mut String) {
         src,
         "/// Estimator chosen at build time (None: the controller's default).\n\
          pub const ESTIMATOR: Option<grasp::Estimator> = {e};"
+    );
+    let dta = match env::var("FINGER_FW_DELTA_TA_NM") {
+        Ok(v) if !v.is_empty() => {
+            let x: f64 = v
+                .parse()
+                .unwrap_or_else(|_| panic!("FINGER_FW_DELTA_TA_NM={v}: a number (N·m)"));
+            if !(x > 0.0 && x < 5.0) {
+                panic!("FINGER_FW_DELTA_TA_NM={v}: outside (0, 5) N·m");
+            }
+            format!("Some({x:?})")
+        }
+        _ => "None".to_string(),
+    };
+    let _ = writeln!(
+        src,
+        "/// ΔT_a chosen at build time (N·m; None: the firmware default).\n\
+         pub const DELTA_TA_NM: Option<f64> = {dta};"
     );
 }
 

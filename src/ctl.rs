@@ -20,6 +20,15 @@ pub const ESTIMATOR: Estimator = match crate::config::ESTIMATOR {
     None => ControllerConfig::DEFAULT.estimator,
 };
 
+/// The torque step ΔT_a after contact (N·m): `FINGER_FW_DELTA_TA_NM` at build time, default
+/// 0.8 N·m. The controller's own default (0.2) lies inside the realistic drive's stiction
+/// band (≈ 0.11 N·m), where grasp reports a step that does not move the finger (NoMotion);
+/// 0.8 is what grasp's closed-loop Table 2 test uses.
+pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
+    Some(v) => v,
+    None => 0.8,
+};
+
 /// The estimate for a settled step with the build's estimator (same numbers as
 /// `grasp::run_estimate` for a request that names it).
 pub fn run_estimate(req: &EstimateRequest) -> Result<EstimateResult, EstimateError> {
@@ -89,6 +98,7 @@ pub fn config(drive: DriveConfig) -> ControllerConfig {
         estimator: ESTIMATOR,
         ..ControllerConfig::DEFAULT
     }
+    .with_delta_ta(DELTA_TA_NM)
 }
 
 /// The scene of this build (`FINGER_FW_SCENE` at build time; build.rs checked the name).
