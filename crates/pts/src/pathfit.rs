@@ -37,9 +37,11 @@
 //! [`MAX_BINS`] points, each a warm-started Newton solve of ≤ [`path::MAX_PATH_NEWTON`] steps;
 //! each point is warm-started from the previous hypothesis through its sensitivities, so a
 //! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
-//! point on the target. Cost on thumbv7em (unicorn, one realistic plant request of 125
-//! samples, 8 path evaluations): f32 on the FPU 286 k instructions, 3.9 KB peak stack;
-//! `Fx32` 1.83 M instructions, 8.4 KB peak stack (its multiply/divide go through i128).
+//! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
+//! three realistic plant requests of 100–103 samples, 3–7 path evaluations): f32 on the FPU
+//! 151–232 k instructions, 3.8 KB peak stack; `Fx32` 0.84–1.55 M instructions, 8.4 KB peak
+//! stack. Over the 100 k budget: ~30 k of the f32 count is soft double inside libm's
+//! sinf/cosf (the contact configuration's free-motion solve), the rest the path evaluations.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};

@@ -147,6 +147,16 @@ pub struct PathModel<R> {
     four: R,
     six: R,
     nodes: [Option<Node<R>>; NODES],
+    /// sin, cos of λ = θ2 − φ2 + π at the reference node (the closure's angle).
+    slb: R,
+    clb: R,
+    /// sin, cos of the node step h.
+    sh: R,
+    ch: R,
+    /// Loop constants ζ1, ζ2, ζ3 of the closure (MODEL.md "Assembly branch").
+    z1: R,
+    z2: R,
+    z3: R,
     /// Closure evaluations done so far (cost accounting).
     pub closures: u16,
     /// Newton iterations done so far (cost accounting).
@@ -223,6 +233,14 @@ impl<R: Real> PathModel<R> {
         let k2p = conv(f.k2)? - cfg.ta * cfg.dx2;
         let k1 = conv(f.k1)?;
         let kfree = k1 * k2p / (k2p + k1 * cfg.x2 * cfg.x2);
+        // The only library trigonometry of a fit (libm's sinf/cosf go through f64, ~2,000
+        // soft-float instructions each on a Cortex-M4F): the table nodes rotate from these.
+        let (s2, c2) = (cfg.theta2.sin(), cfg.theta2.cos());
+        let lambda_b = cfg.theta2 - conv(f.phi2 - core::f64::consts::PI)?;
+        let (slb, clb) = (lambda_b.sin(), lambda_b.cos());
+        let pc = PolyConsts::new();
+        let (sh, ch) = sin_cos_small(conv(NODE_STEP)?, &pc);
+        let z1 = (f.l1 * f.l1 + f.c * f.c + f.a * f.a - f.b * f.b) / (2.0 * f.a * f.l1);
         Ok(Self {
             contact: cfg,
             theta_a_c,
@@ -235,10 +253,10 @@ impl<R: Real> PathModel<R> {
             theta1c: cfg.theta1,
             theta2c: cfg.theta2,
             tac: cfg.ta,
-            s2c: cfg.theta2.sin(),
-            c2c: cfg.theta2.cos(),
-            s2b: cfg.theta2.sin(),
-            c2b: cfg.theta2.cos(),
+            s2c: s2,
+            c2c: c2,
+            s2b: s2,
+            c2b: c2,
             gamma_c,
             d1c: cfg.theta1 - conv(f.theta01)?,
             d2c: cfg.theta2 - conv(f.theta02)?,
@@ -259,9 +277,16 @@ impl<R: Real> PathModel<R> {
             four: conv(4.0)?,
             six: conv(6.0)?,
             nodes,
+            slb,
+            clb,
+            sh,
+            ch,
+            z1: conv(z1)?,
+            z2: conv(f.c / f.l1)?,
+            z3: conv(f.c / f.a)?,
             closures: 0,
             newton_iters: 0,
-            pc: PolyConsts::new(),
+            pc,
         })
     }
 
@@ -332,35 +357,74 @@ impl<R: Real> PathModel<R> {
         self.l2
     }
 
-    fn node(&mut self, model: &Model<R>, i: usize) -> Result<Node<R>, PathFail> {
+    fn node(&mut self, _model: &Model<R>, i: usize) -> Result<Node<R>, PathFail> {
         match self.nodes.get(i) {
             Some(Some(n)) => return Ok(*n),
             Some(None) => {}
             None => return Err(PathFail::OutOfRange),
         }
-        // θ2 of node i: θ2b + (i − NODES_BELOW) h, built by repeated addition (no int→Real).
-        let mut th = self.theta2b;
+        // sin, cos of λ at node i: the reference node's rotated by (i − NODES_BELOW) h
+        // (≤ 13 exact rotations; no library trigonometry).
+        let (mut sl, mut cl) = (self.slb, self.clb);
         let mut k = 0usize;
         while k < NODES_BELOW {
-            th = th - self.h;
+            (sl, cl) = (sl * self.ch - cl * self.sh, cl * self.ch + sl * self.sh);
             k += 1;
         }
         let mut k = 0usize;
         while k < i {
-            th = th + self.h;
+            (sl, cl) = (sl * self.ch + cl * self.sh, cl * self.ch - sl * self.sh);
             k += 1;
         }
-        let cl = model.closure(th)?;
-        let n = Node {
-            gamma: cl.gamma,
-            x2: cl.x2,
-            dx2: cl.dx2,
-        };
+        let n = self.closure_sc(sl, cl)?;
         self.closures = self.closures.saturating_add(1);
         if let Some(slot) = self.nodes.get_mut(i) {
             *slot = Some(n);
         }
         Ok(n)
+    }
+
+    /// The four-bar closure (`Model::closure`) from sin λ, cos λ: γ = atan2(Q, P) −
+    /// acos(R/ρ) needs one atan2 and one acos; sin γ, cos γ and those of λ − γ follow by
+    /// angle addition (cos of atan2(Q, P) is P/ρ, sin of acos(r) is √(1 − r²)).
+    fn closure_sc(&self, sl: R, cl: R) -> Result<Node<R>, PathFail> {
+        let p = cl - self.z2;
+        let q = sl;
+        let r = self.z3 * cl - self.z1;
+        let rho = (p * p + q * q).sqrt();
+        if !(rho > R::from_f64(1e-6)) {
+            return Err(PathFail::Model(PtsError::NotAssemblable));
+        }
+        let inv_rho = R::one() / rho;
+        let ratio = r * inv_rho;
+        if ratio.abs() > R::one() {
+            return Err(PathFail::Model(PtsError::NotAssemblable));
+        }
+        let gamma = q.atan2(p) - ratio.acos();
+        let (cb, sb) = (p * inv_rho, q * inv_rho);
+        let (ca, sa) = (ratio, (R::one() - ratio * ratio).max(R::zero()).sqrt());
+        let sg = sb * ca - cb * sa;
+        let cg = cb * ca + sb * sa;
+        let slg = sl * cg - cl * sg;
+        let clg = cl * cg + sl * sg;
+        let n = slg - self.z3 * sl;
+        let m = slg + self.z2 * sg;
+        if m.abs() < R::from_f64(1e-4) {
+            return Err(PathFail::Model(PtsError::Singular));
+        }
+        let inv_m = R::one() / m;
+        let gp = n * inv_m;
+        let x2 = R::one() - gp;
+        if x2.abs() < R::from_f64(crate::model::TOGGLE_X2) {
+            return Err(PathFail::Model(PtsError::Toggle));
+        }
+        let np = clg * x2 - self.z3 * cl;
+        let mp = clg * x2 + self.z2 * cg * gp;
+        let dx2 = (gp * mp - np) * inv_m;
+        if !(gamma.is_finite() && x2.is_finite() && dx2.is_finite()) {
+            return Err(PathFail::Model(PtsError::NonFinite));
+        }
+        Ok(Node { gamma, x2, dx2 })
     }
 
     /// γ(θ2c+δ2) − γc, x2 and dx2/dθ2 by cubic Hermite interpolation of the table.
