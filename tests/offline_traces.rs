@@ -452,3 +452,35 @@ fn ramp_instead_of_step() {
         assert!(tp.abs() < 8.0, "two-point {tp} % l2");
     }
 }
+
+/// Writes recorded-style CSVs for `pts estimate --trace` into `$OFFLINE_CSV_DIR`: the
+/// realistic open-loop run (R 1 cm, k2,c 0.4 l2, ΔT_a 0.5) as `t_s,theta_a_rad,current_a`
+/// at 10 kHz, the same at 1 kHz with `torque_nm`, and shuffled rows.
+#[test]
+#[ignore]
+fn write_csvs() {
+    let Ok(dir) = std::env::var("OFFLINE_CSV_DIR") else {
+        return;
+    };
+    let run = open_loop(Scene::DEFAULT, 0.01, 0.4 * L2, &profile(0.5, Shape::Step));
+    println!("truth k2 {:?}", run.k2_true);
+    let mut cur = String::from("t_s,theta_a_rad,current_a\n");
+    let mut khz = String::from("t_s,theta_a_rad,torque_nm\n");
+    let mut lines = vec![];
+    for (i, (r, a)) in run.rows.iter().zip(&run.current_a).enumerate() {
+        cur += &format!("{},{},{a:e}\n", r.t_s, r.theta_a_rad);
+        if i % 10 == 0 {
+            khz += &format!("{},{},{}\n", r.t_s, r.theta_a_rad, r.torque_nm);
+        }
+        lines.push(format!("{},{},{}", r.t_s, r.theta_a_rad, r.torque_nm));
+    }
+    let n = lines.len();
+    lines.rotate_left(n / 2);
+    std::fs::write(format!("{dir}/open_loop_current.csv"), cur).unwrap();
+    std::fs::write(format!("{dir}/open_loop_1khz.csv"), khz).unwrap();
+    std::fs::write(
+        format!("{dir}/open_loop_unsorted.csv"),
+        format!("t_s,theta_a_rad,torque_nm\n{}\n", lines.join("\n")),
+    )
+    .unwrap();
+}
