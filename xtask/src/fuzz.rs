@@ -103,6 +103,7 @@ pub fn main(args: &[String]) -> Result<i32, String> {
             // plant leaks each parsed scene's name once on purpose (&'static str): not a
             // finding, so LeakSanitizer is off; panics, overflows and bad Ok values are.
             .args(["-print_final_stats=1", "-max_len=4096", "-detect_leaks=0"])
+            .env("ASAN_OPTIONS", "detect_leaks=0") // the same at exit
             .current_dir(&root)
             .output()
             .map_err(|e| format!("cargo fuzz run {t}: {e}"))?;

@@ -176,7 +176,7 @@ def measure(elf, m4, quick):
         raise SystemExit(f"bench_init failed with code {code}")
     _, overhead, _ = t.run(0, count=True)
     # Quasi-static contacts over the working range (f64 model in the emulator).
-    nt, nk = (7, 7) if quick else (16, 16)
+    nt, nk = (7, 7) if quick else (11, 11)
     points = []
     for ta_c in linspace(0.0, 1.5, nt):
         for kf in linspace(0.02, 0.97, nk):
@@ -185,7 +185,7 @@ def measure(elf, m4, quick):
                 if c == 0:
                     th_c, th = struct.unpack("<dd", out)
                     points.append((th_c, ta_c, th, ta_c + dta))
-    counted = points[:: max(1, len(points) // (6 if quick else 16))]
+    counted = points[:: max(1, len(points) // (6 if quick else 12))]
     res = {"overhead": overhead, "variants": {}}
     ref = {}
     for name, op, fop, kind in VARIANTS:
