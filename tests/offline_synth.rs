@@ -387,3 +387,44 @@ fn typed_errors() {
         other => panic!("{other:?}"),
     }
 }
+
+/// Arbitrary data (random walks, jumps, constant stretches, huge values) never panics and
+/// returns typed errors or segments; whatever is found is bounded.
+#[test]
+fn no_panic_on_arbitrary_traces() {
+    let m = model();
+    let cfg = OfflineConfig::DEFAULT;
+    let mut scratch = vec![Block::default(); 2048];
+    for seed in 1..40u64 {
+        let mut rng = Rng(seed.wrapping_mul(0x2545_F491_4F6C_DD1D));
+        let n = 200 + (rng.uniform() * 30000.0) as usize;
+        let mut th = -0.85 + rng.uniform();
+        let mut tq = rng.uniform();
+        let mut t = 0.0;
+        let rows: Vec<TraceSample> = (0..n)
+            .map(|_| {
+                t += if rng.uniform() < 0.1 {
+                    0.0
+                } else {
+                    1e-4 * (1.0 + 10.0 * rng.uniform())
+                };
+                th += 1e-3 * rng.normal() + if rng.uniform() < 1e-3 { 1.0 } else { 0.0 };
+                tq += 1e-2 * rng.normal() * if seed % 3 == 0 { 1e6 } else { 1.0 };
+                TraceSample {
+                    t_s: t,
+                    theta_a_rad: th,
+                    torque_nm: tq,
+                }
+            })
+            .collect();
+        if let Ok((nb, bs)) = make_blocks(&m, &cfg, &rows, &mut scratch) {
+            let mfx = Model::<grasp::EstReal>::paper().unwrap();
+            for_each_contact(&m, &cfg, &scratch[..nb], bs, QUANTUM, |r| {
+                if let Ok(seg) = r {
+                    let _ = run_estimate_with(&mfx, &seg.request);
+                    assert!(seg.request.path.len() <= grasp::PATH_CAPACITY);
+                }
+            });
+        }
+    }
+}

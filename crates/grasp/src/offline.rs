@@ -299,7 +299,7 @@ pub fn make_blocks<R: pts::Real>(
                 c.1 += r.t_s;
                 c.2 += r.theta_a_rad;
                 c.3 += r.torque_nm;
-                c.4 += 1;
+                c.4 = c.4.saturating_add(1);
             }
             _ => {
                 if let Some(c) = cur {
