@@ -217,9 +217,25 @@ impl From<PtsError> for PathFail {
 impl<R: Real> PathModel<R> {
     /// Builds the path model at the contact configuration found by free motion from θa,c.
     pub fn new(model: &Model<R>, theta_a_c: R) -> Result<Self, PtsError> {
-        let cfg = model.free_from_theta_a(theta_a_c)?;
         let f = model.finger;
         let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
+        let pc = PolyConsts::new();
+        let z1 = (f.l1 * f.l1 + f.c * f.c + f.a * f.a - f.b * f.b) / (2.0 * f.a * f.l1);
+        let z = [conv(z1)?, conv(f.c / f.l1)?, conv(f.c / f.a)?];
+        // The contact configuration (free motion at θa,c) and sin, cos of its θ2 and λ without
+        // library trigonometry (libm's sinf/cosf run in soft double on a Cortex-M4F: ~25 k
+        // instructions for `Model::free_from_theta_a`'s four closures).
+        let (cfg, (s2, c2), (slb, clb)) = if f.k1 > 0.0 {
+            free_trig_free(model, &z, &pc, theta_a_c)?
+        } else {
+            let cfg = model.free_from_theta_a(theta_a_c)?;
+            let lambda_b = cfg.theta2 - conv(f.phi2 - core::f64::consts::PI)?;
+            (
+                cfg,
+                (cfg.theta2.sin(), cfg.theta2.cos()),
+                (lambda_b.sin(), lambda_b.cos()),
+            )
+        };
         // γ at contact from θa = θ1 + θ2 − φ2 − γ: no closure needed.
         let gamma_c = cfg.theta1 + cfg.theta2 - conv(f.phi2)? - theta_a_c;
         let mut nodes = [None; NODES];
@@ -233,14 +249,7 @@ impl<R: Real> PathModel<R> {
         let k2p = conv(f.k2)? - cfg.ta * cfg.dx2;
         let k1 = conv(f.k1)?;
         let kfree = k1 * k2p / (k2p + k1 * cfg.x2 * cfg.x2);
-        // The only library trigonometry of a fit (libm's sinf/cosf go through f64, ~2,000
-        // soft-float instructions each on a Cortex-M4F): the table nodes rotate from these.
-        let (s2, c2) = (cfg.theta2.sin(), cfg.theta2.cos());
-        let lambda_b = cfg.theta2 - conv(f.phi2 - core::f64::consts::PI)?;
-        let (slb, clb) = (lambda_b.sin(), lambda_b.cos());
-        let pc = PolyConsts::new();
         let (sh, ch) = sin_cos_small(conv(NODE_STEP)?, &pc);
-        let z1 = (f.l1 * f.l1 + f.c * f.c + f.a * f.a - f.b * f.b) / (2.0 * f.a * f.l1);
         Ok(Self {
             contact: cfg,
             theta_a_c,
@@ -281,9 +290,9 @@ impl<R: Real> PathModel<R> {
             clb,
             sh,
             ch,
-            z1: conv(z1)?,
-            z2: conv(f.c / f.l1)?,
-            z3: conv(f.c / f.a)?,
+            z1: z[0],
+            z2: z[1],
+            z3: z[2],
             closures: 0,
             newton_iters: 0,
             pc,
@@ -376,55 +385,12 @@ impl<R: Real> PathModel<R> {
             (sl, cl) = (sl * self.ch + cl * self.sh, cl * self.ch - sl * self.sh);
             k += 1;
         }
-        let n = self.closure_sc(sl, cl)?;
+        let n = closure_sc(&[self.z1, self.z2, self.z3], sl, cl)?;
         self.closures = self.closures.saturating_add(1);
         if let Some(slot) = self.nodes.get_mut(i) {
             *slot = Some(n);
         }
         Ok(n)
-    }
-
-    /// The four-bar closure (`Model::closure`) from sin λ, cos λ: γ = atan2(Q, P) −
-    /// acos(R/ρ) needs one atan2 and one acos; sin γ, cos γ and those of λ − γ follow by
-    /// angle addition (cos of atan2(Q, P) is P/ρ, sin of acos(r) is √(1 − r²)).
-    fn closure_sc(&self, sl: R, cl: R) -> Result<Node<R>, PathFail> {
-        let p = cl - self.z2;
-        let q = sl;
-        let r = self.z3 * cl - self.z1;
-        let rho = (p * p + q * q).sqrt();
-        if !(rho > R::from_f64(1e-6)) {
-            return Err(PathFail::Model(PtsError::NotAssemblable));
-        }
-        let inv_rho = R::one() / rho;
-        let ratio = r * inv_rho;
-        if ratio.abs() > R::one() {
-            return Err(PathFail::Model(PtsError::NotAssemblable));
-        }
-        let gamma = q.atan2(p) - ratio.acos();
-        let (cb, sb) = (p * inv_rho, q * inv_rho);
-        let (ca, sa) = (ratio, (R::one() - ratio * ratio).max(R::zero()).sqrt());
-        let sg = sb * ca - cb * sa;
-        let cg = cb * ca + sb * sa;
-        let slg = sl * cg - cl * sg;
-        let clg = cl * cg + sl * sg;
-        let n = slg - self.z3 * sl;
-        let m = slg + self.z2 * sg;
-        if m.abs() < R::from_f64(1e-4) {
-            return Err(PathFail::Model(PtsError::Singular));
-        }
-        let inv_m = R::one() / m;
-        let gp = n * inv_m;
-        let x2 = R::one() - gp;
-        if x2.abs() < R::from_f64(crate::model::TOGGLE_X2) {
-            return Err(PathFail::Model(PtsError::Toggle));
-        }
-        let np = clg * x2 - self.z3 * cl;
-        let mp = clg * x2 + self.z2 * cg * gp;
-        let dx2 = (gp * mp - np) * inv_m;
-        if !(gamma.is_finite() && x2.is_finite() && dx2.is_finite()) {
-            return Err(PathFail::Model(PtsError::NonFinite));
-        }
-        Ok(Node { gamma, x2, dx2 })
     }
 
     /// γ(θ2c+δ2) − γc, x2 and dx2/dθ2 by cubic Hermite interpolation of the table.
@@ -682,4 +648,127 @@ struct EvalState<R> {
     a21: R,
     a22: R,
     det: R,
+}
+
+/// The four-bar closure (`Model::closure`) from sin λ, cos λ: γ = atan2(Q, P) −
+/// acos(R/ρ) needs one atan2 and one acos; sin γ, cos γ and those of λ − γ follow by
+/// angle addition (cos of atan2(Q, P) is P/ρ, sin of acos(r) is √(1 − r²)).
+fn closure_sc<R: Real>(z: &[R; 3], sl: R, cl: R) -> Result<Node<R>, PathFail> {
+    let [z1, z2, z3] = *z;
+    let p = cl - z2;
+    let q = sl;
+    let r = z3 * cl - z1;
+    let rho = (p * p + q * q).sqrt();
+    if !(rho > R::from_f64(1e-6)) {
+        return Err(PathFail::Model(PtsError::NotAssemblable));
+    }
+    let inv_rho = R::one() / rho;
+    let ratio = r * inv_rho;
+    if ratio.abs() > R::one() {
+        return Err(PathFail::Model(PtsError::NotAssemblable));
+    }
+    let gamma = q.atan2(p) - ratio.acos();
+    let (cb, sb) = (p * inv_rho, q * inv_rho);
+    let (ca, sa) = (ratio, (R::one() - ratio * ratio).max(R::zero()).sqrt());
+    let sg = sb * ca - cb * sa;
+    let cg = cb * ca + sb * sa;
+    let slg = sl * cg - cl * sg;
+    let clg = cl * cg + sl * sg;
+    let n = slg - z3 * sl;
+    let m = slg + z2 * sg;
+    if m.abs() < R::from_f64(1e-4) {
+        return Err(PathFail::Model(PtsError::Singular));
+    }
+    let inv_m = R::one() / m;
+    let gp = n * inv_m;
+    let x2 = R::one() - gp;
+    if x2.abs() < R::from_f64(crate::model::TOGGLE_X2) {
+        return Err(PathFail::Model(PtsError::Toggle));
+    }
+    let np = clg * x2 - z3 * cl;
+    let mp = clg * x2 + z2 * cg * gp;
+    let dx2 = (gp * mp - np) * inv_m;
+    if !(gamma.is_finite() && x2.is_finite() && dx2.is_finite()) {
+        return Err(PathFail::Model(PtsError::NonFinite));
+    }
+    Ok(Node { gamma, x2, dx2 })
+}
+
+/// sin, cos of any angle |x| ≤ 2·[`MAX_DELTA`] by the small-angle polynomials (halved and
+/// doubled beyond [`MAX_DELTA`]); library trigonometry only further out.
+fn sin_cos_any<R: Real>(x: R, pc: &PolyConsts<R>) -> (R, R) {
+    let lim = R::from_f64(MAX_DELTA);
+    if x.abs() <= lim {
+        sin_cos_small(x, pc)
+    } else if x.abs() <= lim + lim {
+        let (s, c) = sin_cos_small(x * R::from_f64(0.5), pc);
+        (R::from_f64(2.0) * s * c, c * c - s * s)
+    } else {
+        (x.sin(), x.cos())
+    }
+}
+
+/// Free motion at θa (`Model::free_from_theta_a`: K2(θ2 − θ02) = K1(θ1 − θ01) x2, θ1 = θa −
+/// θ2 + φ2 + γ), Newton from θ02 with sin, cos of λ = θ2 + π − φ2 carried along by exact
+/// rotations (no library trigonometry). Returns the configuration and sin, cos of θ2 and λ.
+#[allow(clippy::type_complexity)]
+fn free_trig_free<R: Real>(
+    model: &Model<R>,
+    z: &[R; 3],
+    pc: &PolyConsts<R>,
+    theta_a: R,
+) -> Result<(Config<R>, (R, R), (R, R)), PtsError> {
+    let f = model.finger;
+    let conv = |v: f64| R::try_from_f64(v).ok_or(PtsError::OutOfRange);
+    if !theta_a.is_finite() || theta_a.abs() > R::from_f64(10.0) {
+        return Err(PtsError::OutOfRange);
+    }
+    let (k1, k2) = (conv(f.k1)?, conv(f.k2)?);
+    let (phi2, th01, th02) = (conv(f.phi2)?, conv(f.theta01)?, conv(f.theta02)?);
+    let c = conv(core::f64::consts::PI - f.phi2)?;
+    let (sc, cc) = sin_cos_any(c, pc);
+    let mut th2 = th02;
+    let (s0, c0) = sin_cos_any(th02, pc);
+    let (mut sl, mut cl) = (s0 * cc + c0 * sc, c0 * cc - s0 * sc);
+    let lim = R::from_f64(0.5);
+    let tol = R::from_f64(ACCEPT_STEP * 0.01);
+    let mut it = 0usize;
+    while it < 2 * MAX_PATH_NEWTON {
+        it += 1;
+        let n = closure_sc(z, sl, cl).map_err(|e| match e {
+            PathFail::Model(p) => p,
+            _ => PtsError::OutOfRange,
+        })?;
+        let th1 = theta_a - th2 + phi2 + n.gamma;
+        let ta = k1 * (th1 - th01);
+        if !(ta.is_finite() && th1.is_finite()) {
+            return Err(PtsError::NonFinite);
+        }
+        let g = k2 * (th2 - th02) - ta * n.x2;
+        let dg = k2 - ta * n.dx2 + k1 * n.x2 * n.x2;
+        if !(dg > R::from_f64(1e-9)) {
+            return Err(PtsError::NoConvergence);
+        }
+        let step = (g / dg).max(-lim).min(lim);
+        if step.abs() <= tol {
+            // Renormalise the rotated pair once (rounding of the rotations).
+            let inv = R::one() / (sl * sl + cl * cl).sqrt();
+            let (sl, cl) = (sl * inv, cl * inv);
+            let s2 = sl * cc - cl * sc;
+            let c2 = cl * cc + sl * sc;
+            let cfg = Config {
+                theta1: th1,
+                theta2: th2,
+                theta_a,
+                ta,
+                x2: n.x2,
+                dx2: n.dx2,
+            };
+            return Ok((cfg, (s2, c2), (sl, cl)));
+        }
+        th2 = th2 - step;
+        let (ss, cs) = sin_cos_small(step, pc);
+        (sl, cl) = (sl * cs - cl * ss, cl * cs + sl * ss);
+    }
+    Err(PtsError::NoConvergence)
 }
