@@ -798,6 +798,12 @@ fn envelope<R: Real, I: Iterator<Item = PathSample<R>>>(
     })
 }
 
+/// Bins the samples in one backwards pass (inertia removed, plateaus dropped, lower
+/// envelope in time). The bins span θa,c (+ dead band and skip) to the θa of the last sample
+/// the envelope keeps — the first one this pass sees; every later kept sample lies below it
+/// plus the envelope tolerance and falls in the last bin. Each bin also accumulates the
+/// second moments about its first sample, so the within-bin scatter about the local trend
+/// needs no second pass.
 fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedIterator>(
     w: &mut Work<R>,
     cfg: &PathFitConfig,
@@ -806,73 +812,92 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
 ) -> Result<(), PathFitError> {
     let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
     let nbins = (cfg.bins as usize).clamp(MIN_BINS, MAX_BINS);
-    let mut hi = theta_a_c;
-    for s in samples.clone() {
-        if !s.theta_a_rad.is_finite() || !s.torque_nm.is_finite() {
-            return Err(PathFitError::Model(PtsError::NonFinite));
-        }
-        hi = hi.max(s.theta_a_rad);
-    }
     let dead = conv(cfg.dead_band_rad)?;
-    let travel = hi - theta_a_c - dead;
-    if !(travel > conv(cfg.min_travel_rad)?) {
-        return Err(PathFitError::NoMotion);
-    }
+    let min_travel = conv(cfg.min_travel_rad)?;
     let span = conv(cfg.approach_span_rad)?;
-    let lo = if cfg.fit_contact_angle && cfg.contact_angle_sigma_rad > 0.0 && span > R::zero() {
-        theta_a_c - span
-    } else {
-        theta_a_c + dead + travel * conv(cfg.skip_fraction)?
-    };
-    let width = (hi - lo) / from_count::<R>(nbins as u32);
-    let bin_of = |th: R| -> usize {
+    let skip = conv(cfg.skip_fraction)?;
+    let approach = cfg.fit_contact_angle && cfg.contact_angle_sigma_rad > 0.0 && span > R::zero();
+    let inertia = conv(cfg.inertia_kgm2)?;
+    let tol = conv(cfg.envelope_tol_rad)?;
+    let z = R::zero();
+    // Per bin: count, reference sample (θ, T), Σdθ, Σdt, Σdθ², Σdt², Σdθ·dt about it.
+    let mut cnt = [0u32; MAX_BINS];
+    let mut acc = [[z; 7]; MAX_BINS];
+    let mut bad = false;
+    let mut frame: Option<(R, R)> = None; // (lo, width)
+    let finite = samples.inspect(|s| {
+        if !s.theta_a_rad.is_finite() || !s.torque_nm.is_finite() || !s.time_s.is_finite() {
+            bad = true;
+        }
+    });
+    for s in envelope(corrected_rev(finite, inertia, cfg.drop_plateaus), tol) {
+        let (lo, width) = match frame {
+            Some(f) => f,
+            None => {
+                let hi = s.theta_a_rad;
+                let travel = hi - theta_a_c - dead;
+                if !(travel > min_travel) {
+                    return Err(PathFitError::NoMotion);
+                }
+                let lo = if approach {
+                    theta_a_c - span
+                } else {
+                    theta_a_c + dead + travel * skip
+                };
+                let f = (lo, (hi - lo) / from_count::<R>(nbins as u32));
+                frame = Some(f);
+                f
+            }
+        };
+        let th = s.theta_a_rad;
+        if th < lo {
+            continue;
+        }
         let mut edge = lo + width;
         let mut i = 0usize;
         while i + 1 < nbins && th >= edge {
             edge = edge + width;
             i += 1;
         }
-        i
-    };
-    let mut sum_t = [R::zero(); MAX_BINS];
-    let mut sum_th = [R::zero(); MAX_BINS];
-    let mut cnt = [0u32; MAX_BINS];
-    let inertia = conv(cfg.inertia_kgm2)?;
-    let tol = conv(cfg.envelope_tol_rad)?;
-    for s in envelope(
-        corrected_rev(samples.clone(), inertia, cfg.drop_plateaus),
-        tol,
-    ) {
-        if s.theta_a_rad < lo {
-            continue;
-        }
-        let i = bin_of(s.theta_a_rad);
-        if let (Some(st), Some(sh), Some(c)) = (sum_t.get_mut(i), sum_th.get_mut(i), cnt.get_mut(i))
-        {
-            *st = *st + s.torque_nm;
-            *sh = *sh + (s.theta_a_rad - theta_a_c);
+        if let (Some(c), Some(a)) = (cnt.get_mut(i), acc.get_mut(i)) {
+            if *c == 0 {
+                a[0] = th - theta_a_c;
+                a[1] = s.torque_nm;
+            }
+            let dth = th - theta_a_c - a[0];
+            let dt = (s.torque_nm - a[1]) * w.ks;
+            a[2] = a[2] + dth;
+            a[3] = a[3] + dt;
+            a[4] = a[4] + dth * dth;
+            a[5] = a[5] + dt * dt;
+            a[6] = a[6] + dth * dt;
             *c = c.saturating_add(1);
         }
     }
+    if bad {
+        return Err(PathFitError::Model(PtsError::NonFinite));
+    }
+    if frame.is_none() {
+        return Err(PathFitError::NoMotion);
+    }
     let mut nb = 0usize;
     let mut total = 0u32;
-    let mut idx_map = [usize::MAX; MAX_BINS];
-    for i in 0..nbins {
-        let (Some(&c), Some(&st), Some(&sh)) = (cnt.get(i), sum_t.get(i), sum_th.get(i)) else {
-            continue;
-        };
+    // Centered second moments of each used bin: (Sθθ, Stt, Sθt) in (rad², (mN·m)², rad·mN·m).
+    let mut mom = [[z; 3]; MAX_BINS];
+    for (&c, a) in cnt.iter().zip(acc.iter()).take(nbins) {
         if c == 0 {
             continue;
         }
         let inv = R::one() / from_count::<R>(c);
-        if let (Some(b), Some(m)) = (w.bins.get_mut(nb), idx_map.get_mut(i)) {
+        let (mth, mt) = (a[2] * inv, a[3] * inv);
+        if let (Some(b), Some(m)) = (w.bins.get_mut(nb), mom.get_mut(nb)) {
             *b = Bin {
                 n: c,
-                dta: sh * inv,
-                t: st * inv,
-                w: R::zero(),
+                dta: a[0] + mth,
+                t: a[1] + mt / w.ks,
+                w: z,
             };
-            *m = nb;
+            *m = [a[4] - a[2] * mth, a[5] - a[3] * mt, a[6] - a[2] * mt];
         }
         nb += 1;
         total = total.saturating_add(c);
@@ -882,30 +907,21 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
     }
     // Within-bin scatter about the local trend (slope from the neighbouring bin means): the
     // noise estimate must not contain the path's own rise across a bin.
-    let mut slope = [R::zero(); MAX_BINS];
-    for (i, sl) in slope.iter_mut().enumerate().take(nb) {
+    let mut ss = z;
+    for i in 0..nb {
         let a = w.bins.get(i.saturating_sub(1));
         let b = w.bins.get((i + 1).min(nb - 1));
+        let mut sl = z;
         if let (Some(a), Some(b)) = (a, b) {
             let dth = b.dta - a.dta;
             if dth > R::from_f64(1e-7) {
-                *sl = (b.t - a.t) / dth;
+                sl = (b.t - a.t) * w.ks / dth;
             }
         }
-    }
-    let mut ss = R::zero();
-    for s in envelope(corrected_rev(samples, inertia, cfg.drop_plateaus), tol) {
-        if s.theta_a_rad < lo {
-            continue;
-        }
-        let j = idx_map
-            .get(bin_of(s.theta_a_rad))
-            .copied()
-            .unwrap_or(usize::MAX);
-        if let (Some(b), Some(&sl)) = (w.bins.get(j), slope.get(j)) {
-            let trend = sl * (s.theta_a_rad - theta_a_c - b.dta);
-            let d = (s.torque_nm - b.t - trend) * w.ks;
-            ss = ss + d * d;
+        if let Some(m) = mom.get(i) {
+            // sl·(sl·Sθθ), not sl²·Sθθ: sl² (mN·m/rad)² can leave Fx32's range.
+            let v = m[1] - R::from_f64(2.0) * sl * m[2] + sl * (sl * m[0]);
+            ss = ss + v.max(z);
         }
     }
     let n_r = from_count::<R>(total);
