@@ -532,10 +532,11 @@ fn pathfit_grid_on_the_plant() {
         100.0 * big_steps(&real)
     );
     // Regression guards at what this estimator measures today (it must not get worse).
-    // Measured (drive measurement model + fitted θa,c): ideal mean 0.15 % max 1.09 % (ΔT_a ≥
-    // 0.5: 0.49 %), realistic mean 0.53 % max 2.30 %.
-    assert!(si.mean <= 0.0025, "ideal mean {:.4}", si.mean);
-    assert!(si.max <= 0.0125, "ideal max {:.4}", si.max);
+    // Measured (drive measurement model, fitted θa,c, 10 bins): ideal mean 0.13 % max 0.92 %
+    // (ΔT_a ≥ 0.5: 0.45 %), realistic mean 0.53 % max 2.32 %. The ideal max is a ΔT_a = 0.2
+    // cell and sits near the target (12 bins: 1.09 %, 8 bins: 1.25 %).
+    assert!(si.mean <= 0.002, "ideal mean {:.4}", si.mean);
+    assert!(si.max <= 0.01, "ideal max {:.4}", si.max);
     assert!(big_steps(&ideal) <= 0.006, "ideal, ΔT_a ≥ 0.5 N·m");
     assert!(sr.mean <= 0.007, "realistic mean {:.4}", sr.mean);
     assert!(sr.max <= 0.03, "realistic max {:.4}", sr.max);

@@ -39,9 +39,9 @@
 //! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
 //! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
 //! three realistic plant requests of 100–103 samples, 3–7 path evaluations): f32 on the FPU
-//! 151–232 k instructions, 3.8 KB peak stack; `Fx32` 0.84–1.55 M instructions, 8.4 KB peak
-//! stack. Over the 100 k budget: ~30 k of the f32 count is soft double inside libm's
-//! sinf/cosf (the contact configuration's free-motion solve), the rest the path evaluations.
+//! 88–157 k instructions, 3.9 KB peak stack; `Fx32` 0.65–1.25 M instructions, 8.6 KB peak
+//! stack. No library trigonometry runs (libm's sinf/cosf go through soft double on a
+//! Cortex-M4F); the count is the path evaluations (≈ 8 k each in f32) and LM's 4×4 solves.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};
@@ -191,7 +191,7 @@ pub struct PathFitConfig {
 impl PathFitConfig {
     /// Defaults for the paper's finger on a board with a quadrature encoder and a current ADC.
     pub const DEFAULT: PathFitConfig = PathFitConfig {
-        bins: 12,
+        bins: 10,
         dead_band_rad: 0.0,
         skip_fraction: 0.0,
         min_travel_rad: 2e-3,
