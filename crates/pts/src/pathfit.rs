@@ -39,9 +39,13 @@
 //! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
 //! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
 //! three realistic plant requests of 100–103 samples, 3–7 path evaluations): f32 on the FPU
-//! 88–157 k instructions, 3.9 KB peak stack; `Fx32` 0.65–1.25 M instructions, 8.6 KB peak
+//! 84–149 k instructions (the vertex case under the 100 k budget, the cylinders with 6–7
+//! evaluations not yet), 3.9 KB peak stack; `Fx32` 0.60–1.16 M instructions, 8.6 KB peak
 //! stack. No library trigonometry runs (libm's sinf/cosf go through soft double on a
-//! Cortex-M4F); the count is the path evaluations (≈ 8 k each in f32) and LM's 4×4 solves.
+//! Cortex-M4F); the count is the path evaluations (≈ 15 k each in f32: 10 bins × ~1.3
+//! Newton steps) and LM's 4×4 solves. It runs once per contact in the low-priority task;
+//! f32 on the M4F's FPU is the firmware's choice there (`pts::FirmwareReal`), Fx32 the
+//! fallback for FPU-less cores.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};
@@ -474,10 +478,10 @@ fn from_count<R: Real>(n: u32) -> R {
 /// (`None` if unknown: the friction offset is then fitted from the path alone), and
 /// `samples` every (θa, T_a) from contact to the end of the step in time order (loading):
 /// any cloneable, double-ended iterator (a slice's `iter().copied()`, or a map over the
-/// controller's own buffer, so no copy is needed). It is traversed backwards three times:
-/// a sample counts only while θa stays below every later sample (the lower envelope in
-/// time), which drops the inertial overshoot after impact and keeps one sample per
-/// stiction plateau.
+/// controller's own buffer, so no copy is needed). It is traversed backwards once: a
+/// sample counts only while θa stays below every later sample (the lower envelope in time),
+/// which drops the inertial overshoot after impact; stiction plateaus are dropped
+/// ([`PathFitConfig::drop_plateaus`]).
 /// Returns the initial and final contact locations with σ, or why the path cannot determine
 /// them.
 pub fn fit_path<R: Real, I>(
