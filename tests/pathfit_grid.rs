@@ -503,7 +503,15 @@ fn summarize(name: &str, cases: &[Case]) -> Summary {
 fn pathfit_grid_on_the_plant() {
     let ideal = run_grid(plant::Scene::DEFAULT.ideal());
     let si = summarize("ideal plant (noise and friction off)", &ideal);
-    let real = run_grid(plant::Scene::DEFAULT);
+    // PATHFIT_SEED=n: another noise seed for the realistic plant (robustness check).
+    let mut real_scene = plant::Scene::DEFAULT;
+    if let Some(seed) = std::env::var("PATHFIT_SEED")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        real_scene.sensors.seed = seed;
+    }
+    let real = run_grid(real_scene);
     let sr = summarize("realistic plant (noise, friction, backlash)", &real);
     // Issue 7's targets, printed as met or not (the README quotes these lines).
     let big_steps = |cases: &[Case]| {
