@@ -39,8 +39,8 @@
 //! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
 //! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
 //! three realistic plant requests of 100–103 samples, 3–7 path evaluations): f32 on the FPU
-//! 84–149 k instructions (the vertex case under the 100 k budget, the cylinders with 6–7
-//! evaluations not yet), 3.9 KB peak stack; `Fx32` 0.60–1.16 M instructions, 8.6 KB peak
+//! 82–140 k instructions (the vertex case under the 100 k budget, the cylinders with 6–7
+//! evaluations not yet), 4.0 KB peak stack; `Fx32` 0.60–1.12 M instructions, 8.7 KB peak
 //! stack. No library trigonometry runs (libm's sinf/cosf go through soft double on a
 //! Cortex-M4F); the count is the path evaluations (≈ 15 k each in f32: 10 bins × ~1.3
 //! Newton steps) and LM's 4×4 solves. It runs once per contact in the low-priority task;
@@ -1144,17 +1144,9 @@ fn lm<R: Real>(
                 *d = *d * (R::one() + mu);
             }
         }
-        let Some(c) = invert_spd(&a, set) else { break };
-        let mut d = [z; NP];
-        for (i, di) in d.iter_mut().enumerate() {
-            if set[i] {
-                for (j, on) in set.iter().enumerate() {
-                    if *on {
-                        *di = *di - c[i][j] * best.g[j];
-                    }
-                }
-            }
-        }
+        let Some(d) = solve_spd(&a, set, &best.g) else {
+            break;
+        };
         if d[K].abs() < step_tol && d[RAD].abs() < step_tol && d[TC].abs() < tc_tol {
             break;
         }
@@ -1245,6 +1237,72 @@ fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; 
         for j in 0..n {
             out[idx[i]][idx[j]] = inv[i][j] * d[i] * d[j];
         }
+    }
+    Some(out)
+}
+
+/// Solves A d = −g on the parameters in `set` (zero elsewhere) by LDLᵀ on the Jacobi-scaled
+/// submatrix (unit diagonal, as [`invert_spd`]): the LM step without the full inverse.
+#[allow(clippy::needless_range_loop)]
+fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
+    let z = R::zero();
+    let mut idx = [0usize; NP];
+    let mut n = 0usize;
+    for (i, on) in set.iter().enumerate() {
+        if *on {
+            idx[n] = i;
+            n += 1;
+        }
+    }
+    let mut d = [z; NP];
+    for k in 0..n {
+        let v = a[idx[k]][idx[k]];
+        if !(v > z) {
+            return None;
+        }
+        d[k] = R::one() / v.sqrt();
+    }
+    // L (unit lower, below the diagonal) and the pivots D of B = D A D.
+    let mut l = [[z; NP]; NP];
+    let mut piv = [z; NP];
+    for j in 0..n {
+        let mut dj = R::one();
+        for k in 0..j {
+            dj = dj - l[j][k] * l[j][k] * piv[k];
+        }
+        if !(dj > R::from_f64(1e-7)) {
+            return None;
+        }
+        piv[j] = dj;
+        let inv = R::one() / dj;
+        for i in j + 1..n {
+            let mut v = a[idx[i]][idx[j]] * d[i] * d[j];
+            for k in 0..j {
+                v = v - l[i][k] * l[j][k] * piv[k];
+            }
+            l[i][j] = v * inv;
+        }
+    }
+    // L y = −D g, then Lᵀ x = y / piv; the step is D x.
+    let mut y = [z; NP];
+    for i in 0..n {
+        let mut v = -(g[idx[i]] * d[i]);
+        for k in 0..i {
+            v = v - l[i][k] * y[k];
+        }
+        y[i] = v;
+    }
+    let mut x = [z; NP];
+    for i in (0..n).rev() {
+        let mut v = y[i] / piv[i];
+        for k in i + 1..n {
+            v = v - l[k][i] * x[k];
+        }
+        x[i] = v;
+    }
+    let mut out = [z; NP];
+    for i in 0..n {
+        out[idx[i]] = x[i] * d[i];
     }
     Some(out)
 }
