@@ -22,10 +22,11 @@
 //! 4. Levenberg–Marquardt on (k2,c, T_f, θa,c) with the vertex model (R = 0) first: θa,c is
 //!    fitted too (a controller sees the contact late), pinned by its prior, by the friction
 //!    prior and by the free-motion curve the path starts from. The analytic sensitivity ∂T/∂R
-//!    at that solution tells whether a radius would matter and shows in these data; only then
-//!    (object model `Auto`) the fit is extended to R: a vertex, or a radius that cannot be
-//!    seen or does not matter, never pays for the curvature fit (its possible bias goes
-//!    into σ instead).
+//!    tells whether a radius would matter and shows in these data — checked at the first
+//!    evaluation (a clear radius goes straight to the cylinder fit, started by the
+//!    Gauss–Newton step with R free) and else at the vertex solution; only then (object
+//!    model `Auto`) the fit is extended to R: a vertex, or a radius that cannot be seen or
+//!    does not matter, never pays for the curvature fit (its possible bias goes into σ).
 //! 5. σ(k2,c) from the fit covariance with the noise level the larger of the residual scatter
 //!    and the within-bin scatter, widened by [`PathFitConfig::sigma_inflation`], plus the bias
 //!    an unseen radius could cause, plus a floor. Refused with a typed [`PathFitError`]: too
@@ -38,14 +39,14 @@
 //! each point is warm-started from the previous hypothesis through its sensitivities, so a
 //! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
 //! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
-//! three realistic plant requests of 100–103 samples, 3–7 path evaluations): f32 on the FPU
-//! 82–140 k instructions (the vertex case under the 100 k budget, the cylinders with 6–7
-//! evaluations not yet), 4.0 KB peak stack; `Fx32` 0.60–1.12 M instructions, 8.7 KB peak
-//! stack. No library trigonometry runs (libm's sinf/cosf go through soft double on a
-//! Cortex-M4F); the count is the path evaluations (≈ 15 k each in f32: 10 bins × ~1.3
-//! Newton steps) and LM's 4×4 solves. It runs once per contact in the low-priority task;
-//! f32 on the M4F's FPU is the firmware's choice there (`pts::FirmwareReal`), Fx32 the
-//! fallback for FPU-less cores.
+//! three realistic plant requests of 100–103 samples: a vertex and two cylinders, 3–4 path
+//! evaluations): f32 on the FPU 89–97 k instructions (budget 100 k), 4.2 KB peak stack;
+//! `Fx32` 0.62–0.73 M instructions, 9.1 KB peak stack. No library trigonometry runs (libm's
+//! sinf/cosf go through soft double on a Cortex-M4F); the count is the sample pass
+//! (≈ 23 k), the path evaluations (≈ 13 k each in f32: 10 bins × ~1.3 Newton steps) and the
+//! 4×4 solves. It runs once per contact in the low-priority task: f32 on the M4F's FPU is
+//! the firmware's back end there (`pts::FirmwareReal`); `Fx32`, the integer-only fallback for
+//! FPU-less cores, is 7× over the budget.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};
@@ -548,16 +549,10 @@ where
         tc_hi: theta_a_c_rad + sc * R::from_f64(3.0),
     };
 
-    // Vertex fit on (k2c, T_f[, θa,c]).
+    // Vertex model on (k2c, T_f[, θa,c]) first.
     let mut p = [k2_init, zero, zero, theta_a_c_rad];
     let vset = [true, false, true, fit_contact];
-    let vertex = lm(&mut pm, model, &mut w, &mut p, &vset, &bounds, 8)?;
-    let p_vertex = p;
-    let mut fit = vertex;
-    let mut pfit = p;
-    let mut object = FittedObject::Vertex;
-    let mut set = vset;
-
+    let cset = [true, true, true, fit_contact];
     let nb_r = from_count::<R>(w.nb as u32);
     let s2_of = |sse: R, npar: u32| -> R {
         let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
@@ -565,63 +560,99 @@ where
     };
     let count = |s: &[bool; NP]| s.iter().filter(|&&b| b).count() as u32;
 
-    // At the vertex solution: marginal σ(R) and the linearised step with R free.
-    let s2v = s2_of(vertex.sse, count(&vset));
-    let cset = [true, true, true, fit_contact];
-    let cov_c = invert_spd(&vertex.a, &cset);
-    let (sigma_r_lin, dk_lin, dr_lin) = match cov_c {
-        Some(c) => {
-            let step = |i: usize| -> R {
-                let mut acc = zero;
-                for (j, on) in cset.iter().enumerate() {
-                    if *on {
-                        acc = acc - c[i][j] * vertex.g[j];
+    // At a vertex hypothesis: marginal σ(R), the Gauss–Newton step with R free, and what an
+    // unseen radius could do to k2c (regress the R column on the vertex parameters: δk2c =
+    // per_r · R, for any R the data allow, ≤ 3σ(R), ≤ Rmax). The radius is fitted only when
+    // such a radius would move k2c by more than half its σ and the data point to a positive
+    // radius: a vertex, or a radius that cannot be seen or does not matter, costs no
+    // curvature fit (its effect goes into σ).
+    let decide = |e: &Eval<R>| -> Result<Decision<R>, PathFitError> {
+        let s2v = s2_of(e.sse, count(&vset));
+        let (sigma_r_lin, dk_lin, dr_lin) = match invert_spd(&e.a, &cset) {
+            Some(c) => {
+                let step = |i: usize| -> R {
+                    let mut acc = zero;
+                    for (j, on) in cset.iter().enumerate() {
+                        if *on {
+                            acc = acc - c[i][j] * e.g[j];
+                        }
                     }
-                }
-                acc * l2
-            };
-            (
-                (c[RAD][RAD] * s2v).max(zero).sqrt() * l2,
-                step(K),
-                step(RAD),
-            )
+                    acc * l2
+                };
+                (
+                    (c[RAD][RAD] * s2v).max(zero).sqrt() * l2,
+                    step(K),
+                    step(RAD),
+                )
+            }
+            None => (rmax, zero, zero),
+        };
+        let cov_v = invert_spd(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
+        let sigma_kv = (cov_v[K][K] * s2v).max(zero).sqrt() * l2;
+        let mut per_r = zero;
+        for (j, on) in vset.iter().enumerate() {
+            if *on {
+                per_r = per_r - cov_v[K][j] * e.a[j][RAD];
+            }
         }
-        None => (rmax, zero, zero),
+        let r_allowed = (sigma_r_lin * R::from_f64(3.0)).min(rmax);
+        let bias_pot = (per_r * r_allowed).abs();
+        let want = match cfg.object {
+            ObjectModel::Vertex => false,
+            ObjectModel::Cylinder => true,
+            ObjectModel::Auto => {
+                bias_pot > sigma_kv * R::from_f64(0.5) && dr_lin > sigma_r_lin && dr_lin > zero
+            }
+        };
+        Ok(Decision {
+            want,
+            bias_pot,
+            sigma_r_lin,
+            dk_lin,
+            dr_lin,
+        })
     };
-    // What an unseen radius could do to k2c: regress the R column on the vertex parameters
-    // (δk2c = per_r · R), for any R the data allow (≤ 3σ(R), ≤ Rmax).
-    let cov_v = invert_spd(&vertex.a, &vset).ok_or(PathFitError::NotDetermined)?;
-    let sigma_kv = (cov_v[K][K] * s2v).max(zero).sqrt() * l2;
-    let mut per_r = zero;
-    for (j, on) in vset.iter().enumerate() {
-        if *on {
-            per_r = per_r - cov_v[K][j] * vertex.a[j][RAD];
-        }
+
+    // The first evaluation decides already when the radius clearly matters (its Gauss–Newton
+    // step with R free starts the cylinder fit: the vertex fit's iterations would be spent
+    // on a model that is then dropped); otherwise the vertex fit runs to convergence and
+    // decides again there.
+    let first = lm(&mut pm, model, &mut w, &mut p, &vset, &bounds, 0, None)?;
+    let p_first = p;
+    let early = decide(&first)?;
+    let mut vertex_done = !early.want;
+    let (mut vertex, mut dec) = (first, early);
+    if vertex_done {
+        vertex = lm(
+            &mut pm,
+            model,
+            &mut w,
+            &mut p,
+            &vset,
+            &bounds,
+            8,
+            Some(first),
+        )?;
+        dec = decide(&vertex)?;
     }
-    let r_allowed = (sigma_r_lin * R::from_f64(3.0)).min(rmax);
-    let bias_pot = (per_r * r_allowed).abs();
-    let want_radius = match cfg.object {
-        ObjectModel::Vertex => false,
-        ObjectModel::Cylinder => true,
-        // Fit the radius only when a radius the data allow would move k2c by more than half
-        // its σ and the data point to a positive radius: a vertex, or a radius that cannot
-        // be seen or does not matter, costs no curvature fit (its effect goes into σ).
-        ObjectModel::Auto => {
-            bias_pot > sigma_kv * R::from_f64(0.5) && dr_lin > sigma_r_lin && dr_lin > zero
-        }
-    };
-    let mut bias_k = bias_pot;
-    if want_radius {
+    let p_vertex = p;
+    let mut fit = vertex;
+    let mut pfit = p;
+    let mut object = FittedObject::Vertex;
+    let mut set = vset;
+    let mut bias_k = dec.bias_pot;
+    if dec.want {
         let mut pc = p_vertex;
-        pc[K] = (pc[K] + dk_lin).max(bounds.k_lo).min(l2);
-        pc[RAD] = dr_lin.max(zero).min(rmax);
-        match lm(&mut pm, model, &mut w, &mut pc, &cset, &bounds, 10) {
+        pc[K] = (pc[K] + dec.dk_lin).max(bounds.k_lo).min(l2);
+        pc[RAD] = dec.dr_lin.max(zero).min(rmax);
+        match lm(&mut pm, model, &mut w, &mut pc, &cset, &bounds, 10, None) {
             Ok(e) if e.sse <= vertex.sse => {
                 fit = e;
                 pfit = pc;
                 object = FittedObject::Cylinder;
                 set = cset;
                 bias_k = zero;
+                vertex_done = true;
             }
             // The cylinder fit failed or is no better: keep the vertex, with the bias.
             _ => {
@@ -631,6 +662,25 @@ where
             }
         }
     }
+    if !vertex_done {
+        // The early cylinder fit was refused: the vertex fit after all.
+        let mut pv = p_first;
+        vertex = lm(
+            &mut pm,
+            model,
+            &mut w,
+            &mut pv,
+            &vset,
+            &bounds,
+            8,
+            Some(first),
+        )?;
+        dec = decide(&vertex)?;
+        fit = vertex;
+        pfit = pv;
+        bias_k = dec.bias_pot;
+    }
+    let sigma_r_lin = dec.sigma_r_lin;
     let k2c = pfit[K];
     let radius = pfit[RAD];
 
@@ -1096,6 +1146,20 @@ fn evaluate<R: Real>(
     })
 }
 
+/// The radius decision at a vertex hypothesis (see `fit_path`).
+#[derive(Clone, Copy)]
+struct Decision<R> {
+    /// Fit the radius.
+    want: bool,
+    /// Largest k2c bias (m) a radius the data allow could cause.
+    bias_pot: R,
+    /// Marginal σ(R) of the linearised fit (m).
+    sigma_r_lin: R,
+    /// Gauss–Newton step of k2c and R with R free (m).
+    dk_lin: R,
+    dr_lin: R,
+}
+
 /// Parameter bounds of the fit.
 struct Bounds<R> {
     k_lo: R,
@@ -1108,6 +1172,7 @@ struct Bounds<R> {
 /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
 /// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
 /// the global [`MAX_EVALS`].
+#[allow(clippy::too_many_arguments)]
 fn lm<R: Real>(
     pm: &mut PathModel<R>,
     model: &Model<R>,
@@ -1116,11 +1181,16 @@ fn lm<R: Real>(
     set: &[bool; NP],
     b: &Bounds<R>,
     iters: usize,
+    start: Option<Eval<R>>,
 ) -> Result<Eval<R>, PathFitError> {
     let z = R::zero();
-    // First evaluation; a hypothesis whose path leaves the phalanx moves k2c inward.
+    // First evaluation (unless given: `start` is the evaluation at `p`); a hypothesis whose
+    // path leaves the phalanx moves k2c inward.
     let mut tries = 0;
     let mut best = loop {
+        if let Some(e) = start {
+            break e;
+        }
         match evaluate(pm, model, w, p) {
             Ok(e) => break e,
             Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
