@@ -472,6 +472,33 @@ fn summarize(name: &str, cases: &[Case]) -> Summary {
             );
         }
     }
+    // Cost driver on the target: path evaluations per fit (crates/pts/benches/pathfit counts
+    // instructions for dumped cases: ≈ 23 k for the sample pass + ≈ 13 k per evaluation, f32).
+    let mut evals = [0usize; 25];
+    for c in cases {
+        if let Some(Ok(f)) = &c.fit {
+            if let Some(e) = evals.get_mut(usize::from(f.path_evals)) {
+                *e += 1;
+            }
+        }
+    }
+    let hist: Vec<String> = evals
+        .iter()
+        .enumerate()
+        .filter(|(_, &n)| n > 0)
+        .map(|(k, n)| format!("{k}:{n}"))
+        .collect();
+    let worst = cases
+        .iter()
+        .filter_map(|c| match &c.fit {
+            Some(Ok(f)) => Some((f.path_evals, c.radius, c.k2c / L2, c.dta)),
+            _ => None,
+        })
+        .max_by_key(|w| w.0);
+    println!(
+        "{name}: path evaluations per fit (evals:fits) {}; most: {worst:?} (evals, R, k2c/l2, ΔT_a)",
+        hist.join(" ")
+    );
     s.mean /= s.accepted.max(1) as f64;
     s.mean_2p /= n2p.max(1) as f64;
     println!(

@@ -39,9 +39,11 @@
 //! each point is warm-started from the previous hypothesis through its sensitivities, so a
 //! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
 //! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
-//! three realistic plant requests of 100–103 samples: a vertex and two cylinders, 3–4 path
-//! evaluations): f32 on the FPU 89–97 k instructions (budget 100 k), 4.2 KB peak stack;
-//! `Fx32` 0.62–0.73 M instructions, 9.1 KB peak stack. No library trigonometry runs (libm's
+//! realistic plant requests dumped from the grid): f32 on the FPU 89–97 k instructions for
+//! fits of 3–4 path evaluations (a vertex, Table 2, R = 9.75 cm; 99 of the 159 realistic grid
+//! fits), 158 k for the grid's slowest (R = 1 cm, 7 evaluations, 138 samples; 60 fits need
+//! 5–7): the 100 k budget holds for the typical request, not the worst. 4.2 KB peak stack.
+//! `Fx32` 0.62–1.23 M instructions, 9.1 KB peak stack. No library trigonometry runs (libm's
 //! sinf/cosf go through soft double on a Cortex-M4F); the count is the sample pass
 //! (≈ 23 k), the path evaluations (≈ 13 k each in f32: 10 bins × ~1.3 Newton steps) and the
 //! 4×4 solves. It runs once per contact in the low-priority task: f32 on the M4F's FPU is
