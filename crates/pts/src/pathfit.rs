@@ -46,9 +46,9 @@
 //! `Fx32` 0.62–1.23 M instructions, 9.1 KB peak stack. No library trigonometry runs (libm's
 //! sinf/cosf go through soft double on a Cortex-M4F); the count is the sample pass
 //! (≈ 23 k), the path evaluations (≈ 13 k each in f32: 10 bins × ~1.3 Newton steps) and the
-//! 4×4 solves. It runs once per contact in the low-priority task: f32 on the M4F's FPU is
-//! the firmware's back end there (`pts::FirmwareReal`); `Fx32`, the integer-only fallback for
-//! FPU-less cores, is 7× over the budget.
+//! 4×4 solves. It runs once per contact in the low-priority task. The firmware's back end
+//! (`pts::FirmwareReal`) is `Fx32`, which is 6–12× over the 100 k budget; f32 on the M4F's
+//! FPU is the cheaper option measured above. Neither meets the budget for every request yet.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};
