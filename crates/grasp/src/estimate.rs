@@ -382,12 +382,26 @@ pub fn contact_point_model<R: Real>(model: &Model<R>, req: &EstimateRequest) -> 
     }
     let offset = sum / f64::from(n);
     let q = path_parabola(req)?;
-    // h(T) = T − offset − T_free(q(T)) = 0, secant from the seated torque downwards.
-    let h = |t: f64| -> Option<f64> { Some(t - offset - t_free(q(t))?) };
     let t1 = f64::from(req.seat.torque_unm) * 1e-6;
+    let th1 = f64::from(req.seat.theta_a_urad) * 1e-6;
+    meet_free_curve(&q, &t_free, offset, (t1, th1), 12)
+}
+
+/// Where the path θa = q(T) meets the free-motion curve shifted by the friction `offset`:
+/// solves h(T) = T − offset − T_free(q(T)) = 0 by secant from the seated point `(t1, θ1)`
+/// downwards, at most `iters` steps. `Some((θa,c rad, T_a,c N·m))` only when it converged to
+/// a plausible point: within 0.2 N·m below the seated torque and not past the seated angle.
+pub(crate) fn meet_free_curve(
+    q: &dyn Fn(f64) -> f64,
+    t_free: &dyn Fn(f64) -> Option<f64>,
+    offset: f64,
+    (t1, th1): (f64, f64),
+    iters: usize,
+) -> Option<(f64, f64)> {
+    let h = |t: f64| -> Option<f64> { Some(t - offset - t_free(q(t))?) };
     let (mut a, mut b) = (t1, t1 - 0.01);
     let (mut ha, mut hb) = (h(a)?, h(b)?);
-    for _ in 0..12 {
+    for _ in 0..iters {
         let d = hb - ha;
         if !(d.abs() > 1e-15) {
             break;
@@ -402,12 +416,7 @@ pub fn contact_point_model<R: Real>(model: &Model<R>, req: &EstimateRequest) -> 
         }
     }
     let th = q(b);
-    let th1 = f64::from(req.seat.theta_a_urad) * 1e-6;
-    let plausible = hb.abs() < 1e-5 && b <= t1 + 1e-3 && b > t1 - 0.2 && th <= th1 + 1e-4;
-    if !plausible {
-        return None;
-    }
-    Some((th, b))
+    (hb.abs() < 1e-5 && b <= t1 + 1e-3 && b > t1 - 0.2 && th <= th1 + 1e-4).then_some((th, b))
 }
 
 /// The contact point (θa,c rad, T_a,c N·m).

@@ -858,25 +858,7 @@ fn back_date(
     let sb2 = (th2 - thb) / (t2 - tb);
     let c2 = (sb2 - s1b) / (t2 - t1);
     let q = |t: f64| th1 + s1b * (t - t1) + c2 * (t - t1) * (t - tb);
-    let h = |t: f64| -> Option<f64> { Some(t - offset - t_free(q(t))?) };
-    let (mut a, mut b) = (t1, t1 - 0.01);
-    let (mut ha, mut hb) = (h(a)?, h(b)?);
-    for _ in 0..16 {
-        let d = hb - ha;
-        if !(d.abs() > 1e-15) {
-            break;
-        }
-        let c = b - hb * (b - a) / d;
-        a = b;
-        ha = hb;
-        b = c;
-        hb = h(b)?;
-        if hb.abs() < 1e-7 {
-            break;
-        }
-    }
-    let th = q(b);
-    (hb.abs() < 1e-5 && b <= t1 + 1e-3 && b > t1 - 0.2 && th <= th1 + 1e-4).then_some((th, b))
+    crate::estimate::meet_free_curve(&q, t_free, offset, (t1, th1), 16)
 }
 
 /// Every contact in the blocks, in order: calls `each` with each result (a contact's
