@@ -75,20 +75,7 @@ pub fn board_drive() -> DriveConfig {
 /// The controller's view of a simulated scene's drive and sensors (nominal constants).
 #[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
-    let d = &scene.drive;
-    let s = &scene.sensors;
-    DriveConfig {
-        dt_s: scene.dt_s,
-        gear_ratio: d.gear_ratio,
-        efficiency: d.eff_drive,
-        kt_nm_per_a: d.kt_nm_per_a,
-        resistance_ohm: d.r_ohm,
-        bus_v: d.supply_v,
-        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
-        amps_per_code: 1.0 / s.codes_per_amp(),
-        adc_zero_code: s.zero_code(),
-        theta_a_rest_rad: DriveConfig::DEFAULT.theta_a_rest_rad,
-    }
+    sim_board::scene_drive(scene, DriveConfig::DEFAULT.theta_a_rest_rad)
 }
 
 /// The controller configuration for a drive: grasp's defaults otherwise.

@@ -5,53 +5,21 @@
 //!
 //! `finger-fw simulate [--scene NAME|FILE]` (default: the scene of this build, FINGER_FW_SCENE).
 
-use grasp::{Controller, Hardware, DUTY_MAX};
+use grasp::Controller;
 
 use crate::ctl;
 
-/// The simulated board on the host (mirrors src/sim without the interrupt plumbing).
-struct HostBoard {
-    plant: plant::Plant,
-    duty: f64,
-    off: bool,
-}
-
-impl Hardware for HostBoard {
-    fn encoder_count(&mut self) -> u16 {
-        self.plant.encoder_count()
-    }
-    fn current_raw(&mut self) -> u16 {
-        self.plant.current_adc()
-    }
-    fn set_duty(&mut self, duty: i16) {
-        self.off = false;
-        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
-    }
-    fn bridge_off(&mut self) {
-        self.off = true;
-        self.duty = 0.0;
-    }
-}
-
-impl HostBoard {
-    fn advance(&mut self) {
-        if self.off {
-            self.plant.step_off();
-        } else {
-            self.plant.step(self.duty);
-        }
-    }
-    fn truth(&self, at: &str) -> String {
-        let t = self.plant.truth();
-        format!(
-            "TRUTH at={at} t_us={} theta_a_urad={} torque_unm={} contact={} k_um={}",
-            (t.t_s * 1e6) as u32,
-            micro(t.theta_a_rad),
-            micro(t.torque_a_nm),
-            t.contact.name(),
-            micro(t.k_m)
-        )
-    }
+/// The TRUTH log line of the simulated finger now (as src/sim prints it).
+fn truth_line(plant: &plant::Plant, at: &str) -> String {
+    let t = plant.truth();
+    format!(
+        "TRUTH at={at} t_us={} theta_a_urad={} torque_unm={} contact={} k_um={}",
+        (t.t_s * 1e6) as u32,
+        micro(t.theta_a_rad),
+        micro(t.torque_a_nm),
+        t.contact.name(),
+        micro(t.k_m)
+    )
 }
 
 fn micro(v: f64) -> i32 {
@@ -89,11 +57,8 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     let cfg = ctl::config(ctl::scene_drive(&scene));
     let decimation = ctl::decimation(&cfg.drive);
     let mut ctrl = Controller::new(cfg).map_err(|e| format!("config: {e:?}"))?;
-    let mut board = HostBoard {
-        plant,
-        duty: 0.0,
-        off: true,
-    };
+    // The same adapter as the QEMU board's, without the interrupt plumbing.
+    let mut board = sim_board::PlantBoard::new(plant);
     println!(
         "BOOT finger={} l2_um={} scene={} board=host dt_us={}",
         crate::config::FINGER_NAME,
@@ -108,7 +73,7 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         while let Some(ev) = ctrl.poll_event() {
             println!("E {ev:?}");
             if matches!(ev, grasp::Event::Settled { .. }) {
-                println!("{}", board.truth("settled"));
+                println!("{}", truth_line(&board.plant, "settled"));
             }
         }
         let finished = ctl::finished(out.state);
@@ -136,12 +101,12 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
             if !finished {
                 continue;
             }
-            println!("{}", board.truth("end"));
+            println!("{}", truth_line(&board.plant, "end"));
             println!(
                 "END status={} state={:?} bridge_safe={} ticks={tick}",
                 ctl::status(out.state),
                 out.state,
-                board.off
+                board.is_off()
             );
             return Ok(ctl::status(out.state));
         }

@@ -17,7 +17,7 @@ pub mod pac;
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::peripheral::{syst::SystClkSource, SCB, SYST};
 
-use grasp::{Hardware, DUTY_MAX};
+use grasp::Hardware;
 
 use crate::telemetry::{PlantEvent, Truth};
 
@@ -44,9 +44,8 @@ pub type Board = SimBoard;
 
 /// The simulated board.
 pub struct SimBoard {
-    plant: plant::Plant,
-    duty: f64,
-    off: bool,
+    /// The plant behind grasp's Hardware trait (the adapter the host runs use too).
+    hw: sim_board::PlantBoard,
 }
 
 /// Brings up the simulated board for the build's scene and starts the sampling interrupt.
@@ -72,9 +71,7 @@ pub fn init(core: rtic::export::Peripherals) -> (Board, grasp::ControllerConfig)
     let cfg = crate::ctl::config(crate::ctl::scene_drive(&scene));
     (
         SimBoard {
-            plant,
-            duty: 0.0,
-            off: true,
+            hw: sim_board::PlantBoard::new(plant),
         },
         cfg,
     )
@@ -86,21 +83,21 @@ impl SimBoard {
 
     /// Advances the plant by one control period with what the controller commanded.
     pub fn advance(&mut self) {
-        if self.off || BRIDGE_SAFE.load(Ordering::Relaxed) {
-            self.plant.step_off();
-        } else {
-            self.plant.step(self.duty);
+        if BRIDGE_SAFE.load(Ordering::Relaxed) {
+            // A panic or HardFault made the bridge safe behind the controller's back.
+            self.hw.bridge_off();
         }
+        self.hw.advance();
     }
 
     /// True when the bridge is off.
     pub fn is_safe(&self) -> bool {
-        self.off || BRIDGE_SAFE.load(Ordering::Relaxed)
+        self.hw.is_off() || BRIDGE_SAFE.load(Ordering::Relaxed)
     }
 
     /// The plant's truth now.
     pub fn truth(&self, at: &'static str) -> Option<Truth> {
-        let t = self.plant.truth();
+        let t = self.hw.plant.truth();
         Some(Truth {
             at,
             t_us: (t.t_s * 1e6) as u32,
@@ -114,7 +111,7 @@ impl SimBoard {
     /// The next plant event (first contact, loss, second contact, joint limit, ...).
     pub fn poll_plant_event(&mut self) -> Option<PlantEvent> {
         use plant::EventKind as K;
-        let e = self.plant.poll_event()?;
+        let e = self.hw.plant.poll_event()?;
         let (phalanx, k_m) = match e.kind {
             K::FirstContact { phalanx, k_m }
             | K::LossOfContact { phalanx, k_m }
@@ -144,18 +141,16 @@ fn micro(v: f64) -> i32 {
 
 impl Hardware for SimBoard {
     fn encoder_count(&mut self) -> u16 {
-        self.plant.encoder_count()
+        self.hw.encoder_count()
     }
     fn current_raw(&mut self) -> u16 {
-        self.plant.current_adc()
+        self.hw.current_raw()
     }
     fn set_duty(&mut self, duty: i16) {
-        self.off = false;
-        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
+        self.hw.set_duty(duty);
     }
     fn bridge_off(&mut self) {
-        self.off = true;
-        self.duty = 0.0;
+        self.hw.bridge_off();
     }
 }
 

@@ -2,85 +2,20 @@
 #![allow(dead_code)]
 
 use grasp::{
-    run_estimate, Controller, ControllerConfig, DriveConfig, EstimateResult, Event, Hardware,
-    State, DUTY_MAX,
+    run_estimate, Controller, ControllerConfig, DriveConfig, EstimateResult, Event, State,
 };
 use plant::{EventKind, Plant, Scene, Truth};
 
 /// Length of the distal phalanx (m), MODEL.md Table 1.
 pub const L2: f64 = 0.075;
 
-/// `grasp::Hardware` on top of the simulated finger. The controller's duty (or bridge off)
-/// is applied for the next control period by [`PlantHw::advance`].
-pub struct PlantHw {
-    /// The plant.
-    pub plant: Plant,
-    duty: f64,
-    off: bool,
-    /// Calls of `bridge_off`.
-    pub bridge_off_calls: u32,
-}
-
-impl PlantHw {
-    /// Wraps a plant (bridge off until the first `set_duty`).
-    pub fn new(plant: Plant) -> Self {
-        Self {
-            plant,
-            duty: 0.0,
-            off: true,
-            bridge_off_calls: 0,
-        }
-    }
-    /// One control period with what the controller commanded.
-    pub fn advance(&mut self) {
-        if self.off {
-            self.plant.step_off();
-        } else {
-            self.plant.step(self.duty);
-        }
-    }
-    /// Whether the bridge is off now.
-    pub fn is_off(&self) -> bool {
-        self.off
-    }
-}
-
-impl Hardware for PlantHw {
-    fn encoder_count(&mut self) -> u16 {
-        self.plant.encoder_count()
-    }
-    fn current_raw(&mut self) -> u16 {
-        self.plant.current_adc()
-    }
-    fn set_duty(&mut self, duty: i16) {
-        assert!(duty.abs() <= DUTY_MAX, "duty {duty} out of range");
-        self.off = false;
-        self.duty = f64::from(duty) / f64::from(DUTY_MAX);
-    }
-    fn bridge_off(&mut self) {
-        self.off = true;
-        self.duty = 0.0;
-        self.bridge_off_calls += 1;
-    }
-}
+/// `grasp::Hardware` on top of the simulated finger (the shared adapter of crates/sim-board).
+pub use sim_board::PlantBoard as PlantHw;
 
 /// The controller's view of a scene's drive and sensors: the nominal constants a firmware
-/// would be built with (no error terms: gain and offset errors stay unknown to it).
+/// would be built with (no error terms), θa,rest of MODEL.md.
 pub fn drive_config(scene: &Scene) -> DriveConfig {
-    let d = &scene.drive;
-    let s = &scene.sensors;
-    DriveConfig {
-        dt_s: scene.dt_s,
-        gear_ratio: d.gear_ratio,
-        efficiency: d.eff_drive,
-        kt_nm_per_a: d.kt_nm_per_a,
-        resistance_ohm: d.r_ohm,
-        bus_v: d.supply_v,
-        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
-        amps_per_code: 1.0 / s.codes_per_amp(),
-        adc_zero_code: s.zero_code(),
-        theta_a_rest_rad: -0.850_360_8,
-    }
+    sim_board::scene_drive(scene, -0.850_360_8)
 }
 
 /// The default controller configuration for a scene, with ΔT_a (N·m).
@@ -206,6 +141,11 @@ pub fn run(
         }
     }
     out.state = c.state();
+    assert_eq!(
+        hw.duty_clamped(),
+        0,
+        "the controller commanded a duty beyond ±DUTY_MAX"
+    );
     out.bridge_off = hw.is_off();
     out.t_end_s = hw.plant.truth().t_s;
     out

@@ -6,7 +6,7 @@
 //! Every tick is recorded ([`TraceRow`]) for the CSV, the plots and `pts estimate`.
 
 use crate::trace::{state_name, TraceRow};
-use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State, DUTY_MAX};
+use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, State};
 use plant::{EventKind, Plant, Scene};
 
 /// Why the estimator refused a measurement: its snake_case kind and a description.
@@ -34,78 +34,7 @@ impl std::fmt::Display for EstError {
     }
 }
 
-/// `grasp::Hardware` on the simulated finger: the duty (or bridge off) applies to the next step.
-pub struct PlantHw {
-    /// The plant.
-    pub plant: Plant,
-    duty: f64,
-    off: bool,
-}
-
-impl PlantHw {
-    /// Wraps a plant, bridge off.
-    pub fn new(plant: Plant) -> Self {
-        PlantHw {
-            plant,
-            duty: 0.0,
-            off: true,
-        }
-    }
-
-    /// One control period with what the controller commanded.
-    pub fn advance(&mut self) {
-        if self.off {
-            self.plant.step_off();
-        } else {
-            self.plant.step(self.duty);
-        }
-    }
-
-    /// The duty in force (−1..1), 0 with the bridge off.
-    pub fn duty(&self) -> f64 {
-        if self.off {
-            0.0
-        } else {
-            self.duty
-        }
-    }
-}
-
-impl Hardware for PlantHw {
-    fn encoder_count(&mut self) -> u16 {
-        self.plant.encoder_count()
-    }
-    fn current_raw(&mut self) -> u16 {
-        self.plant.current_adc()
-    }
-    fn set_duty(&mut self, duty: i16) {
-        self.off = false;
-        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
-    }
-    fn bridge_off(&mut self) {
-        self.off = true;
-        self.duty = 0.0;
-    }
-}
-
-/// The controller's view of a scene: the nominal drive and sensor constants a firmware would
-/// be built with (the plant's gain/offset errors and noise stay unknown to it).
-pub fn drive_config(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
-    let d = &scene.drive;
-    let s = &scene.sensors;
-    DriveConfig {
-        dt_s: scene.dt_s,
-        gear_ratio: d.gear_ratio,
-        efficiency: d.eff_drive,
-        kt_nm_per_a: d.kt_nm_per_a,
-        resistance_ohm: d.r_ohm,
-        bus_v: d.supply_v,
-        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
-        amps_per_code: 1.0 / s.codes_per_amp(),
-        adc_zero_code: s.zero_code(),
-        theta_a_rest_rad,
-    }
-}
+pub use sim_board::{scene_drive as drive_config, PlantBoard as PlantHw};
 
 /// A scene: a built-in name (`plant::scenes::NAMES`) or a TOML scene file.
 pub fn load_scene(name_or_file: &str) -> Result<Scene, String> {

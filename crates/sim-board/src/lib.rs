@@ -1,0 +1,110 @@
+//! The simulated board: `plant::Plant` behind `grasp::Hardware`.
+//!
+//! One adapter for every place that runs the controller against the simulated finger (the
+//! `pts` tool, the host tests, the firmware's host runner and its QEMU board), so they cannot
+//! drift apart. It lives in its own crate because `plant` must not import `grasp` (the judge
+//! shares nothing with the judged) and `grasp` must not import `plant`.
+#![no_std]
+#![forbid(unsafe_code)]
+
+use grasp::{DriveConfig, Hardware, DUTY_MAX};
+use plant::{Plant, Scene};
+
+/// The plant wired to an H-bridge: the duty the controller sets is applied for the next
+/// control period by [`PlantBoard::advance`].
+pub struct PlantBoard {
+    /// The simulated finger.
+    pub plant: Plant,
+    duty: f64,
+    off: bool,
+    bridge_off_calls: u32,
+    duty_clamped: u32,
+}
+
+impl PlantBoard {
+    /// Wraps a plant, bridge off until the first `set_duty`.
+    pub fn new(plant: Plant) -> Self {
+        Self {
+            plant,
+            duty: 0.0,
+            off: true,
+            bridge_off_calls: 0,
+            duty_clamped: 0,
+        }
+    }
+
+    /// One control period with what the controller commanded (coasting when the bridge is off).
+    pub fn advance(&mut self) {
+        if self.off {
+            self.plant.step_off();
+        } else {
+            self.plant.step(self.duty);
+        }
+    }
+
+    /// The duty in force, −1…1 (0 with the bridge off).
+    pub fn duty(&self) -> f64 {
+        if self.off {
+            0.0
+        } else {
+            self.duty
+        }
+    }
+
+    /// Whether the bridge is off now.
+    pub fn is_off(&self) -> bool {
+        self.off
+    }
+
+    /// How many times the controller turned the bridge off.
+    pub fn bridge_off_calls(&self) -> u32 {
+        self.bridge_off_calls
+    }
+
+    /// How many duties outside ±`DUTY_MAX` the controller asked for (clamped; a controller
+    /// bug, which tests assert never happens).
+    pub fn duty_clamped(&self) -> u32 {
+        self.duty_clamped
+    }
+}
+
+impl Hardware for PlantBoard {
+    fn encoder_count(&mut self) -> u16 {
+        self.plant.encoder_count()
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.plant.current_adc()
+    }
+    fn set_duty(&mut self, duty: i16) {
+        if !(-DUTY_MAX..=DUTY_MAX).contains(&duty) {
+            self.duty_clamped = self.duty_clamped.saturating_add(1);
+        }
+        self.off = false;
+        self.duty = f64::from(duty.clamp(-DUTY_MAX, DUTY_MAX)) / f64::from(DUTY_MAX);
+    }
+    fn bridge_off(&mut self) {
+        self.off = true;
+        self.duty = 0.0;
+        self.bridge_off_calls = self.bridge_off_calls.saturating_add(1);
+    }
+}
+
+/// The controller's view of a scene's drive and sensors: the nominal constants a firmware
+/// would be built with (the plant's gain/offset errors and noise stay unknown to it), with
+/// the actuator angle at rest `theta_a_rest_rad` (rad).
+pub fn scene_drive(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
+    let d = &scene.drive;
+    let s = &scene.sensors;
+    DriveConfig {
+        dt_s: scene.dt_s,
+        gear_ratio: d.gear_ratio,
+        efficiency: d.eff_drive,
+        kt_nm_per_a: d.kt_nm_per_a,
+        resistance_ohm: d.r_ohm,
+        bus_v: d.supply_v,
+        encoder_counts_per_rev: f64::from(s.counts_per_turn()),
+        amps_per_code: 1.0 / s.codes_per_amp(),
+        adc_zero_code: s.zero_code(),
+        theta_a_rest_rad,
+    }
+}
