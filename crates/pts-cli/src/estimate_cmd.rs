@@ -3,6 +3,7 @@
 use crate::method::Method;
 use crate::replay::{self, TraceMeta};
 use crate::trace::{self, located_name, quality_name, Trace};
+use grasp::EstimateResult;
 use serde_json::{json, Value};
 use std::io::{Read, Write};
 use std::path::Path;
@@ -73,6 +74,19 @@ pub fn replay_text(
     Ok((tr, rep, dta))
 }
 
+/// Writes an estimate's fields (SI units) into a JSON contact object.
+fn put_result(v: &mut Value, r: &EstimateResult) {
+    // The contact point the estimator used (it may refine the detection's).
+    v["theta_a_c"] = n(f64::from(r.theta_a_c_urad) / 1e6);
+    v["ta_c"] = n(f64::from(r.ta_c_unm) / 1e6);
+    v["phalanx"] = json!(located_name(r.located));
+    v["k2"] = r.k2_um.map_or(Value::Null, |k| n(f64::from(k) / 1e6));
+    v["kc_hat"] = n(f64::from(r.kc_hat_unm_per_rad) / 1e6);
+    v["dta"] = n(f64::from(r.delta_ta_unm) / 1e6);
+    v["dtheta_a"] = n(f64::from(r.delta_theta_a_urad) / 1e6);
+    v["quality"] = json!(quality_name(r.quality));
+}
+
 fn n(x: f64) -> Value {
     crate::eval::num(x)
 }
@@ -114,15 +128,7 @@ pub fn run(
                 });
                 match est {
                     Some(Ok(r)) => {
-                        // The contact point the estimator used (it may refine the detection's).
-                        c["theta_a_c"] = n(f64::from(r.theta_a_c_urad) / 1e6);
-                        c["ta_c"] = n(f64::from(r.ta_c_unm) / 1e6);
-                        c["phalanx"] = json!(located_name(r.located));
-                        c["k2"] = r.k2_um.map_or(Value::Null, |k| n(f64::from(k) / 1e6));
-                        c["kc_hat"] = n(f64::from(r.kc_hat_unm_per_rad) / 1e6);
-                        c["dta"] = n(f64::from(r.delta_ta_unm) / 1e6);
-                        c["dtheta_a"] = n(f64::from(r.delta_theta_a_urad) / 1e6);
-                        c["quality"] = json!(quality_name(r.quality));
+                        put_result(&mut c, r);
                     }
                     Some(Err(e)) => {
                         c["estimate_error"] = json!(e.kind);
@@ -235,14 +241,7 @@ fn run_segmented(
                 });
                 match &c.estimate {
                     Ok(r) => {
-                        v["theta_a_c"] = n(f64::from(r.theta_a_c_urad) / 1e6);
-                        v["ta_c"] = n(f64::from(r.ta_c_unm) / 1e6);
-                        v["phalanx"] = json!(located_name(r.located));
-                        v["k2"] = r.k2_um.map_or(Value::Null, |k| n(f64::from(k) / 1e6));
-                        v["kc_hat"] = n(f64::from(r.kc_hat_unm_per_rad) / 1e6);
-                        v["dta"] = n(f64::from(r.delta_ta_unm) / 1e6);
-                        v["dtheta_a"] = n(f64::from(r.delta_theta_a_urad) / 1e6);
-                        v["quality"] = json!(quality_name(r.quality));
+                        put_result(&mut v, r);
                     }
                     Err(e) => v["estimate_error"] = json!(e.kind),
                 }

@@ -1252,8 +1252,13 @@ fn lm<R: Real>(
 /// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
 /// elsewhere), Jacobi-scaled to a unit diagonal first so that fixed point neither overflows
 /// nor loses the pivots; Gauss–Jordan without pivoting (positive definite).
+/// The active parameters of `set` (their indices and count) and the Jacobi scaling
+/// d_k = 1/√a_kk of the active submatrix; `None` unless every active pivot is positive.
 #[allow(clippy::needless_range_loop)]
-fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; NP]> {
+fn active_scaling<R: Real>(
+    a: &[[R; NP]; NP],
+    set: &[bool; NP],
+) -> Option<([usize; NP], usize, [R; NP])> {
     let z = R::zero();
     let mut idx = [0usize; NP];
     let mut n = 0usize;
@@ -1271,6 +1276,13 @@ fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; 
         }
         d[k] = R::one() / v.sqrt();
     }
+    Some((idx, n, d))
+}
+
+#[allow(clippy::needless_range_loop)]
+fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; NP]> {
+    let z = R::zero();
+    let (idx, n, d) = active_scaling(a, set)?;
     // [B | I] with B = D A D.
     let mut m = [[z; NP]; NP];
     let mut inv = [[z; NP]; NP];
@@ -1318,22 +1330,7 @@ fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; 
 #[allow(clippy::needless_range_loop)]
 fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
     let z = R::zero();
-    let mut idx = [0usize; NP];
-    let mut n = 0usize;
-    for (i, on) in set.iter().enumerate() {
-        if *on {
-            idx[n] = i;
-            n += 1;
-        }
-    }
-    let mut d = [z; NP];
-    for k in 0..n {
-        let v = a[idx[k]][idx[k]];
-        if !(v > z) {
-            return None;
-        }
-        d[k] = R::one() / v.sqrt();
-    }
+    let (idx, n, d) = active_scaling(a, set)?;
     // L (unit lower, below the diagonal) and the pivots D of B = D A D.
     let mut l = [[z; NP]; NP];
     let mut piv = [z; NP];
