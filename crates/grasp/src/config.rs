@@ -365,6 +365,9 @@ impl ControllerConfig {
         let duty_per_unm =
             d.resistance_ohm / (d.torque_per_amp() * d.bus_v) * 1e-6 * DUTY_MAX as f64;
         let q16 = |x: f64| to_i64(x * 65536.0);
+        // The per-tick factors are i32 (one 32×32→64 multiply each in the control loop);
+        // a value that does not fit is a configuration error, not a wrap.
+        let q16_i32 = |x: f64| i32::try_from(q16(x)).map_err(|_| ConfigError::OutOfRange);
         let ramp = |nm_per_s: f64| to_i64(nm_per_s * 1e6 * d.dt_s * 65536.0);
         let step_ramp_q16 = match self.step_shape {
             StepShape::Step => 0,
@@ -376,11 +379,11 @@ impl ControllerConfig {
             adc_zero_code: to_i32(d.adc_zero_code),
             calib_max_offset_codes: i32::from(self.calib_max_offset_codes),
             // θa_µrad = rest + counts × urad_per_count (Q16).
-            urad_per_count_q16: q16(d.rad_per_count() * 1e6),
+            urad_per_count_q16: q16_i32(d.rad_per_count() * 1e6)?,
             theta_a_rest_urad: to_i32(d.theta_a_rest_rad * 1e6),
             // T_µN·m = (code·256 − offset_q8) × unm_per_code (Q16) >> 8.
-            unm_per_code_q16: q16(d.amps_per_code * d.torque_per_amp() * 1e6),
-            ua_per_code_q16: q16(d.amps_per_code * 1e6),
+            unm_per_code_q16: q16_i32(d.amps_per_code * d.torque_per_amp() * 1e6)?,
+            ua_per_code_q16: q16_i32(d.amps_per_code * 1e6)?,
             approach_ramp_q16: ramp(self.approach_rate_nm_per_s),
             approach_max_unm: unm(self.approach_max_nm),
             // µrad per sample.
@@ -410,7 +413,7 @@ impl ControllerConfig {
             min_motion_urad: to_i32(self.min_step_motion_rad * 1e6),
             loss_speed_urad: to_i32(self.loss_speed_rad_s * 1e6 * self.sample_s),
             approach_theta_max_urad: to_i32(self.approach_theta_a_max_rad * 1e6),
-            overcurrent_ua: to_i64(self.overcurrent_a * 1e6),
+            overcurrent_ua: to_i32(self.overcurrent_a * 1e6),
             overcurrent_ticks: secs(self.overcurrent_s),
             stall_ticks: secs(self.stall_s),
             encoder_max_step: i32::from(self.encoder_max_counts_per_tick),
@@ -423,9 +426,9 @@ impl ControllerConfig {
                 * 1e6),
             emf_mismatch_uv: to_i64(self.emf_mismatch_v * 1e6),
             emf_mismatch_samples: to_u32(self.emf_mismatch_s / self.sample_s).max(1),
-            ff_duty_per_unm_q16: q16(duty_per_unm),
-            kp_duty_per_unm_q16: q16(duty_per_unm * self.kp_rel),
-            ki_duty_per_unm_q16: q16(duty_per_unm * self.ki_rel),
+            ff_duty_per_unm_q16: q16_i32(duty_per_unm)?,
+            kp_duty_per_unm_q16: q16_i32(duty_per_unm * self.kp_rel)?,
+            ki_duty_per_unm_q16: q16_i32(duty_per_unm * self.ki_rel)?,
             after_estimate: self.after_estimate,
             estimator: self.estimator,
             dt_ns: to_u32(d.dt_s * 1e9),
@@ -473,13 +476,13 @@ pub struct Params {
     /// Largest accepted offset deviation (codes).
     pub calib_max_offset_codes: i32,
     /// µrad of θa per encoder count, Q16.
-    pub urad_per_count_q16: i64,
+    pub urad_per_count_q16: i32,
     /// θa at the rest pose (µrad).
     pub theta_a_rest_urad: i32,
     /// µN·m of T_a per ADC code, Q16.
-    pub unm_per_code_q16: i64,
+    pub unm_per_code_q16: i32,
     /// µA per ADC code, Q16.
-    pub ua_per_code_q16: i64,
+    pub ua_per_code_q16: i32,
     /// Approach torque ramp, µN·m per tick, Q16.
     pub approach_ramp_q16: i64,
     /// Approach speed limit (µrad per sample).
@@ -535,7 +538,7 @@ pub struct Params {
     /// Loss-of-contact margin (µrad).
     pub loss_margin_urad: i32,
     /// Over-current limit (µA).
-    pub overcurrent_ua: i64,
+    pub overcurrent_ua: i32,
     /// Over-current persistence (ticks).
     pub overcurrent_ticks: u32,
     /// Stall persistence (ticks).
@@ -553,11 +556,11 @@ pub struct Params {
     /// Back-EMF mismatch persistence (samples).
     pub emf_mismatch_samples: u32,
     /// Feed-forward duty per µN·m, Q16.
-    pub ff_duty_per_unm_q16: i64,
+    pub ff_duty_per_unm_q16: i32,
     /// Proportional duty per µN·m of error, Q16.
-    pub kp_duty_per_unm_q16: i64,
+    pub kp_duty_per_unm_q16: i32,
     /// Integral duty per µN·m of error per tick, Q16.
-    pub ki_duty_per_unm_q16: i64,
+    pub ki_duty_per_unm_q16: i32,
     /// Hold or release after the estimate.
     pub after_estimate: AfterEstimate,
     /// Estimator for the request.

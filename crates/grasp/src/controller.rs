@@ -25,9 +25,9 @@ use pts::pathfit::PathFitError;
 use pts::PtsError;
 
 use crate::config::{AfterEstimate, ConfigError, ControllerConfig, Params, HISTORY};
+use crate::control_loop::{ControlLoop, Input, Link, Reference, SampleSums, Setpoint, TorqueQ16};
 use crate::estimate::{EstimateError, EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
-use crate::sensors::{sat_i32, CurrentSense, Encoder};
-use crate::torque_loop::TorqueLoop;
+use crate::sensors::sat_i32;
 use crate::{Hardware, DUTY_MAX};
 
 /// Events queued for logging (oldest dropped first is NOT done: new events are dropped
@@ -305,36 +305,150 @@ impl Ring {
     }
 }
 
-/// Accumulates `sample_ticks` ticks into one averaged [`Sample`].
-#[derive(Clone, Copy, Debug, Default)]
-struct Acc {
-    theta: i64,
-    torque: i64,
-    /// Duty applied over the interval (sum).
-    duty: i64,
-    /// Motor current (sum, µA).
-    ua: i64,
-    n: u32,
-}
-
-/// The grasp controller. Holds no floating-point state; see the crate docs.
+/// The grasp controller for single-threaded use (host runs, tests, the tool): the
+/// [`ControlLoop`] and the [`Supervisor`] joined by their [`Link`], ticked together.
+///
+/// [`Controller::tick`] runs the loop, then the supervisor on whatever the loop handed
+/// over; the supervisor's setpoint takes effect from the next tick — exactly what the
+/// firmware does with the two halves in two tasks ([`Controller::into_parts`]), so host and
+/// target give the same numbers. (One exception: a fault or the end of a release switches
+/// the bridge off in the same tick here, one period earlier than on the target.) Holds no floating-point state; see the crate docs.
 #[derive(Clone, Debug)]
 pub struct Controller {
+    lp: ControlLoop,
+    link: Link,
+    sup: Supervisor,
+}
+
+impl Controller {
+    /// Builds a controller; the configuration is checked and converted once here
+    /// (the only floating-point work of the crate outside the estimator).
+    pub fn new(cfg: ControllerConfig) -> Result<Self, ConfigError> {
+        let p = cfg.params()?;
+        Ok(Self::from_params(p))
+    }
+
+    /// Builds a controller from already converted parameters (no float at all).
+    pub fn from_params(p: Params) -> Self {
+        Self {
+            lp: ControlLoop::new(&p),
+            link: Link::new(),
+            sup: Supervisor::new(&p),
+        }
+    }
+
+    /// The two halves and their mailbox, for running them in two tasks: the loop at the
+    /// sampling rate, the supervisor (and [`Supervisor::take_request`] /
+    /// [`Supervisor::deliver`]) below it.
+    pub fn into_parts(self) -> (ControlLoop, Link, Supervisor) {
+        (self.lp, self.link, self.sup)
+    }
+
+    /// The integer parameters in use.
+    pub fn params(&self) -> &Params {
+        &self.sup.p
+    }
+
+    /// Current state.
+    pub fn state(&self) -> State {
+        self.sup.state
+    }
+
+    /// Ticks since start.
+    pub fn ticks(&self) -> u32 {
+        self.lp.ticks()
+    }
+
+    /// The delivered estimate, once there is one.
+    pub fn result(&self) -> Option<&EstimateResult> {
+        self.sup.result()
+    }
+
+    /// Next queued event, oldest first.
+    pub fn poll_event(&mut self) -> Option<Event> {
+        self.sup.poll_event()
+    }
+
+    /// Events dropped because the queue was full.
+    pub fn events_dropped(&self) -> u32 {
+        self.sup.events_dropped()
+    }
+
+    /// Torque reference (µN·m).
+    pub fn torque_ref_unm(&self) -> i32 {
+        self.lp.torque_ref_unm()
+    }
+
+    /// Forces the safe state from outside (e.g. an application watchdog), with a reason:
+    /// bridge off now.
+    pub fn abort<H: Hardware + ?Sized>(&mut self, hw: &mut H, reason: FaultReason) {
+        self.sup.abort(reason);
+        self.sup.publish(&mut self.link);
+        self.lp.stop(hw);
+    }
+
+    /// Moves the estimate request out, once, after a tick reported `estimate_ready`.
+    /// Hand it to [`run_estimate`](crate::run_estimate) in a low-priority task.
+    pub fn take_request(&mut self) -> Option<EstimateRequest> {
+        self.sup.take_request()
+    }
+
+    /// Gives the estimate back. A refused estimate puts the controller in the safe state
+    /// (bridge off now); ignored unless the controller is waiting for it.
+    pub fn deliver<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        outcome: Result<EstimateResult, EstimateError>,
+    ) {
+        self.sup.deliver(outcome);
+        self.sup.publish(&mut self.link);
+        if !self.link.setpoint.enable {
+            self.lp.stop(hw);
+        }
+    }
+
+    /// One control period: the loop's tick, then the supervisor on what it handed over.
+    pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H) -> TickOutput {
+        let o = self.lp.tick(hw, &mut self.link);
+        let estimate_ready = self.sup.service(&mut self.link);
+        let mut o = o;
+        if !self.link.setpoint.enable && self.lp.driving() {
+            // A fault or the end found by the state machine: bridge off within this tick
+            // (on the target the loop applies it at its next tick, ≤ one period later).
+            self.lp.stop(hw);
+            o.duty = 0;
+            o.torque_ref_unm = 0;
+        }
+        TickOutput {
+            state: self.sup.state,
+            theta_a_urad: o.theta_a_urad,
+            torque_unm: o.torque_unm,
+            torque_ref_unm: o.torque_ref_unm,
+            duty: o.duty,
+            estimate_ready,
+        }
+    }
+}
+
+/// The grasp state machine: the slow half of the controller, one step per finished
+/// sample (every `sample_ticks` ticks), fed through the [`Link`] by the [`ControlLoop`] and
+/// answering with a [`Setpoint`]. On the target it runs in a task below the sampling task.
+#[derive(Clone, Debug)]
+pub struct Supervisor {
     p: Params,
     state: State,
+    /// Tick of the newest input (the loop's tick count).
     tick: u32,
-    enc: Option<Encoder>,
-    cur: CurrentSense,
-    tl: TorqueLoop,
-    /// Torque reference, µN·m ×2¹⁶.
-    t_ref_q16: i64,
+    /// Torque reference at the end of the newest sample (µN·m).
+    t_ref_unm: i32,
+    /// A jump of the reference the loop applies until the next sample (µN·m ×2¹⁶).
+    jump_q16: Option<i64>,
     /// Actuator speed estimate, µrad per sample (over the last two samples).
     vel: i32,
     /// θa of the last two samples (µrad), newest first.
     theta_prev: [Option<i32>; 2],
-    /// Damping term of the last tick (µN·m).
+    /// Damping term for the loop (µN·m).
     damp_unm: i32,
-    acc: Acc,
     hist: Ring,
     armed: bool,
     stiff_count: u32,
@@ -359,12 +473,9 @@ pub struct Controller {
     result: Option<EstimateResult>,
     events: Deque<Event, EVENT_CAPACITY>,
     events_dropped: u32,
-    oc_count: u32,
-    stall_count: u32,
-    last_duty: i16,
     last_counts: i32,
     emf_bad: u32,
-    /// A fault found where the hardware is not at hand; applied at the end of the sample.
+    /// A fault found inside a sample step; applied at its end.
     pending: Option<FaultReason>,
 }
 
@@ -383,28 +494,18 @@ fn stiffness(a: &Sample, b: &Sample) -> i32 {
     )
 }
 
-impl Controller {
-    /// Builds a controller; the configuration is checked and converted once here
-    /// (the only floating-point work of the crate outside the estimator).
-    pub fn new(cfg: ControllerConfig) -> Result<Self, ConfigError> {
-        let p = cfg.params()?;
-        Ok(Self::from_params(p))
-    }
-
-    /// Builds a controller from already converted parameters (no float at all).
-    pub fn from_params(p: Params) -> Self {
+impl Supervisor {
+    /// A state machine before the loop has started.
+    pub fn new(p: &Params) -> Self {
         Self {
-            p,
+            p: *p,
             state: State::Init,
             tick: 0,
-            enc: None,
-            cur: CurrentSense::new(&p),
-            tl: TorqueLoop::new(),
-            t_ref_q16: 0,
+            t_ref_unm: 0,
+            jump_q16: None,
             vel: 0,
             theta_prev: [None, None],
             damp_unm: 0,
-            acc: Acc::default(),
             hist: Ring::new(),
             armed: false,
             stiff_count: 0,
@@ -426,28 +527,15 @@ impl Controller {
             result: None,
             events: Deque::new(),
             events_dropped: 0,
-            oc_count: 0,
-            stall_count: 0,
-            last_duty: 0,
             last_counts: 0,
             emf_bad: 0,
             pending: None,
         }
     }
 
-    /// The integer parameters in use.
-    pub fn params(&self) -> &Params {
-        &self.p
-    }
-
     /// Current state.
     pub fn state(&self) -> State {
         self.state
-    }
-
-    /// Ticks since start.
-    pub fn ticks(&self) -> u32 {
-        self.tick
     }
 
     /// The delivered estimate, once there is one.
@@ -465,22 +553,13 @@ impl Controller {
         self.events_dropped
     }
 
-    /// Torque reference (µN·m).
-    pub fn torque_ref_unm(&self) -> i32 {
-        sat_i32(self.t_ref_q16 >> 16)
-    }
-
     fn emit(&mut self, e: Event) {
         if self.events.push_back(e).is_err() {
             self.events_dropped = self.events_dropped.saturating_add(1);
         }
     }
 
-    fn fault<H: Hardware + ?Sized>(&mut self, hw: &mut H, reason: FaultReason) {
-        hw.bridge_off();
-        self.tl.reset();
-        self.t_ref_q16 = 0;
-        self.last_duty = 0;
+    fn fault(&mut self, reason: FaultReason) {
         if !matches!(self.state, State::Fault(_)) {
             self.state = State::Fault(reason);
             let tick = self.tick;
@@ -488,12 +567,193 @@ impl Controller {
         }
     }
 
-    /// Forces the safe state from outside (e.g. an application watchdog), with a reason.
-    pub fn abort<H: Hardware + ?Sized>(&mut self, hw: &mut H, reason: FaultReason) {
-        self.fault(hw, reason);
+    /// Forces the safe state (the loop switches the bridge off once the setpoint reaches it).
+    pub fn abort(&mut self, reason: FaultReason) {
+        self.fault(reason);
     }
 
-    /// Moves the estimate request out, once, after a tick reported `estimate_ready`.
+    /// What the loop should do until the next sample.
+    pub fn setpoint(&self) -> Setpoint {
+        let p = &self.p;
+        let reference = match self.state {
+            // The ramp pauses while the actuator is at its approach speed limit; it stops
+            // just above the ceiling, where the approach gives up (NoContact).
+            State::Approach if self.vel < p.approach_vmax_urad => Reference::Ramp {
+                target: TorqueQ16::from_unm(p.approach_max_unm.saturating_add(1)),
+                rate: TorqueQ16::new(p.approach_ramp_q16),
+            },
+            State::Seating | State::Step => match self.jump_q16 {
+                Some(v) => Reference::Set(TorqueQ16::new(v)),
+                None => {
+                    let target = TorqueQ16::from_unm(self.target_unm);
+                    // Stage 1 always ramps: the slide must be seen before the reference stops.
+                    let rate_q16 = if self.state == State::Seating && self.seat_stage == 1 {
+                        p.seat_ramp_q16
+                    } else {
+                        p.step_ramp_q16
+                    };
+                    if rate_q16 <= 0 {
+                        Reference::Set(target)
+                    } else {
+                        Reference::Ramp {
+                            target,
+                            rate: TorqueQ16::new(rate_q16),
+                        }
+                    }
+                }
+            },
+            State::Releasing => Reference::Ramp {
+                target: TorqueQ16::new(0),
+                rate: TorqueQ16::new(p.release_ramp_q16),
+            },
+            _ => Reference::Hold,
+        };
+        let enable = matches!(
+            self.state,
+            State::Approach
+                | State::Seating
+                | State::Step
+                | State::Settling
+                | State::Estimating
+                | State::Holding
+                | State::Releasing
+        );
+        if !enable {
+            return Setpoint::OFF;
+        }
+        Setpoint {
+            enable,
+            reference,
+            damp_unm: self.damp_unm,
+        }
+    }
+
+    /// Writes the setpoint and the state into the link.
+    pub fn publish(&self, link: &mut Link) {
+        link.setpoint = self.setpoint();
+        link.state = self.state;
+    }
+
+    /// Handles everything the loop left in the link and publishes the answer. Returns true
+    /// when the estimate request became ready ([`Supervisor::take_request`]).
+    pub fn service(&mut self, link: &mut Link) -> bool {
+        let mut ready = false;
+        while let Some(input) = link.next_input() {
+            ready |= self.handle(input);
+        }
+        self.publish(link);
+        ready
+    }
+
+    /// One input from the loop. Returns true when the estimate request became ready.
+    pub fn handle(&mut self, input: Input) -> bool {
+        match input {
+            Input::Started => {
+                if self.state == State::Init {
+                    self.state = State::Calibrating;
+                }
+                false
+            }
+            Input::Calibrated { tick, offset_q8 } => {
+                self.tick = tick;
+                if matches!(self.state, State::Init | State::Calibrating) {
+                    self.state = State::Approach;
+                    self.phase_tick = tick;
+                    self.emit(Event::Calibrated { tick, offset_q8 });
+                }
+                false
+            }
+            Input::LoopFault { tick, reason } => {
+                self.tick = tick;
+                self.fault(reason);
+                false
+            }
+            Input::Sample(m) => self.on_sums(m),
+        }
+    }
+
+    /// One finished sample: averages, encoder plausibility, the state machine, and the
+    /// supervision that used to run every tick (loss of contact, limits, timeouts).
+    fn on_sums(&mut self, m: SampleSums) -> bool {
+        if matches!(
+            self.state,
+            State::Init | State::Calibrating | State::Done | State::Fault(_)
+        ) {
+            return false;
+        }
+        self.tick = m.tick;
+        self.jump_q16 = None;
+        // 1..=64 (the loop never sums more): no division by zero or overflow.
+        let n = m.n.clamp(1, 64) as i32;
+        // Encoder plausibility: the back-EMF the bridge voltage and the current imply
+        // must match the speed the encoder reports (a stuck or slipping encoder).
+        let dcounts = i64::from(m.counts) - i64::from(self.last_counts);
+        self.last_counts = m.counts;
+        let (duty, ua) = (i64::from(m.duty / n), i64::from(m.ua / n));
+        if let Some(f) = self.emf_check(dcounts, duty, ua) {
+            self.fault(f);
+            return false;
+        }
+        let s = Sample {
+            tick: m.tick,
+            theta_a_urad: m.theta_urad / n,
+            torque_unm: m.torque_unm / n,
+            torque_ref_unm: m.torque_ref_unm,
+        };
+        self.t_ref_unm = m.torque_ref_unm;
+        if let Some(old) = self.theta_prev[1] {
+            let v = (i64::from(s.theta_a_urad) - i64::from(old)) / 2;
+            self.vel = sat_i32(v);
+            self.damp_unm = sat_i32(v.saturating_mul(self.p.damping_q16) >> 16);
+        }
+        self.theta_prev = [Some(s.theta_a_urad), self.theta_prev[0]];
+        self.on_sample(s);
+        if let Some(f) = self.pending.take() {
+            self.fault(f);
+        }
+        if let State::Fault(_) = self.state {
+            return false;
+        }
+        let ready =
+            self.state == State::Estimating && self.request_ready && self.tick == self.phase_tick;
+
+        let (theta, t_ref) = (s.theta_a_urad, s.torque_ref_unm);
+        match self.state {
+            State::Seating | State::Step | State::Settling | State::Estimating | State::Holding => {
+                let fast = self.vel.saturating_abs() > self.p.loss_speed_urad;
+                if fast || self.lost(theta, t_ref).is_some() {
+                    let d = sat_i32(i64::from(theta) - i64::from(self.contact.theta_a_urad));
+                    self.fault(FaultReason::LossOfContact { dtheta_a_urad: d });
+                }
+            }
+            _ => {}
+        }
+        let since = self.tick.wrapping_sub(self.phase_tick);
+        match self.state {
+            State::Approach
+                if t_ref >= self.p.approach_max_unm || theta > self.p.approach_theta_max_urad =>
+            {
+                self.fault(FaultReason::NoContact);
+            }
+            State::Seating | State::Step | State::Settling
+                if self.tick.wrapping_sub(self.contact_tick) > self.p.settle_timeout_ticks =>
+            {
+                self.fault(FaultReason::SettleTimeout);
+            }
+            State::Estimating if since > self.p.estimate_timeout_ticks => {
+                self.fault(FaultReason::EstimateTimeout);
+            }
+            State::Releasing if t_ref <= 0 => {
+                self.state = State::Done;
+                let tick = self.tick;
+                self.emit(Event::Released { tick });
+            }
+            _ => {}
+        }
+        ready && self.state == State::Estimating
+    }
+
+    /// Moves the estimate request out, once, after the step reported it ready.
     /// Hand it to [`run_estimate`](crate::run_estimate) in a low-priority task.
     pub fn take_request(&mut self) -> Option<EstimateRequest> {
         if !self.request_ready || self.state != State::Estimating {
@@ -521,13 +781,9 @@ impl Controller {
     }
 
     /// Gives the estimate back (from the low-priority task). A refused estimate puts the
-    /// controller in the safe state. Ignored unless the controller is waiting for it;
-    /// the hardware is needed to switch the bridge off on a refusal or a release.
-    pub fn deliver<H: Hardware + ?Sized>(
-        &mut self,
-        hw: &mut H,
-        outcome: Result<EstimateResult, EstimateError>,
-    ) {
+    /// state machine in the safe state. Ignored unless it is waiting for one. Publish the
+    /// setpoint afterwards ([`Supervisor::publish`]) so the loop acts on it at once.
+    pub fn deliver(&mut self, outcome: Result<EstimateResult, EstimateError>) {
         if self.state != State::Estimating {
             return;
         }
@@ -551,13 +807,13 @@ impl Controller {
                 // Far stiffer than any single contact on the distal phalanx: the finger is
                 // blocked at two points.
                 let kc_unm_per_rad = self.kc_late_unm_per_rad();
-                self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad });
+                self.fault(FaultReason::SecondContact { kc_unm_per_rad });
             }
             Err(EstimateError::PathFit(PathFitError::SecondContact)) => {
                 let kc_unm_per_rad = self.kc_late_unm_per_rad();
-                self.fault(hw, FaultReason::SecondContact { kc_unm_per_rad });
+                self.fault(FaultReason::SecondContact { kc_unm_per_rad });
             }
-            Err(error) => self.fault(hw, FaultReason::EstimateOutOfRange { error }),
+            Err(error) => self.fault(FaultReason::EstimateOutOfRange { error }),
         }
     }
 
@@ -572,237 +828,10 @@ impl Controller {
         i64::from(self.kc_late_unm_per_rad()) > self.p.second_k_unm_per_rad
     }
 
-    /// One control period. Reads the sensors once, advances the state machine, writes the
-    /// duty (or switches the bridge off). Integer arithmetic only; bounded time.
-    pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H) -> TickOutput {
-        self.tick = self.tick.wrapping_add(1);
-        let raw_enc = hw.encoder_count();
-        let code = hw.current_raw();
-        let mut out = TickOutput {
-            state: self.state,
-            theta_a_urad: 0,
-            torque_unm: 0,
-            torque_ref_unm: 0,
-            duty: 0,
-            estimate_ready: false,
-        };
-        if let State::Fault(_) | State::Done = self.state {
-            hw.bridge_off();
-            return out;
-        }
-        let enc = match self.enc.as_mut() {
-            Some(e) => e,
-            None => {
-                // First tick: the finger is at rest, the reading there is θa,rest.
-                hw.bridge_off();
-                self.state = State::Calibrating;
-                self.enc.insert(Encoder::new(raw_enc))
-            }
-        };
-        if let Err(j) = enc.update(raw_enc, self.p.encoder_max_step) {
-            self.fault(
-                hw,
-                FaultReason::EncoderJump {
-                    step_counts: j.step_counts,
-                },
-            );
-            out.state = self.state;
-            return out;
-        }
-        let theta = enc.theta_a_urad(&self.p);
-        if code > 4095 {
-            self.fault(hw, FaultReason::AdcCode { code });
-            out.state = self.state;
-            return out;
-        }
-        let torque = self.cur.torque_unm(code, &self.p);
-        out.theta_a_urad = theta;
-        out.torque_unm = torque;
-
-        if self.state == State::Calibrating {
-            self.cur.calib_add(code);
-            if self.tick >= self.p.calib_ticks {
-                match self.cur.calib_finish(&self.p) {
-                    Ok(offset_q8) => {
-                        self.state = State::Approach;
-                        self.phase_tick = self.tick;
-                        let tick = self.tick;
-                        self.emit(Event::Calibrated { tick, offset_q8 });
-                    }
-                    Err(offset_q8) => self.fault(hw, FaultReason::AdcOffset { offset_q8 }),
-                }
-            }
-            out.state = self.state;
-            return out;
-        }
-
-        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
-        // so a current chattering around the limit still trips: it trips after
-        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
-        // the ticks are above it.
-        let ua = self.cur.current_ua(code, &self.p);
-        if ua.saturating_abs() > self.p.overcurrent_ua {
-            self.oc_count = self.oc_count.saturating_add(2);
-            if self.oc_count >= self.p.overcurrent_ticks.saturating_mul(2) {
-                self.fault(
-                    hw,
-                    FaultReason::OverCurrent {
-                        current_ua: sat_i32(ua),
-                    },
-                );
-                out.state = self.state;
-                return out;
-            }
-        } else {
-            self.oc_count = self.oc_count.saturating_sub(1);
-        }
-
-        // Reference trajectory of this tick.
-        match self.state {
-            // The ramp pauses while the actuator is at its approach speed limit.
-            State::Approach if self.vel < self.p.approach_vmax_urad => {
-                self.t_ref_q16 = self.t_ref_q16.saturating_add(self.p.approach_ramp_q16);
-            }
-            State::Seating | State::Step => {
-                let target = i64::from(self.target_unm) << 16;
-                // Stage 1 always ramps: the slide must be seen before the reference stops.
-                let r = if self.state == State::Seating && self.seat_stage == 1 {
-                    self.p.seat_ramp_q16
-                } else {
-                    self.p.step_ramp_q16
-                };
-                if r == 0 {
-                    self.t_ref_q16 = target;
-                } else if self.t_ref_q16 < target {
-                    self.t_ref_q16 = self.t_ref_q16.saturating_add(r).min(target);
-                } else {
-                    self.t_ref_q16 = self.t_ref_q16.saturating_sub(r).max(target);
-                }
-            }
-            State::Releasing => {
-                self.t_ref_q16 = self
-                    .t_ref_q16
-                    .saturating_sub(self.p.release_ramp_q16)
-                    .max(0);
-            }
-            _ => {}
-        }
-        let t_ref = self.torque_ref_unm();
-
-        // Sample accumulation (boxcar over `sample_ticks`, no smearing beyond it).
-        self.acc.theta = self.acc.theta.saturating_add(i64::from(theta));
-        self.acc.torque = self.acc.torque.saturating_add(i64::from(torque));
-        self.acc.duty = self.acc.duty.saturating_add(i64::from(self.last_duty));
-        self.acc.ua = self
-            .acc
-            .ua
-            .saturating_add(self.cur.current_ua(code, &self.p));
-        self.acc.n = self.acc.n.saturating_add(1);
-        if self.acc.n >= self.p.sample_ticks {
-            let n = i64::from(self.acc.n);
-            // Encoder plausibility: the back-EMF the bridge voltage and the current imply
-            // must match the speed the encoder reports (a stuck or slipping encoder).
-            let counts = self.enc.map(|e| e.counts()).unwrap_or(0);
-            let dcounts = i64::from(counts) - i64::from(self.last_counts);
-            self.last_counts = counts;
-            if let Some(f) = self.emf_check(dcounts, n) {
-                self.fault(hw, f);
-                out.state = self.state;
-                return out;
-            }
-            let s = Sample {
-                tick: self.tick,
-                theta_a_urad: sat_i32(self.acc.theta.checked_div(n).unwrap_or(0)),
-                torque_unm: sat_i32(self.acc.torque.checked_div(n).unwrap_or(0)),
-                torque_ref_unm: t_ref,
-            };
-            self.acc = Acc::default();
-            if let Some(old) = self.theta_prev[1] {
-                let v = (i64::from(s.theta_a_urad) - i64::from(old)) / 2;
-                self.vel = sat_i32(v);
-                self.damp_unm = sat_i32(v.saturating_mul(self.p.damping_q16) >> 16);
-            }
-            self.theta_prev = [Some(s.theta_a_urad), self.theta_prev[0]];
-            self.on_sample(s);
-            if let Some(f) = self.pending.take() {
-                self.fault(hw, f);
-            }
-            if let State::Fault(_) = self.state {
-                out.state = self.state;
-                return out;
-            }
-        }
-        if self.state == State::Estimating && self.request_ready && !out.estimate_ready {
-            out.estimate_ready = self.tick == self.phase_tick;
-        }
-
-        // Per-tick supervision.
-        match self.state {
-            State::Seating | State::Step | State::Settling | State::Estimating | State::Holding => {
-                let fast = self.vel.saturating_abs() > self.p.loss_speed_urad;
-                if fast || self.lost(theta, t_ref).is_some() {
-                    let d = sat_i32(i64::from(theta) - i64::from(self.contact.theta_a_urad));
-                    self.fault(hw, FaultReason::LossOfContact { dtheta_a_urad: d });
-                }
-            }
-            _ => {}
-        }
-        let since = self.tick.wrapping_sub(self.phase_tick);
-        match self.state {
-            State::Approach
-                if t_ref >= self.p.approach_max_unm || theta > self.p.approach_theta_max_urad =>
-            {
-                self.fault(hw, FaultReason::NoContact);
-            }
-            State::Seating | State::Step | State::Settling
-                if self.tick.wrapping_sub(self.contact_tick) > self.p.settle_timeout_ticks =>
-            {
-                self.fault(hw, FaultReason::SettleTimeout);
-            }
-            State::Estimating if since > self.p.estimate_timeout_ticks => {
-                self.fault(hw, FaultReason::EstimateTimeout);
-            }
-            State::Releasing if self.t_ref_q16 == 0 => {
-                hw.bridge_off();
-                self.tl.reset();
-                self.state = State::Done;
-                let tick = self.tick;
-                self.emit(Event::Released { tick });
-            }
-            _ => {}
-        }
-        if let State::Fault(_) | State::Done = self.state {
-            out.state = self.state;
-            return out;
-        }
-
-        // Torque loop on T_cmd = T_ref − B·ω̂a.
-        let t_cmd = sat_i32(i64::from(t_ref) - i64::from(self.damp_unm));
-        let duty = self.tl.update(t_cmd, torque, &self.p);
-        if self.tl.saturated() {
-            self.stall_count = self.stall_count.saturating_add(1);
-            if self.stall_count >= self.p.stall_ticks {
-                self.fault(hw, FaultReason::Stall);
-                out.state = self.state;
-                return out;
-            }
-        } else {
-            self.stall_count = 0;
-        }
-        let duty = duty.clamp(-DUTY_MAX, DUTY_MAX);
-        hw.set_duty(duty);
-        self.last_duty = duty;
-        out.duty = duty;
-        out.torque_ref_unm = t_ref;
-        out.state = self.state;
-        out
-    }
-
-    /// Back-EMF check over one sample of `n` ticks with `dcounts` encoder counts.
-    fn emf_check(&mut self, dcounts: i64, n: i64) -> Option<FaultReason> {
+    /// Back-EMF check over one sample with `dcounts` encoder counts, mean duty and mean
+    /// current (µA).
+    fn emf_check(&mut self, dcounts: i64, duty: i64, ua: i64) -> Option<FaultReason> {
         let p = &self.p;
-        let duty = self.acc.duty.checked_div(n).unwrap_or(0);
-        let ua = self.acc.ua.checked_div(n).unwrap_or(0);
         let v_uv = duty
             .saturating_mul(p.bus_uv)
             .checked_div(i64::from(DUTY_MAX))
@@ -1030,7 +1059,7 @@ impl Controller {
         // Press gently (T_a,c + δ_seat) while the impact dies out; the first static point.
         let seat = knee.torque_unm.saturating_add(self.p.seat_above_unm);
         self.target_unm = seat;
-        self.t_ref_q16 = i64::from(seat) << 16;
+        self.jump_q16 = Some(i64::from(seat) << 16);
         self.seat_stage = 0;
         self.path.clear();
         self.path_stride = 1;
@@ -1089,7 +1118,7 @@ impl Controller {
         };
         let deficit = |s: &Sample| -> i64 { free(i64::from(s.tick)) - i64::from(s.theta_a_urad) };
         let dn = deficit(&newest);
-        let min = self.p.urad_per_count_q16.saturating_mul(4) >> 16;
+        let min = (i64::from(self.p.urad_per_count_q16) * 4) >> 16;
         if dn < min.max(8) {
             return None;
         }
@@ -1161,7 +1190,7 @@ impl Controller {
             tick: self.tick,
             theta_a_urad: sat_i32(sth.checked_div(n).unwrap_or(0)),
             torque_unm: sat_i32(st.checked_div(n).unwrap_or(0)),
-            torque_ref_unm: self.torque_ref_unm(),
+            torque_ref_unm: self.t_ref_unm,
         })
     }
 

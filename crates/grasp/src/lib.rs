@@ -2,11 +2,15 @@
 //! and shunt current into a contact estimate.
 //!
 //! * [`Hardware`]: what a board (real, QEMU sim, or the host plant adapter) provides.
-//! * [`Controller`]: one [`Controller::tick`] per control period, integer arithmetic only
-//!   (no floating point, no allocation, no panic path: `tests/no_float.rs` checks the
-//!   thumbv6m assembly of [`tick_dyn`]): sensor conditioning ([`sensors`]), the torque loop
-//!   ([`torque_loop`]), the grasp state machine and fault supervision. Every transition is
-//!   an [`Event`].
+//! * The controller in two halves joined by a [`Link`]: the [`ControlLoop`] (one
+//!   [`ControlLoop::tick`] per control period: sensor conditioning ([`sensors`]), the torque
+//!   loop ([`torque_loop`]), the faults that must be caught within a tick, sums per sample; no
+//!   division) and the [`Supervisor`] (the grasp state machine and the rest of the fault
+//!   supervision, one step per finished sample, every [`Event`] of a transition). The firmware
+//!   runs them in two tasks ([`Controller::into_parts`]); [`Controller`] ticks both together
+//!   for the host with the same numbers. Integer arithmetic only, no allocation, no panic
+//!   path: `tests/no_float.rs` checks the thumbv6m assembly of [`tick_dyn`], [`loop_tick_dyn`]
+//!   and [`supervise_dyn`].
 //! * [`offline`]: a recorded grasp that our controller did not produce (any profile, any
 //!   sample rate): contacts found by segmentation, each turned into the same
 //!   [`EstimateRequest`] for [`run_estimate`].
@@ -51,6 +55,7 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod control_loop;
 pub mod controller;
 pub mod estimate;
 pub mod offline;
@@ -58,7 +63,10 @@ pub mod sensors;
 pub mod torque_loop;
 
 pub use config::{AfterEstimate, ControllerConfig, DriveConfig, Estimator, StepShape};
-pub use controller::{Controller, Event, FaultReason, State, TickOutput};
+pub use control_loop::{
+    ControlLoop, Input, Link, LoopOutput, Reference, SampleSums, Setpoint, TorqueQ16,
+};
+pub use controller::{Controller, Event, FaultReason, State, Supervisor, TickOutput};
 pub use estimate::{
     run_estimate, run_estimate_with, EstReal, EstimateError, EstimateRequest, EstimateResult,
     Located, Quality, Sample, PATH_CAPACITY,
@@ -89,4 +97,17 @@ pub trait Hardware {
 #[inline(never)]
 pub fn tick_dyn(controller: &mut Controller, hw: &mut dyn Hardware) -> TickOutput {
     controller.tick(hw)
+}
+
+/// [`ControlLoop::tick`] through a trait object: the sampling task's work on the target, as
+/// one symbol to count and to check for soft-float and panic calls.
+#[inline(never)]
+pub fn loop_tick_dyn(lp: &mut ControlLoop, link: &mut Link, hw: &mut dyn Hardware) -> LoopOutput {
+    lp.tick(hw, link)
+}
+
+/// [`Supervisor::service`] as one symbol (the state machine's step, below the sampling task).
+#[inline(never)]
+pub fn supervise_dyn(sup: &mut Supervisor, link: &mut Link) -> bool {
+    sup.service(link)
 }

@@ -53,7 +53,8 @@ impl Encoder {
 
 /// θa (µrad) of an unwrapped count.
 pub fn counts_to_urad(counts: i32, p: &Params) -> i32 {
-    let rel = i64::from(counts).saturating_mul(p.urad_per_count_q16) >> 16;
+    // One 32×32→64 product, exact.
+    let rel = (i64::from(counts) * i64::from(p.urad_per_count_q16)) >> 16;
     sat_i32(i64::from(p.theta_a_rest_urad) + rel)
 }
 
@@ -84,6 +85,9 @@ impl CurrentSense {
 
     /// Ends the calibration: the offset becomes the mean code. Returns the offset ×256
     /// or `Err` with it when it is further than allowed from the nominal code.
+    // Not inlined: the one division of the sampling task, once at power-up with the bridge
+    // off; tests/no_float.rs checks that nothing else in the loop divides.
+    #[inline(never)]
     pub fn calib_finish(&mut self, p: &Params) -> Result<i32, i32> {
         let n = i64::from(self.n.max(1));
         let q8 = sat_i32(
@@ -109,15 +113,23 @@ impl CurrentSense {
     }
 
     /// Motor current (µA) of one code.
-    pub fn current_ua(&self, code: u16, p: &Params) -> i64 {
-        let d = (i64::from(code) << 8) - i64::from(self.offset_q8);
-        d.saturating_mul(p.ua_per_code_q16) >> 24
+    pub fn current_ua(&self, code: u16, p: &Params) -> i32 {
+        // |Δ| < 2²¹ and an i32 factor: |result| < 2²⁸, the cast is exact.
+        ((i64::from(self.delta_q8(code)) * i64::from(p.ua_per_code_q16)) >> 24) as i32
     }
 
     /// Actuator torque T_a (µN·m) of one code: kt × ratio × efficiency × current.
     pub fn torque_unm(&self, code: u16, p: &Params) -> i32 {
-        let d = (i64::from(code) << 8) - i64::from(self.offset_q8);
-        sat_i32(d.saturating_mul(p.unm_per_code_q16) >> 24)
+        // |Δ| < 2²¹ and an i32 factor: |result| < 2²⁸, the cast is exact.
+        ((i64::from(self.delta_q8(code)) * i64::from(p.unm_per_code_q16)) >> 24) as i32
+    }
+
+    /// code·256 − offset (codes ×256), limited to ±2²¹: a 12-bit code and a plausible offset
+    /// are inside; the limit bounds the products above for any offset.
+    fn delta_q8(&self, code: u16) -> i32 {
+        (i32::from(code) << 8)
+            .saturating_sub(self.offset_q8)
+            .clamp(-(1 << 21), (1 << 21) - 1)
     }
 }
 

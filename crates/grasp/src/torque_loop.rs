@@ -35,23 +35,21 @@ impl TorqueLoop {
     /// Anti-windup: the integrator is itself limited to ±DUTY_MAX and is not advanced
     /// while the output is clamped in the direction the error pushes (conditional integration).
     pub fn update(&mut self, ref_unm: i32, meas_unm: i32, p: &Params) -> i16 {
-        let e = i64::from(ref_unm) - i64::from(meas_unm);
+        // Every product is 25 × 32 bits at most (gains and signals limited where they enter,
+        // one instruction each on Cortex-M4): exact, and the sums of three cannot overflow,
+        // whatever a hand-made `Params` holds. A configuration's gains are ~10³.
+        let g = |k: i32| i64::from(k.clamp(-(1 << 24), (1 << 24) - 1));
+        let e = i64::from(ref_unm.saturating_sub(meas_unm));
         let lim = i64::from(DUTY_MAX) << 16;
-        let ff = i64::from(ref_unm).saturating_mul(p.ff_duty_per_unm_q16);
-        let pe = e.saturating_mul(p.kp_duty_per_unm_q16);
-        let di = e.saturating_mul(p.ki_duty_per_unm_q16);
-        let trial = ff
-            .saturating_add(pe)
-            .saturating_add(self.integ_q16)
-            .saturating_add(di);
+        let ff = i64::from(ref_unm) * g(p.ff_duty_per_unm_q16);
+        let pe = e * g(p.kp_duty_per_unm_q16);
+        let di = e * g(p.ki_duty_per_unm_q16);
+        let trial = ff + pe + self.integ_q16 + di;
         let pushing_out = (trial > lim && di > 0) || (trial < -lim && di < 0);
         if !pushing_out {
-            self.integ_q16 = self.integ_q16.saturating_add(di).clamp(-lim, lim);
+            self.integ_q16 = (self.integ_q16 + di).clamp(-lim, lim);
         }
-        let u = ff
-            .saturating_add(pe)
-            .saturating_add(self.integ_q16)
-            .clamp(-lim, lim);
+        let u = (ff + pe + self.integ_q16).clamp(-lim, lim);
         self.saturated = u == lim || u == -lim;
         // Round to nearest duty unit; |u| ≤ DUTY_MAX·2¹⁶ so the result fits i16.
         let duty = (u + (1 << 15)) >> 16;

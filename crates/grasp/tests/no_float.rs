@@ -1,6 +1,8 @@
 //! The per-tick path does no floating point: grasp is compiled for thumbv6m-none-eabi (no FPU,
 //! every float operation is a call into compiler-builtins) and the call graph of
-//! `grasp::tick_dyn` in the emitted assembly must not reach a soft-float routine.
+//! `grasp::tick_dyn`, `grasp::loop_tick_dyn` (the sampling task) and `grasp::supervise_dyn` in
+//! the emitted assembly must not reach a soft-float routine or a panic; the sampling task
+//! must not reach a division either.
 //!
 //! Uses its own target directory (`target/grasp-thumbv6m`) so it never waits on the outer
 //! build lock. Needs the thumbv6m-none-eabi target (rust-toolchain.toml installs it).
@@ -114,22 +116,80 @@ fn tick_path_calls_no_soft_float_on_thumbv6m() {
         .expect("grasp-*.s emitted");
     let asm = std::fs::read_to_string(&asm_path).expect("read asm");
     let g = call_graph(&asm);
-    let root_fn = g
-        .keys()
-        .find(|k| k.contains("tick_dyn"))
-        .cloned()
-        .expect("tick_dyn in the assembly");
     // Sanity: the checker does see soft float where there is some (the config conversion).
     let all_soft: BTreeSet<&String> = g.values().flatten().filter(|s| is_soft_float(s)).collect();
     assert!(
         !all_soft.is_empty(),
         "the crate has float code (config); the checker must see it"
     );
+    // The composed tick, the sampling task's loop tick and the supervisor's step.
+    for (root_name, no_division) in [
+        ("5grasp8tick_dyn", false),
+        ("5grasp13loop_tick_dyn", true),
+        ("5grasp13supervise_dyn", false),
+    ] {
+        let root_fn = g
+            .keys()
+            .find(|k| k.contains(root_name))
+            .cloned()
+            .unwrap_or_else(|| panic!("{root_name} in the assembly"));
+        let (seen, external) = reachable(&g, &root_fn);
+        let soft: Vec<&String> = seen.iter().filter(|s| is_soft_float(s)).collect();
+        println!(
+            "{root_name}: {} functions in grasp, external callees: {:?}",
+            seen.len() - external.len(),
+            external
+        );
+        assert!(
+            soft.is_empty(),
+            "soft-float routines reachable from {root_name}: {soft:?}"
+        );
+        // Nothing panics: no panic routine is reachable either (release build, so this is
+        // about division by zero, bounds checks and explicit panics, not overflow checks).
+        let panics: Vec<&String> = external.iter().filter(|s| s.contains("panic")).collect();
+        assert!(
+            panics.is_empty(),
+            "panic paths reachable from {root_name}: {panics:?}"
+        );
+        if no_division {
+            // The sampling task divides nothing (Armv6-M has no divider: every division
+            // would be a library call of tens of instructions) except in the calibration's
+            // end, once at power-up with the bridge off (kept out of line for this check).
+            let calib = g
+                .keys()
+                .find(|k| k.contains("calib_finish"))
+                .cloned()
+                .expect("CurrentSense::calib_finish out of line");
+            let (seen, _) = reachable_except(&g, &root_fn, &calib);
+            assert!(seen.len() > 1, "{root_name} has no callees: checker broken");
+            let div: Vec<&String> = seen.iter().filter(|s| s.contains("div")).collect();
+            assert!(
+                div.is_empty(),
+                "division reachable from {root_name}: {div:?}"
+            );
+        }
+    }
+}
+
+/// Functions reachable from `root` (defined in the crate) and the external callees.
+fn reachable(
+    g: &BTreeMap<String, BTreeSet<String>>,
+    root: &str,
+) -> (BTreeSet<String>, BTreeSet<String>) {
+    reachable_except(g, root, "")
+}
+
+/// [`reachable`] without descending into `skip`.
+fn reachable_except(
+    g: &BTreeMap<String, BTreeSet<String>>,
+    root: &str,
+    skip: &str,
+) -> (BTreeSet<String>, BTreeSet<String>) {
     let mut seen = BTreeSet::new();
-    let mut stack = vec![root_fn.clone()];
+    let mut stack = vec![root.to_string()];
     let mut external = BTreeSet::new();
     while let Some(f) = stack.pop() {
-        if !seen.insert(f.clone()) {
+        if f == skip || !seen.insert(f.clone()) {
             continue;
         }
         match g.get(&f) {
@@ -139,21 +199,5 @@ fn tick_path_calls_no_soft_float_on_thumbv6m() {
             }
         }
     }
-    let soft: Vec<&String> = seen.iter().filter(|s| is_soft_float(s)).collect();
-    println!(
-        "tick path: {} functions in grasp, external callees: {:?}",
-        seen.len() - external.len(),
-        external
-    );
-    assert!(
-        soft.is_empty(),
-        "soft-float routines reachable from tick_dyn: {soft:?}"
-    );
-    // Nothing panics: no panic routine is reachable either (release build, so this is
-    // about division by zero, bounds checks and explicit panics, not overflow checks).
-    let panics: Vec<&String> = external.iter().filter(|s| s.contains("panic")).collect();
-    assert!(
-        panics.is_empty(),
-        "panic paths reachable from tick_dyn: {panics:?}"
-    );
+    (seen, external)
 }

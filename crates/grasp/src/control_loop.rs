@@ -1,0 +1,516 @@
+//! The fast half of the controller: one [`ControlLoop::tick`] per control period (10 kHz).
+//!
+//! It reads the sensors, checks what must be caught within a tick (encoder jump, ADC code,
+//! over-current, stall), moves the torque reference as the [`Setpoint`] says, runs the
+//! torque loop and sums θa, T_a, duty and current over `sample_ticks` ticks. A finished sum
+//! goes to the [`Supervisor`](crate::Supervisor) through the [`Link`]; the supervisor (the
+//! grasp state machine, a lower priority on the target) answers with the next [`Setpoint`].
+//!
+//! Why the split: the state machine's work comes in bursts (contact detection scans the
+//! history, seating and settling average windows) of several thousand instructions once per
+//! sample; the loop's own work is a few hundred instructions every tick with no division.
+//! Run together, the burst set the sampling task's worst case; split, the sampling task is
+//! short and constant and the burst runs preemptibly below it.
+//!
+//! Everything here is bounded integer arithmetic: the inputs are clamped where they enter
+//! (the parameters to i32 by [`ControllerConfig::params`](crate::ControllerConfig::params),
+//! the sums over at most 64 ticks of i32 values), so the products are single 32×32→64
+//! multiplies and no saturating 64-bit multiply is needed.
+#![deny(clippy::float_arithmetic)]
+
+use crate::config::Params;
+use crate::controller::FaultReason;
+use crate::sensors::{sat_i32, CurrentSense, Encoder};
+use crate::torque_loop::TorqueLoop;
+use crate::{Hardware, State, DUTY_MAX};
+
+/// Finished sample sums the link holds; when it is full new ones are dropped and counted (the
+/// supervisor empties it every sample; 4 give 4 samples of slack). A power of two.
+pub const LINK_SAMPLES: usize = 4;
+const _: () = assert!(LINK_SAMPLES.is_power_of_two() && LINK_SAMPLES < 128);
+
+/// A torque (µN·m ×2¹⁶) limited to ±2⁴⁶ (±1 073 N·m) when it is made, so the loop can add
+/// and compare references without saturating arithmetic.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TorqueQ16(i64);
+
+impl TorqueQ16 {
+    /// Largest magnitude (µN·m ×2¹⁶).
+    pub const LIMIT: i64 = 1 << 46;
+
+    /// From µN·m ×2¹⁶, limited to ±[`TorqueQ16::LIMIT`].
+    pub const fn new(v: i64) -> Self {
+        Self(if v > Self::LIMIT {
+            Self::LIMIT
+        } else if v < -Self::LIMIT {
+            -Self::LIMIT
+        } else {
+            v
+        })
+    }
+
+    /// From µN·m.
+    pub const fn from_unm(unm: i32) -> Self {
+        Self((unm as i64) << 16)
+    }
+
+    /// The value (µN·m ×2¹⁶).
+    pub const fn get(self) -> i64 {
+        self.0
+    }
+}
+
+/// How the torque reference moves this tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Reference {
+    /// Stays where it is.
+    Hold,
+    /// Moves toward `target` by at most `rate` per tick.
+    Ramp {
+        /// Target.
+        target: TorqueQ16,
+        /// Largest change per tick (negative acts as zero).
+        rate: TorqueQ16,
+    },
+    /// Jumps to this value.
+    Set(TorqueQ16),
+}
+
+/// What the supervisor asks of the loop until it says otherwise.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Setpoint {
+    /// Bridge enabled and torque loop running; `false` is the safe state (bridge off,
+    /// reference and integrator cleared).
+    pub enable: bool,
+    /// The torque reference's motion.
+    pub reference: Reference,
+    /// Virtual damping B·ω̂a subtracted from the reference (µN·m), from the supervisor's
+    /// speed estimate.
+    pub damp_unm: i32,
+}
+
+impl Setpoint {
+    /// Bridge off.
+    pub const OFF: Setpoint = Setpoint {
+        enable: false,
+        reference: Reference::Hold,
+        damp_unm: 0,
+    };
+}
+
+/// Sums of one sample interval, as the loop hands them over (no division in the loop).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SampleSums {
+    /// Tick at the end of the interval.
+    pub tick: u32,
+    /// Ticks summed (`sample_ticks`).
+    pub n: u32,
+    /// Σ θa (µrad), each tick's θa limited to ±2²⁴ µrad (±16.7 rad, beyond any pose).
+    pub theta_urad: i32,
+    /// Σ measured T_a (µN·m), each tick's limited to ±2²⁴ µN·m (±16.7 N·m, beyond the drive).
+    pub torque_unm: i32,
+    /// Σ duty applied over the interval (the duty of the previous tick, as the bridge held it).
+    pub duty: i32,
+    /// Σ motor current (µA), each tick's limited to ±2²⁴ µA (±16.7 A, beyond the drive).
+    pub ua: i32,
+    /// Encoder counts since rest at the end of the interval.
+    pub counts: i32,
+    /// Torque reference at the end of the interval (µN·m).
+    pub torque_ref_unm: i32,
+}
+
+impl SampleSums {
+    /// All zero.
+    pub const ZERO: SampleSums = SampleSums {
+        tick: 0,
+        n: 0,
+        theta_urad: 0,
+        torque_unm: 0,
+        duty: 0,
+        ua: 0,
+        counts: 0,
+        torque_ref_unm: 0,
+    };
+}
+
+/// The two halves' mailbox: the setpoint one way, sums and the loop's own news the other.
+/// On the target it is one RTIC resource; every access is a copy of a few words.
+#[derive(Clone, Debug)]
+pub struct Link {
+    /// What the loop applies from its next tick (written by the supervisor).
+    pub setpoint: Setpoint,
+    /// The supervisor's state, published for the sampling task (telemetry, end of run).
+    pub state: State,
+    /// A small ring (power-of-two capacity: the index is a mask, the push a few
+    /// instructions; heapless' Deque cost the sampling task ~40 more per sample).
+    samples: [SampleSums; LINK_SAMPLES],
+    head: u8,
+    len: u8,
+    samples_dropped: u32,
+    started: bool,
+    calibrated: Option<(u32, i32)>,
+    fault: Option<(u32, FaultReason)>,
+}
+
+/// What the loop hands the supervisor, in the order [`Link::next_input`] gives it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Input {
+    /// The loop took its first reading (θa at rest) and is calibrating the current offset.
+    Started,
+    /// Calibration done: the loop drives as soon as the setpoint enables it.
+    Calibrated {
+        /// Tick.
+        tick: u32,
+        /// Zero-current ADC code ×256.
+        offset_q8: i32,
+    },
+    /// A finished sample.
+    Sample(SampleSums),
+    /// The loop's own fault (bridge already off).
+    LoopFault {
+        /// Tick.
+        tick: u32,
+        /// Why.
+        reason: FaultReason,
+    },
+}
+
+impl Default for Link {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Link {
+    /// Empty, bridge off.
+    pub const fn new() -> Self {
+        Self {
+            setpoint: Setpoint::OFF,
+            state: State::Init,
+            samples: [SampleSums::ZERO; LINK_SAMPLES],
+            head: 0,
+            len: 0,
+            samples_dropped: 0,
+            started: false,
+            calibrated: None,
+            fault: None,
+        }
+    }
+
+    /// Whether [`Link::next_input`] has something.
+    pub fn has_input(&self) -> bool {
+        self.started || self.calibrated.is_some() || self.len > 0 || self.fault.is_some()
+    }
+
+    /// The next input for the supervisor: start, calibration, samples oldest first, and the
+    /// loop's fault after the samples that preceded it. Each latched item is given once.
+    pub fn next_input(&mut self) -> Option<Input> {
+        if core::mem::take(&mut self.started) {
+            return Some(Input::Started);
+        }
+        if let Some((tick, offset_q8)) = self.calibrated.take() {
+            return Some(Input::Calibrated { tick, offset_q8 });
+        }
+        if self.len > 0 {
+            let s = self.samples[usize::from(self.head) & (LINK_SAMPLES - 1)];
+            self.head = self.head.wrapping_add(1);
+            self.len -= 1;
+            return Some(Input::Sample(s));
+        }
+        self.fault
+            .take()
+            .map(|(tick, reason)| Input::LoopFault { tick, reason })
+    }
+
+    /// Samples the loop could not hand over (link full).
+    pub fn samples_dropped(&self) -> u32 {
+        self.samples_dropped
+    }
+
+    fn push_sample(&mut self, s: SampleSums) {
+        if usize::from(self.len) >= LINK_SAMPLES {
+            self.samples_dropped = self.samples_dropped.saturating_add(1);
+            return;
+        }
+        self.samples[usize::from(self.head.wrapping_add(self.len)) & (LINK_SAMPLES - 1)] = s;
+        self.len += 1;
+    }
+}
+
+/// What one loop tick measured and did (for telemetry).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LoopOutput {
+    /// The tick number.
+    pub tick: u32,
+    /// θa (µrad), absolute model angle.
+    pub theta_a_urad: i32,
+    /// Measured T_a (µN·m), one sample.
+    pub torque_unm: i32,
+    /// Torque reference (µN·m); 0 with the bridge off.
+    pub torque_ref_unm: i32,
+    /// Duty applied (±DUTY_MAX), 0 with the bridge off.
+    pub duty: i16,
+    /// A finished sample went into the link this tick: run the supervisor.
+    pub sample_ready: bool,
+    /// The loop switched the bridge off this tick (its own fault, or the setpoint).
+    pub went_off: bool,
+    /// Calibration finished this tick (the supervisor starts the approach).
+    pub calibrated: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Init,
+    Calibrating,
+    Running,
+    /// The loop's own fault: latched, bridge off for good.
+    Tripped,
+}
+
+/// Sums over one sample interval: at most 64 ticks (the configuration's limit) of values
+/// limited to ±2²⁴, so i32 sums cannot overflow.
+#[derive(Clone, Copy, Debug, Default)]
+struct Acc {
+    theta: i32,
+    torque: i32,
+    duty: i32,
+    ua: i32,
+    n: u32,
+}
+
+/// Limits a per-tick value to ±2²⁴ before it is summed (one instruction on Cortex-M4).
+#[inline(always)]
+fn lim24(v: i32) -> i32 {
+    v.clamp(-(1 << 24), (1 << 24) - 1)
+}
+
+/// The control loop's state. Integer only, no division, bounded time.
+#[derive(Clone, Debug)]
+pub struct ControlLoop {
+    p: Params,
+    phase: Phase,
+    tick: u32,
+    enc: Encoder,
+    cur: CurrentSense,
+    tl: TorqueLoop,
+    /// Torque reference, µN·m ×2¹⁶.
+    t_ref_q16: i64,
+    /// Whether the bridge is being driven (last setpoint enabled).
+    driving: bool,
+    acc: Acc,
+    oc_count: u32,
+    stall_count: u32,
+    last_duty: i16,
+}
+
+impl ControlLoop {
+    /// A loop before its first tick (bridge off; the first reading is θa at rest).
+    pub fn new(p: &Params) -> Self {
+        let p = *p;
+        Self {
+            p,
+            phase: Phase::Init,
+            tick: 0,
+            enc: Encoder::new(0),
+            cur: CurrentSense::new(&p),
+            tl: TorqueLoop::new(),
+            t_ref_q16: 0,
+            driving: false,
+            acc: Acc::default(),
+            oc_count: 0,
+            stall_count: 0,
+            last_duty: 0,
+        }
+    }
+
+    /// Ticks since start.
+    pub fn ticks(&self) -> u32 {
+        self.tick
+    }
+
+    /// Torque reference (µN·m).
+    pub fn torque_ref_unm(&self) -> i32 {
+        sat_i32(self.t_ref_q16 >> 16)
+    }
+
+    /// Whether the loop is driving the bridge (its last tick had an enabled setpoint).
+    pub fn driving(&self) -> bool {
+        self.driving
+    }
+
+    /// Calibrated zero-current offset (ADC code ×256).
+    pub fn offset_q8(&self) -> i32 {
+        self.cur.offset_q8()
+    }
+
+    /// Bridge off now, reference and integrator cleared (the setpoint still decides
+    /// whether the next tick drives again).
+    pub fn stop<H: Hardware + ?Sized>(&mut self, hw: &mut H) {
+        hw.bridge_off();
+        self.tl.reset();
+        self.t_ref_q16 = 0;
+        self.last_duty = 0;
+        self.acc = Acc::default();
+        self.driving = false;
+    }
+
+    fn trip<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        link: &mut Link,
+        reason: FaultReason,
+        out: &mut LoopOutput,
+    ) {
+        self.stop(hw);
+        self.phase = Phase::Tripped;
+        if link.fault.is_none() {
+            link.fault = Some((self.tick, reason));
+        }
+        out.went_off = true;
+    }
+
+    /// One control period: sensors, fast supervision, reference, torque loop, sums.
+    pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H, link: &mut Link) -> LoopOutput {
+        self.tick = self.tick.wrapping_add(1);
+        let raw_enc = hw.encoder_count();
+        let code = hw.current_raw();
+        let mut out = LoopOutput {
+            tick: self.tick,
+            ..LoopOutput::default()
+        };
+        match self.phase {
+            Phase::Tripped => {
+                hw.bridge_off();
+                return out;
+            }
+            Phase::Init => {
+                // First tick: the finger is at rest, the reading there is θa,rest.
+                hw.bridge_off();
+                self.enc = Encoder::new(raw_enc);
+                self.phase = Phase::Calibrating;
+                link.started = true;
+            }
+            _ => {}
+        }
+        if let Err(j) = self.enc.update(raw_enc, self.p.encoder_max_step) {
+            let reason = FaultReason::EncoderJump {
+                step_counts: j.step_counts,
+            };
+            self.trip(hw, link, reason, &mut out);
+            return out;
+        }
+        let theta = self.enc.theta_a_urad(&self.p);
+        if code > 4095 {
+            self.trip(hw, link, FaultReason::AdcCode { code }, &mut out);
+            return out;
+        }
+        let torque = self.cur.torque_unm(code, &self.p);
+        out.theta_a_urad = theta;
+        out.torque_unm = torque;
+
+        if self.phase == Phase::Calibrating {
+            self.cur.calib_add(code);
+            if self.tick >= self.p.calib_ticks {
+                match self.cur.calib_finish(&self.p) {
+                    Ok(offset_q8) => {
+                        self.phase = Phase::Running;
+                        link.calibrated = Some((self.tick, offset_q8));
+                        out.calibrated = true;
+                    }
+                    Err(offset_q8) => {
+                        self.trip(hw, link, FaultReason::AdcOffset { offset_q8 }, &mut out)
+                    }
+                }
+            }
+            return out;
+        }
+
+        let sp = link.setpoint;
+        if !sp.enable {
+            if self.driving {
+                out.went_off = true;
+            }
+            self.stop(hw);
+            return out;
+        }
+        self.driving = true;
+
+        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
+        // so a current chattering around the limit still trips: it trips after
+        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
+        // the ticks are above it.
+        let ua = self.cur.current_ua(code, &self.p);
+        if ua.unsigned_abs() > self.p.overcurrent_ua.unsigned_abs() {
+            self.oc_count = self.oc_count.saturating_add(2);
+            if self.oc_count >= self.p.overcurrent_ticks.saturating_mul(2) {
+                let reason = FaultReason::OverCurrent { current_ua: ua };
+                self.trip(hw, link, reason, &mut out);
+                return out;
+            }
+        } else {
+            self.oc_count = self.oc_count.saturating_sub(1);
+        }
+
+        // All three within ±2⁴⁶ (TorqueQ16): plain arithmetic cannot overflow.
+        self.t_ref_q16 = match sp.reference {
+            Reference::Hold => self.t_ref_q16,
+            Reference::Set(v) => v.get(),
+            Reference::Ramp { target, rate } => {
+                let r = rate.get().max(0);
+                self.t_ref_q16 + (target.get() - self.t_ref_q16).max(-r).min(r)
+            }
+        };
+        let t_ref = (self.t_ref_q16 >> 16) as i32;
+
+        // Sums over the sample interval (see `Acc`). A hand-made `Params` with more than 64
+        // ticks per sample is cut at 64 so the sums stay exact.
+        self.acc.theta += lim24(theta);
+        self.acc.torque += lim24(torque);
+        self.acc.duty += i32::from(self.last_duty);
+        self.acc.ua += lim24(ua);
+        self.acc.n += 1;
+        if self.acc.n >= self.p.sample_ticks.min(64) {
+            link.push_sample(SampleSums {
+                tick: self.tick,
+                n: self.acc.n,
+                theta_urad: self.acc.theta,
+                torque_unm: self.acc.torque,
+                duty: self.acc.duty,
+                ua: self.acc.ua,
+                counts: self.enc.counts(),
+                torque_ref_unm: t_ref,
+            });
+            self.acc.theta = 0;
+            self.acc.torque = 0;
+            self.acc.duty = 0;
+            self.acc.ua = 0;
+            self.acc.n = 0;
+            out.sample_ready = true;
+        }
+
+        // Torque loop on T_cmd = T_ref − B·ω̂a.
+        let t_cmd = t_ref.saturating_sub(sp.damp_unm);
+        let duty = self.tl.update(t_cmd, torque, &self.p);
+        if self.tl.saturated() {
+            self.stall_count = self.stall_count.saturating_add(1);
+            if self.stall_count >= self.p.stall_ticks {
+                self.trip(hw, link, FaultReason::Stall, &mut out);
+                return out;
+            }
+        } else {
+            self.stall_count = 0;
+        }
+        let duty = duty.clamp(-DUTY_MAX, DUTY_MAX);
+        hw.set_duty(duty);
+        self.last_duty = duty;
+        out.duty = duty;
+        out.torque_ref_unm = t_ref;
+        out
+    }
+}
