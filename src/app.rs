@@ -1,27 +1,38 @@
-//! The RTIC application: three priorities, one job each.
+//! The RTIC application: four priorities, one job each.
 //!
-//! | prio | task        | kind                    | work                                                  |
-//! |------|-------------|-------------------------|-------------------------------------------------------|
-//! | 3    | `sample`    | hardware, `ADC` line, 10 kHz | read encoder + current, `Controller::tick`, set the duty, forward events |
-//! | 2    | `estimate`  | software (async)        | `take_request`, `run_estimate`, `deliver`             |
-//! | 1    | `telemetry` | software (async)        | defmt: every event, θa/T_a/state decimated to 50 Hz   |
+//! | prio | task        | kind                         | work                                             |
+//! |------|-------------|------------------------------|--------------------------------------------------|
+//! | 4    | `sample`    | hardware, `ADC` line, 10 kHz | read encoder + current, `ControlLoop::tick` (torque loop, fast faults), set the duty; decimated samples |
+//! | 3    | `supervise` | software (async)             | `Supervisor::handle` on what the loop handed over (the grasp state machine, once per 4 ms sample), forward events |
+//! | 2    | `estimate`  | software (async)             | `take_request`, `run_estimate`, `deliver`        |
+//! | 1    | `telemetry` | software (async)             | defmt: every event, θa/T_a/state decimated to 50 Hz |
 //!
-//! The control task never waits: it hands data on with `try_send` and counts what a full
-//! queue drops. Controller and board are shared with the estimate task only, which locks them
-//! for `take_request` and `deliver` (a copy of the request, a few hundred cycles).
+//! The loop and the state machine meet only in the [`grasp::Link`]: the loop leaves sample
+//! sums there and applies the setpoint it finds; the supervisor takes the sums and writes the
+//! setpoint. Every lock of it is a copy of a few words, so the 10 kHz task never waits for the
+//! state machine's bursts (contact detection scans its history) or for the estimate. Producers
+//! of telemetry only `try_send` and count what a full queue drops.
 
 #[cfg_attr(
     feature = "qemu",
-    rtic::app(device = crate::sim::pac, dispatchers = [UART0RX, UART0TX], peripherals = false)
+    rtic::app(
+        device = crate::sim::pac,
+        dispatchers = [UART0RX, UART0TX, UART1RX],
+        peripherals = false
+    )
 )]
 #[cfg_attr(
     not(feature = "qemu"),
-    rtic::app(device = stm32f4xx_hal::pac, dispatchers = [SPI2, SPI3], peripherals = true)
+    rtic::app(
+        device = stm32f4xx_hal::pac,
+        dispatchers = [SPI2, SPI3, SPI4],
+        peripherals = true
+    )
 )]
 mod app {
     use core::sync::atomic::Ordering;
 
-    use grasp::Controller;
+    use grasp::{ControlLoop, Controller, Link, State, Supervisor};
     use rtic_sync::channel::{Receiver, Sender};
     use rtic_sync::make_channel;
 
@@ -31,13 +42,17 @@ mod app {
 
     #[shared]
     struct Shared {
-        ctrl: Controller,
-        board: Board,
+        link: Link,
+        sup: Supervisor,
     }
 
     #[local]
     struct Local {
+        lp: ControlLoop,
+        board: Board,
         tel_tx: Sender<'static, Msg, QUEUE>,
+        sup_tx: Sender<'static, Msg, QUEUE>,
+        est_tx: Sender<'static, Msg, QUEUE>,
         decimation: u32,
     }
 
@@ -73,8 +88,19 @@ mod app {
                 platform::halt(4)
             }
         };
+        let (lp, link, sup) = ctrl.into_parts();
         telemetry::spawn(tel_rx).ok();
-        (Shared { ctrl, board }, Local { tel_tx, decimation })
+        (
+            Shared { link, sup },
+            Local {
+                lp,
+                board,
+                sup_tx: tel_tx.clone(),
+                est_tx: tel_tx.clone(),
+                tel_tx,
+                decimation,
+            },
+        )
     }
 
     /// Sleep between interrupts (on QEMU with `-icount sleep=off` the virtual clock then jumps
@@ -89,73 +115,77 @@ mod app {
     /// The sampling + torque loop, 10 kHz (the controller's `dt_s`). Board: the ADC
     /// end-of-conversion of the current sample triggered by the PWM timer in the middle of
     /// every other 20 kHz PWM period. QEMU: the same line, pended by SysTick (src/sim).
-    #[task(binds = ADC, priority = 3, shared = [ctrl, board], local = [tel_tx, decimation, done: bool = false])]
+    #[task(
+        binds = ADC,
+        priority = 4,
+        shared = [link],
+        local = [lp, board, tel_tx, decimation, done: bool = false, last_state: State = State::Init]
+    )]
     fn sample(cx: sample::Context) {
         let t0 = platform::stamp();
         let tel = cx.local.tel_tx;
-        let done = cx.local.done;
-        let decimation = *cx.local.decimation;
-        let mut ctrl = cx.shared.ctrl;
-        let mut board = cx.shared.board;
-        // Highest priority: these locks are free (no other task of this priority).
-        board.lock(|board| {
-            board.ack_sample();
-            let tick = tm::TICKS.fetch_add(1, Ordering::Relaxed) + 1;
-            crate::fault::inject(tick);
-            let out = ctrl.lock(|ctrl| {
-                let out = ctrl.tick(board);
-                while let Some(ev) = ctrl.poll_event() {
-                    let settled = matches!(ev, grasp::Event::Settled { .. });
-                    send(tel, Msg::Event(ev));
-                    if settled {
-                        if let Some(t) = board.truth("settled") {
-                            send(tel, Msg::Truth(t));
-                        }
-                    }
-                }
-                out
-            });
-            let t_ctrl = platform::stamp();
-            tm::record_work(tick, t_ctrl.wrapping_sub(t0));
-            if out.estimate_ready && estimate::spawn().is_err() {
-                tm::dropped();
-            }
-            let finished = ctl::finished(out.state);
-            if tick % decimation == 0 || finished {
-                // Samples are best effort: a full queue keeps its room for events.
-                if !tel.is_full() {
-                    let _ = tel.try_send(Msg::Sample {
-                        tick,
-                        theta_a_urad: out.theta_a_urad,
-                        torque_unm: out.torque_unm,
-                        torque_ref_unm: out.torque_ref_unm,
-                        duty: out.duty,
-                        state: out.state,
-                    });
-                }
-            }
-            board.advance();
-            while let Some(p) = board.poll_plant_event() {
-                send(tel, Msg::Plant(p));
-            }
-            // The END report, once. The loop itself goes on: on the board the finger keeps
-            // holding (or stays safe); QEMU exits when the telemetry task has logged it.
-            if finished && !*done {
-                *done = true;
-                if let Some(t) = board.truth("end") {
-                    send(tel, Msg::Truth(t));
-                }
-                send(
-                    tel,
-                    Msg::Done(Done {
-                        status: ctl::status(out.state),
-                        state: out.state,
-                        bridge_safe: board.is_safe(),
-                        ticks: tick,
-                    }),
-                );
-            }
+        let board = cx.local.board;
+        let lp = cx.local.lp;
+        let mut link = cx.shared.link;
+        board.ack_sample();
+        let tick = tm::TICKS.fetch_add(1, Ordering::Relaxed) + 1;
+        crate::fault::inject(tick);
+        // Highest priority: this lock is free (no other task of this priority).
+        let (out, state, input) = link.lock(|l| {
+            let out = lp.tick(board, l);
+            (out, l.state, l.has_input())
         });
+        tm::record_work(tick, platform::stamp().wrapping_sub(t0));
+        // Asked again every tick while input waits: a supervisor still running takes it in
+        // its loop, else the next tick's spawn starts it.
+        if input && supervise::spawn().is_err() {
+            tm::SUP_BUSY.fetch_add(1, Ordering::Relaxed);
+        }
+        // The plant's truth once the step has settled (the supervisor has just published it).
+        if state == State::Estimating && *cx.local.last_state != State::Estimating {
+            if let Some(t) = board.truth("settled") {
+                send(tel, Msg::Truth(t));
+            }
+        }
+        *cx.local.last_state = state;
+        let finished = ctl::finished(state);
+        if tick % *cx.local.decimation == 0 || finished {
+            // Samples are best effort: a full queue keeps its room for events.
+            if !tel.is_full() {
+                let _ = tel.try_send(Msg::Sample {
+                    tick,
+                    theta_a_urad: out.theta_a_urad,
+                    torque_unm: out.torque_unm,
+                    torque_ref_unm: out.torque_ref_unm,
+                    duty: out.duty,
+                    state,
+                });
+            }
+        }
+        board.advance();
+        while let Some(p) = board.poll_plant_event() {
+            send(tel, Msg::Plant(p));
+        }
+        // The END report, once, when the state machine is through and (for a fault or the
+        // end of a release) the loop has switched the bridge off. The loop itself goes on: on
+        // the board the finger keeps holding (or stays safe); QEMU exits when the telemetry
+        // task has logged it.
+        let off_needed = matches!(state, State::Fault(_) | State::Done);
+        if finished && !*cx.local.done && (!off_needed || board.is_safe()) {
+            *cx.local.done = true;
+            if let Some(t) = board.truth("end") {
+                send(tel, Msg::Truth(t));
+            }
+            send(
+                tel,
+                Msg::Done(Done {
+                    status: ctl::status(state),
+                    state,
+                    bridge_safe: board.is_safe(),
+                    ticks: tick,
+                }),
+            );
+        }
         platform::rearm_sampling();
         tm::PREEMPT.fetch_add(platform::stamp().wrapping_sub(t0), Ordering::Relaxed);
     }
@@ -166,14 +196,41 @@ mod app {
         }
     }
 
-    /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample`.
-    #[task(priority = 2, shared = [ctrl, board])]
-    async fn estimate(cx: estimate::Context) {
-        let mut ctrl = cx.shared.ctrl;
-        let mut board = cx.shared.board;
+    /// The grasp state machine on everything the loop left in the link, then the new
+    /// setpoint; its events go to telemetry. Preempted by `sample` only.
+    #[task(priority = 3, shared = [link, sup], local = [sup_tx])]
+    async fn supervise(cx: supervise::Context) {
+        let mut link = cx.shared.link;
+        let mut sup = cx.shared.sup;
+        let tel = cx.local.sup_tx;
         let t0 = platform::stamp();
         let p0 = tm::PREEMPT.load(Ordering::Relaxed);
-        let Some(req) = ctrl.lock(|c| c.take_request()) else {
+        while let Some(input) = link.lock(|l| l.next_input()) {
+            let ready = sup.lock(|s| s.handle(input));
+            // The answer reaches the loop before its next tick.
+            (&mut link, &mut sup).lock(|l, s| s.publish(l));
+            while let Some(ev) = sup.lock(|s| s.poll_event()) {
+                send(tel, Msg::Event(ev));
+            }
+            if ready && estimate::spawn().is_err() {
+                tm::dropped();
+            }
+        }
+        let work = platform::stamp()
+            .wrapping_sub(t0)
+            .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
+        let _ = tm::record_max(&tm::SUP_WORK_MAX, work);
+    }
+
+    /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample` and
+    /// `supervise`.
+    #[task(priority = 2, shared = [sup, link], local = [est_tx])]
+    async fn estimate(cx: estimate::Context) {
+        let mut sup = cx.shared.sup;
+        let mut link = cx.shared.link;
+        let t0 = platform::stamp();
+        let p0 = tm::PREEMPT.load(Ordering::Relaxed);
+        let Some(req) = sup.lock(|s| s.take_request()) else {
             return;
         };
         let result = ctl::run_estimate(&req);
@@ -181,7 +238,13 @@ mod app {
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
         let _ = tm::record_max(&tm::EST_WORK_MAX, work);
-        (&mut ctrl, &mut board).lock(|c, b| c.deliver(b, result));
+        (&mut sup, &mut link).lock(|s, l| {
+            s.deliver(result);
+            s.publish(l);
+        });
+        while let Some(ev) = sup.lock(|s| s.poll_event()) {
+            send(cx.local.est_tx, Msg::Event(ev));
+        }
     }
 
     #[task(priority = 1)]

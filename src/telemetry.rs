@@ -25,6 +25,12 @@ pub static WORK_SUM: AtomicU32 = AtomicU32::new(0);
 pub static PREEMPT: AtomicU32 = AtomicU32::new(0);
 /// Worst estimate-task work, same units.
 pub static EST_WORK_MAX: AtomicU32 = AtomicU32::new(0);
+/// Worst supervisor-task run (the state machine on one or more samples), same units,
+/// sampling-task preemption subtracted.
+pub static SUP_WORK_MAX: AtomicU32 = AtomicU32::new(0);
+/// Ticks that found input waiting while the supervisor task was still pending or running
+/// (it takes that input in the same run; nothing is lost unless the link overflows).
+pub static SUP_BUSY: AtomicU32 = AtomicU32::new(0);
 
 defmt::timestamp!("{=u32}", TICKS.load(Ordering::Relaxed));
 
@@ -169,7 +175,7 @@ pub fn log(msg: &Msg) {
             t.k_um
         ),
         Msg::Done(d) => defmt::info!(
-            "END status={=i32} state={} bridge_safe={=bool} ticks={=u32} dropped={=u32} work_max={=u32} work_max_tick={=u32} work_mean_x100={=u32} est_work_max={=u32}",
+            "END status={=i32} state={} bridge_safe={=bool} ticks={=u32} dropped={=u32} work_max={=u32} work_max_tick={=u32} work_mean_x100={=u32} est_work_max={=u32} sup_work_max={=u32} sup_busy={=u32}",
             d.status,
             d.state,
             d.bridge_safe,
@@ -178,7 +184,9 @@ pub fn log(msg: &Msg) {
             WORK_MAX.load(Ordering::Relaxed),
             WORK_MAX_TICK.load(Ordering::Relaxed),
             (u64::from(WORK_SUM.load(Ordering::Relaxed)) * 100 / u64::from(d.ticks.max(1))) as u32,
-            EST_WORK_MAX.load(Ordering::Relaxed)
+            EST_WORK_MAX.load(Ordering::Relaxed),
+            SUP_WORK_MAX.load(Ordering::Relaxed),
+            SUP_BUSY.load(Ordering::Relaxed)
         ),
     }
 }

@@ -9,7 +9,7 @@
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of_mut, read_volatile, write_volatile};
 
-use grasp::{Controller, ControllerConfig, Hardware};
+use grasp::{ControlLoop, Controller, ControllerConfig, Hardware, Link, Supervisor};
 use pts::fixed::{Fx16, Fx24, Fx32};
 use pts::table::FreeTable;
 use pts::{Estimate, Finger, Model, Phalanx, PtsError, Real};
@@ -163,13 +163,21 @@ struct State {
     t32: FreeTable<f32>,
     tx32: FreeTable<Fx32>,
     tx16: FreeTable<Fx16>,
-    ctl: Controller,
+    ctl: Parts,
     mock: Mock,
+}
+
+/// The controller split as the firmware runs it: the loop (sampling task) and the
+/// supervisor (state machine, lower priority), joined by their link.
+struct Parts {
+    lp: ControlLoop,
+    link: Link,
+    sup: Supervisor,
 }
 
 static mut STATE: MaybeUninit<State> = MaybeUninit::uninit();
 
-fn controller() -> Result<(Controller, Mock), ()> {
+fn controller() -> Result<(Parts, Mock), ()> {
     // As grasp's quasi-static mock test (crates/grasp/tests/mock.rs).
     let cfg = ControllerConfig {
         damping_nm_s_per_rad: 0.0,
@@ -181,7 +189,8 @@ fn controller() -> Result<(Controller, Mock), ()> {
     }
     .with_delta_ta(0.5);
     let mock = Mock::new(&cfg.drive);
-    Ok((Controller::new(cfg).map_err(|_| ())?, mock))
+    let (lp, link, sup) = Controller::new(cfg).map_err(|_| ())?.into_parts();
+    Ok((Parts { lp, link, sup }, mock))
 }
 
 fn build() -> Result<State, PtsError> {
@@ -284,8 +293,8 @@ fn free<R: Slot>(r: Result<pts::Config<R>, PtsError>, out: *mut u64) -> i32 {
 /// One operation: ids 1‥8 full estimate, 11‥18 free-motion configuration from θa
 /// (f64, f32, Fx32, Fx16, then the table variants in the same order), 9/10 and 19/20
 /// the same for Fx24 and table+Fx24, 30 the f64
-/// measurement generator, 40 one controller tick, 41 serve a pending estimate request,
-/// 42 reset the controller.
+/// measurement generator, 40 one control-loop tick, 44 the supervisor on what it handed
+/// over, 41 serve a pending estimate request, 42 reset the controller, 43 the fault's name.
 #[no_mangle]
 pub extern "C" fn bench_run(id: u32, inp: *const u64, out: *mut u64) -> i32 {
     let s = unsafe { (*addr_of_mut!(STATE)).assume_init_mut() };
@@ -354,22 +363,29 @@ pub extern "C" fn bench_run(id: u32, inp: *const u64, out: *mut u64) -> i32 {
             0
         }
         40 => {
-            let o = grasp::tick_dyn(&mut s.ctl, &mut s.mock);
-            o.estimate_ready as i32 + 2 * state_code(s.ctl.state())
+            // The sampling task's work: one loop tick.
+            let o = grasp::loop_tick_dyn(&mut s.ctl.lp, &mut s.ctl.link, &mut s.mock);
+            o.sample_ready as i32
+        }
+        44 => {
+            // The supervisor on what the tick handed over (the firmware's next task).
+            let ready = grasp::supervise_dyn(&mut s.ctl.sup, &mut s.ctl.link);
+            ready as i32 + 2 * state_code(s.ctl.sup.state())
         }
         43 => {
             // The fault's name into `out` (diagnostics for count.py).
-            if let grasp::State::Fault(r) = s.ctl.state() {
+            if let grasp::State::Fault(r) = s.ctl.sup.state() {
                 for (i, b) in r.kind().bytes().take(16).enumerate() {
                     unsafe { write_volatile((out as *mut u8).wrapping_add(i), b) };
                 }
             }
             0
         }
-        41 => match s.ctl.take_request() {
+        41 => match s.ctl.sup.take_request() {
             Some(req) => {
                 let r = grasp::run_estimate(&req);
-                s.ctl.deliver(&mut s.mock, r);
+                s.ctl.sup.deliver(r);
+                s.ctl.sup.publish(&mut s.ctl.link);
                 1
             }
             None => 0,
