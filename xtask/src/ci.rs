@@ -97,7 +97,7 @@ fn expect_end(frames: &[Frame]) -> Res<&Frame> {
 }
 
 /// Runs one scene in QEMU and on the host and checks the log.
-fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64, f64)>) -> Res {
+fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64, f64, f64)>) -> Res {
     let elf = qemu::build(scene)?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -178,7 +178,7 @@ fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64
             )),
         }
     }
-    for key in ["work_max", "est_work_max"] {
+    for key in ["work_max", "est_work_max", "sup_work_max"] {
         if int(&end.msg, key).is_none() {
             errs.push(format!("END line without {key}"));
         }
@@ -189,6 +189,7 @@ fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64
         int(&end.msg, "work_max").unwrap_or(0) as f64 * per,
         int(&end.msg, "work_mean_x100").unwrap_or(0) as f64 * 0.01 * per,
         int(&end.msg, "est_work_max").unwrap_or(0) as f64 * per,
+        int(&end.msg, "sup_work_max").unwrap_or(0) as f64 * per,
     ));
     println!(
         "{scene}: exit {}, {} frames, QEMU wall {:.1} s",
@@ -339,9 +340,9 @@ pub fn main(args: &[String]) -> Res<i32> {
         "\n==== summary ({:.0} s) ====",
         start.elapsed().as_secs_f64()
     );
-    for (scene, w, m, e) in &work {
+    for (scene, w, m, e, sv) in &work {
         eprintln!(
-            "work on the target ISA ({scene}): sampling task max {w:.0} / mean {m:.0} instructions, estimate task max {e:.0} instructions (±{INSTR_PER_TICK})"
+            "work on the target ISA ({scene}): sampling task max {w:.0} / mean {m:.0} instructions per 10 kHz tick, state machine max {sv:.0} per run, estimate task max {e:.0} instructions (±{INSTR_PER_TICK})"
         );
     }
     for p in &st.passed {
