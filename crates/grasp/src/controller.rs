@@ -1,4 +1,6 @@
-//! The grasp state machine: one step per control tick, integer arithmetic only.
+//! The grasp state machine ([`Supervisor`], one step per finished sample) and the
+//! [`Controller`] that ticks it together with the [`ControlLoop`] for host runs. Integer
+//! arithmetic only.
 //!
 //! Calibrate (bridge off, current offset) → Approach (torque reference ramps up, the finger
 //! closes quasi-statically) → contact detected (the stiffness ΔT_ref/Δθa over a window rises

@@ -64,7 +64,7 @@ pub mod torque_loop;
 
 pub use config::{AfterEstimate, ControllerConfig, DriveConfig, Estimator, StepShape};
 pub use control_loop::{
-    ControlLoop, Input, Link, LoopOutput, Reference, SampleSums, Setpoint, TorqueQ16,
+    ControlLoop, Input, Link, LoopOutput, Reference, SampleSums, Setpoint, TorqueQ16, LINK_SAMPLES,
 };
 pub use controller::{Controller, Event, FaultReason, State, Supervisor, TickOutput};
 pub use estimate::{

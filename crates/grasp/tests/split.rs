@@ -1,0 +1,277 @@
+//! The two halves of the controller as the firmware runs them: the loop alone on a board that
+//! holds still, the link's hand-over rules, and a whole grasp with the supervisor run late.
+use grasp::{
+    run_estimate, ControlLoop, Controller, ControllerConfig, FaultReason, Hardware, Input, Link,
+    Reference, Setpoint, State, TorqueQ16, LINK_SAMPLES,
+};
+
+/// A board that never moves: fixed encoder count and ADC code, records the bridge.
+struct Still {
+    code: u16,
+    enc: u16,
+    duty: i16,
+    off: bool,
+}
+
+impl Hardware for Still {
+    fn encoder_count(&mut self) -> u16 {
+        self.enc
+    }
+    fn current_raw(&mut self) -> u16 {
+        self.code
+    }
+    fn set_duty(&mut self, duty: i16) {
+        self.off = false;
+        self.duty = duty;
+    }
+    fn bridge_off(&mut self) {
+        self.off = true;
+        self.duty = 0;
+    }
+}
+
+fn still() -> Still {
+    Still {
+        code: ControllerConfig::DEFAULT.drive.adc_zero_code as u16,
+        enc: 1000,
+        duty: 0,
+        off: true,
+    }
+}
+
+fn params() -> grasp::config::Params {
+    ControllerConfig::DEFAULT.params().unwrap()
+}
+
+/// Ticks the loop through calibration; returns the link with its inputs taken.
+fn calibrated(lp: &mut ControlLoop, hw: &mut Still) -> Link {
+    let mut link = Link::new();
+    let p = params();
+    for _ in 0..p.calib_ticks {
+        lp.tick(hw, &mut link);
+    }
+    assert_eq!(link.next_input(), Some(Input::Started));
+    assert!(matches!(link.next_input(), Some(Input::Calibrated { .. })));
+    assert_eq!(link.next_input(), None);
+    link
+}
+
+#[test]
+fn loop_drives_only_while_the_setpoint_enables_it() {
+    let p = params();
+    let mut lp = ControlLoop::new(&p);
+    let mut hw = still();
+    let mut link = calibrated(&mut lp, &mut hw);
+    // Calibrated but not enabled: bridge stays off.
+    let o = lp.tick(&mut hw, &mut link);
+    assert!(hw.off && o.duty == 0);
+    link.setpoint = Setpoint {
+        enable: true,
+        reference: Reference::Set(TorqueQ16::from_unm(100_000)),
+        damp_unm: 0,
+    };
+    let o = lp.tick(&mut hw, &mut link);
+    assert!(!hw.off && o.duty > 0, "{o:?}");
+    assert_eq!(o.torque_ref_unm, 100_000);
+    link.setpoint = Setpoint::OFF;
+    let o = lp.tick(&mut hw, &mut link);
+    assert!(hw.off && o.went_off && o.duty == 0);
+    assert_eq!(lp.torque_ref_unm(), 0);
+}
+
+#[test]
+fn ramp_moves_at_most_its_rate_per_tick_both_ways() {
+    let p = params();
+    let mut lp = ControlLoop::new(&p);
+    let mut hw = still();
+    let mut link = calibrated(&mut lp, &mut hw);
+    let ramp = |target: i32, rate: i64| Setpoint {
+        enable: true,
+        reference: Reference::Ramp {
+            target: TorqueQ16::from_unm(target),
+            rate: TorqueQ16::new(rate),
+        },
+        damp_unm: 0,
+    };
+    link.setpoint = ramp(1000, 100 << 16);
+    let refs: Vec<i32> = (0..12)
+        .map(|_| lp.tick(&mut hw, &mut link).torque_ref_unm)
+        .collect();
+    assert_eq!(refs[..3], [100, 200, 300]);
+    assert_eq!(refs[9..], [1000, 1000, 1000]);
+    link.setpoint = ramp(-250, 400 << 16);
+    let refs: Vec<i32> = (0..4)
+        .map(|_| lp.tick(&mut hw, &mut link).torque_ref_unm)
+        .collect();
+    assert_eq!(refs, [600, 200, -200, -250]);
+    // A negative rate holds instead of running away; an absurd target is limited.
+    link.setpoint = ramp(5, -7);
+    assert_eq!(lp.tick(&mut hw, &mut link).torque_ref_unm, -250);
+    assert_eq!(TorqueQ16::new(i64::MAX).get(), TorqueQ16::LIMIT);
+}
+
+#[test]
+fn sums_are_handed_over_in_order_and_overflow_is_counted() {
+    let p = params();
+    let mut lp = ControlLoop::new(&p);
+    let mut hw = still();
+    let mut link = calibrated(&mut lp, &mut hw);
+    link.setpoint = Setpoint {
+        enable: true,
+        reference: Reference::Hold,
+        damp_unm: 0,
+    };
+    // Nobody takes the samples: the link keeps LINK_SAMPLES, drops and counts the rest.
+    let n = p.sample_ticks as usize * (LINK_SAMPLES + 3);
+    let ready = (0..n)
+        .filter(|_| lp.tick(&mut hw, &mut link).sample_ready)
+        .count();
+    assert_eq!(ready, LINK_SAMPLES + 3);
+    assert_eq!(link.samples_dropped(), 3);
+    let mut last = 0;
+    for _ in 0..LINK_SAMPLES {
+        let Some(Input::Sample(s)) = link.next_input() else {
+            panic!("sample expected");
+        };
+        assert_eq!(s.n, p.sample_ticks);
+        assert!(s.tick > last);
+        last = s.tick;
+        // The board holds still at rest: θa sums to n × θa,rest.
+        assert_eq!(s.theta_urad, p.theta_a_rest_urad * s.n as i32);
+    }
+    assert_eq!(link.next_input(), None);
+}
+
+#[test]
+fn a_loop_fault_switches_off_at_once_and_follows_the_samples_before_it() {
+    let p = params();
+    let mut lp = ControlLoop::new(&p);
+    let mut hw = still();
+    let mut link = calibrated(&mut lp, &mut hw);
+    link.setpoint = Setpoint {
+        enable: true,
+        reference: Reference::Set(TorqueQ16::from_unm(50_000)),
+        damp_unm: 0,
+    };
+    for _ in 0..p.sample_ticks {
+        lp.tick(&mut hw, &mut link);
+    }
+    hw.enc = hw.enc.wrapping_add(5000); // an impossible jump
+    let o = lp.tick(&mut hw, &mut link);
+    assert!(o.went_off && hw.off);
+    assert!(matches!(link.next_input(), Some(Input::Sample(_))));
+    assert!(matches!(
+        link.next_input(),
+        Some(Input::LoopFault {
+            reason: FaultReason::EncoderJump { .. },
+            ..
+        })
+    ));
+    // Latched: the loop never drives again, whatever the setpoint says.
+    for _ in 0..10 {
+        lp.tick(&mut hw, &mut link);
+        assert!(hw.off);
+    }
+}
+
+/// A plant-free quasi-static finger (MODEL.md Table 2 contact) in integer steps, enough for a
+/// whole grasp: free stiffness to the contact, K_c after it.
+struct Finger {
+    d: grasp::DriveConfig,
+    duty: f64,
+    off: bool,
+    theta: f64,
+}
+
+impl Hardware for Finger {
+    fn encoder_count(&mut self) -> u16 {
+        let counts = (self.theta - self.d.theta_a_rest_rad) / self.d.rad_per_count();
+        (counts.round() as i64 + 1000) as u16
+    }
+    fn current_raw(&mut self) -> u16 {
+        let a = if self.off {
+            0.0
+        } else {
+            self.duty * self.d.bus_v / self.d.resistance_ohm
+        };
+        (self.d.adc_zero_code + a / self.d.amps_per_code).round() as u16
+    }
+    fn set_duty(&mut self, duty: i16) {
+        self.off = false;
+        self.duty = f64::from(duty) / f64::from(grasp::DUTY_MAX);
+        self.settle();
+    }
+    fn bridge_off(&mut self) {
+        self.off = true;
+        self.settle();
+    }
+}
+
+impl Finger {
+    fn settle(&mut self) {
+        let (rest, theta_c, ta_c, kc) = (self.d.theta_a_rest_rad, -0.223_771, 0.340_821, 6.7249);
+        let t = if self.off {
+            0.0
+        } else {
+            self.duty * self.d.bus_v / self.d.resistance_ohm * self.d.torque_per_amp()
+        };
+        let k_free = ta_c / (theta_c - rest);
+        self.theta = if t <= ta_c {
+            rest + t / k_free
+        } else {
+            theta_c + (t - ta_c) / kc
+        };
+    }
+}
+
+/// The firmware's arrangement: the supervisor runs only every `every` ticks (a busy
+/// lower-priority task), on everything the loop left. The state machine must reach the same
+/// estimate as the composed controller ticking it every period, since it acts per sample.
+#[test]
+fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
+    let cfg = ControllerConfig {
+        damping_nm_s_per_rad: 0.0,
+        approach_speed_max_rad_s: 100.0,
+        detect_min_rise_nm: 0.002,
+        emf_mismatch_v: 1000.0,
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(0.5);
+    let run = |every: u32| -> (State, Option<i32>, u32) {
+        let mut hw = Finger {
+            d: cfg.drive,
+            duty: 0.0,
+            off: true,
+            theta: cfg.drive.theta_a_rest_rad,
+        };
+        let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
+        let mut k2 = None;
+        for tick in 1..=60_000u32 {
+            lp.tick(&mut hw, &mut link);
+            // Run at the end of each sample interval (as the firmware's spawn does), or only
+            // every `every` ticks.
+            if tick % every == 0 && sup.service(&mut link) {
+                let req = sup.take_request().unwrap();
+                sup.deliver(run_estimate(&req));
+                sup.publish(&mut link);
+                k2 = sup.result().and_then(|r| r.k2_um);
+            }
+            if matches!(sup.state(), State::Holding | State::Fault(_)) {
+                break;
+            }
+        }
+        (sup.state(), k2, link.samples_dropped())
+    };
+    let p = cfg.params().unwrap();
+    let on_time = run(1);
+    assert_eq!(on_time.0, State::Holding, "{on_time:?}");
+    assert!(on_time.1.is_some());
+    // Late by a whole sample: the setpoints reach the loop later, the samples do not change
+    // their order, nothing is dropped; the estimate moves by at most a few µm.
+    let late = run(p.sample_ticks * 2);
+    assert_eq!(late.0, State::Holding, "{late:?}");
+    assert_eq!(late.2, 0);
+    let (a, b) = (on_time.1.unwrap(), late.1.unwrap());
+    println!("k2 on time {a} µm, late {b} µm");
+    assert!((a - b).abs() <= 750, "k2 {a} µm on time vs {b} µm late");
+}
