@@ -43,6 +43,20 @@ fn params() -> grasp::config::Params {
     ControllerConfig::DEFAULT.params().unwrap()
 }
 
+/// A calibrated loop on a still board with the bridge enabled on `reference`.
+fn enabled(reference: Reference) -> (grasp::config::Params, ControlLoop, Still, Link) {
+    let p = params();
+    let mut lp = ControlLoop::new(&p);
+    let mut hw = still();
+    let mut link = calibrated(&mut lp, &mut hw);
+    link.setpoint = Setpoint {
+        enable: true,
+        reference,
+        damp_unm: 0,
+    };
+    (p, lp, hw, link)
+}
+
 /// Ticks the loop through calibration; returns the link with its inputs taken.
 fn calibrated(lp: &mut ControlLoop, hw: &mut Still) -> Link {
     let mut link = Link::new();
@@ -112,15 +126,7 @@ fn ramp_moves_at_most_its_rate_per_tick_both_ways() {
 
 #[test]
 fn sums_are_handed_over_in_order_and_overflow_is_counted() {
-    let p = params();
-    let mut lp = ControlLoop::new(&p);
-    let mut hw = still();
-    let mut link = calibrated(&mut lp, &mut hw);
-    link.setpoint = Setpoint {
-        enable: true,
-        reference: Reference::Hold,
-        damp_unm: 0,
-    };
+    let (p, mut lp, mut hw, mut link) = enabled(Reference::Hold);
     // Nobody takes the samples: the link keeps LINK_SAMPLES, drops and counts the rest.
     let n = p.sample_ticks as usize * (LINK_SAMPLES + 3);
     let ready = (0..n)
@@ -144,15 +150,7 @@ fn sums_are_handed_over_in_order_and_overflow_is_counted() {
 
 #[test]
 fn a_loop_fault_switches_off_at_once_and_follows_the_samples_before_it() {
-    let p = params();
-    let mut lp = ControlLoop::new(&p);
-    let mut hw = still();
-    let mut link = calibrated(&mut lp, &mut hw);
-    link.setpoint = Setpoint {
-        enable: true,
-        reference: Reference::Set(TorqueQ16::from_unm(50_000)),
-        damp_unm: 0,
-    };
+    let (p, mut lp, mut hw, mut link) = enabled(Reference::Set(TorqueQ16::from_unm(50_000)));
     for _ in 0..p.sample_ticks {
         lp.tick(&mut hw, &mut link);
     }
