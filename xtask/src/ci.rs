@@ -97,7 +97,11 @@ fn expect_end(frames: &[Frame]) -> Res<&Frame> {
 }
 
 /// Runs one scene in QEMU and on the host and checks the log.
-fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<(String, f64, f64, f64, f64)>) -> Res {
+fn scene_check(
+    scene: &str,
+    expect_fault: bool,
+    work: &mut Vec<(String, f64, f64, f64, f64)>,
+) -> Res {
     let elf = qemu::build(scene)?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
