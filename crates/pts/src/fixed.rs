@@ -149,6 +149,19 @@ mod kernel {
         }
     }
 
+    /// Leading zeros of a non-zero u32 (CLZ, or the binary search on Armv6-M).
+    #[inline(always)]
+    pub(super) fn clz32(x: u32) -> u32 {
+        #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+        {
+            clz64_search(x as u64) - 32
+        }
+        #[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+        {
+            x.leading_zeros()
+        }
+    }
+
     /// [`clz64`] by binary search (used on Armv6-M; tested everywhere).
     #[inline(always)]
     #[allow(dead_code)]
@@ -281,39 +294,65 @@ mod kernel {
         (a >> 29) + ((a >> 28) & 1)
     }
 
-    /// Seeds 2^63/d_mid >> 16 for the 256 intervals of d's top byte (relative error
-    /// ≤ 2^-9): two Newton steps then reach the 32-bit resolution.
+    /// Seeds ⌊2^63/d_max⌋ >> 16 for the 256 intervals of d's top byte, d_max the top of
+    /// the interval: never above 2^63/d, relative error < 2^-8 (used without a divider).
+    #[allow(dead_code)]
     const RECIP_SEED: [u16; 256] = {
         let mut t = [0u16; 256];
         let mut i = 0;
         while i < 256 {
-            t[i] = (((1u64 << 41) / (513 + 2 * i as u64)) >> 16) as u16;
+            t[i] = (((1u64 << 63) / ((1u64 << 31) + ((i as u64 + 1) << 23))) >> 16) as u16;
             i += 1;
         }
         t
     };
 
     /// ≈ 2^63/d for d in [2^31, 2^32) (1/f in Q31, f = d/2^32; exact for d = 2^31),
-    /// relative error < 2^-29: a 256-entry seed and two Newton steps y += y(1 − f·y),
-    /// each two 32×32→64 products.
-    #[inline]
+    /// never above it, relative error < 2^-30: a seed from below and two Newton steps
+    /// y += y(1 − f·y), which stay below 1/f, so every term is unsigned.
+    ///
+    /// The seed comes from the hardware divider where there is one (one UDIV, 2–12
+    /// cycles on the Cortex-M4, relative error < 2^-14) and from a 256-entry table on
+    /// Armv6-M, which has no divide instruction (relative error < 2^-8).
+    #[inline(always)]
     pub(super) fn recip_q31(d: u32) -> u64 {
+        #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+        {
+            recip_q31_from(d, recip_seed_table(d))
+        }
+        #[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+        {
+            recip_q31_from(d, recip_seed_div(d))
+        }
+    }
+
+    /// The divider's seed: ⌊(2^32 − 1)/(⌊d/2^16⌋ + 1)⌋·2^15 ≤ 2^63/d.
+    #[inline(always)]
+    #[allow(dead_code)]
+    pub(super) fn recip_seed_div(d: u32) -> u32 {
+        (u32::MAX / ((d >> 16) + 1)) << 15
+    }
+
+    /// The table's seed (≤ 2^63/d).
+    #[inline(always)]
+    #[allow(dead_code)]
+    pub(super) fn recip_seed_table(d: u32) -> u32 {
+        let idx = ((d >> 23) & 0xFF) as usize;
+        (RECIP_SEED.get(idx).copied().unwrap_or(0x8000) as u32) << 16
+    }
+
+    /// [`recip_q31`] from a seed y0 ≤ 2^63/d with relative error below 2^-8.
+    #[inline(always)]
+    pub(super) fn recip_q31_from(d: u32, y0: u32) -> u64 {
         if d == 1 << 31 {
             return 1 << 32; // exact for powers of two
         }
-        let idx = ((d >> 23) & 0xFF) as usize;
-        let mut y = (RECIP_SEED.get(idx).copied().unwrap_or(0x8000) as u32) << 16;
+        let mut y = y0;
         for _ in 0..2 {
-            let fy = mul_u32(d, y) >> 32; // f·y in Q31, ≈ 2^31
-            let e = (1i64 << 31) - fy as i64;
-            let ea = e.unsigned_abs().min(u32::MAX as u64) as u32;
-            let corr = (mul_u32(y, ea) >> 31) as i64;
-            let next = if e < 0 {
-                y as i64 - corr
-            } else {
-                y as i64 + corr
-            };
-            y = next.clamp(0, u32::MAX as i64) as u32;
+            // 1 − f·y in Q63: ≥ 0 because y ≤ 1/f, ≈ 2^55 at most (error ≈ 2^-8).
+            let e = (1u64 << 63).wrapping_sub(mul_u32(d, y));
+            // y·e truncated: y stays at or below 2^63/d < 2^32.
+            y = y.wrapping_add((mul_u32(y, (e >> 31) as u32) >> 32) as u32);
         }
         y as u64
     }
@@ -465,6 +504,28 @@ impl From<Fx16> for Fx32 {
     }
 }
 
+/// ⌊p·u/2^32⌋ for the raw bits `p` of a Q32.32 value and a fraction `u` in Q32 (u < 1):
+/// the product of a value and a fraction, never larger than |p|, so it cannot overflow.
+/// Two 32×32 products (on Armv6-M: four 16×16 and, for |p| < 2^48, two more).
+#[inline(always)]
+pub(crate) fn mul_frac(p: i64, u: u32) -> i64 {
+    let (ph, pl) = ((p >> 32) as i32, p as u32);
+    let lo = (kernel::mul_u32(pl, u) >> 32) as i64;
+    // |ph·u| < 2^63.
+    #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
+    let hi = {
+        let m = kernel::mul_int_word(ph.unsigned_abs(), u) as i64;
+        if ph < 0 {
+            -m
+        } else {
+            m
+        }
+    };
+    #[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+    let hi = ph as i64 * u as i64;
+    hi + lo
+}
+
 #[inline]
 fn sat_i32(v: i64) -> i32 {
     v.clamp(i32::MIN as i64, i32::MAX as i64) as i32
@@ -474,36 +535,67 @@ impl Mul for Fx32 {
     type Output = Self;
     #[inline]
     fn mul(self, rhs: Self) -> Self {
-        // On magnitudes: up to four 32×32→64 partial products (fewer when an operand is
-        // below 1 in magnitude), rounded to nearest, saturated.
-        use kernel::mul_u32;
         let (a, b) = (self.to_bits(), rhs.to_bits());
-        let neg = (a ^ b) < 0;
-        let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-        let (ah, al) = ((ua >> 32) as u32, ua as u32);
-        let (bh, bl) = ((ub >> 32) as u32, ub as u32);
-        let ll = mul_u32(al, bl);
-        let mut m = (ll >> 32) + ((ll >> 31) & 1);
+        // Where there is a long multiply, the common case (both integer words in
+        // [−2^15, 2^15): every model quantity) is signed and cannot saturate.
+        #[cfg(not(all(target_arch = "arm", not(target_has_atomic = "32"))))]
+        if (((a >> 32) as i32).wrapping_add(1 << 15) | ((b >> 32) as i32).wrapping_add(1 << 15))
+            >> 16
+            == 0
+        {
+            return Self::from_bits(mul_small(a, b));
+        }
+        Self::from_bits(mul_magnitudes(a, b))
+    }
+}
+
+/// a·b/2^32 rounded to nearest (ties up) for raw Q32.32 values whose integer words lie in
+/// [−2^15, 2^15): |a·b| < 2^94, so the result fits in 62 bits. Signed partial products:
+/// ⌊a·b/2^32⌉ = ah·bh·2^32 + ah·bl + al·bh + ⌊al·bl/2^32⌉ (al, bl unsigned).
+#[inline(always)]
+#[allow(dead_code)] // not used on Armv6-M
+fn mul_small(a: i64, b: i64) -> i64 {
+    let (ah, al) = ((a >> 32) as i32, a as u32);
+    let (bh, bl) = ((b >> 32) as i32, b as u32);
+    let ll = kernel::mul_u32(al, bl);
+    let r = ((ll >> 32) + ((ll >> 31) & 1)) as i64;
+    r + ah as i64 * bl as i64 + bh as i64 * al as i64 + (((ah * bh) as i64) << 32)
+}
+
+/// a·b/2^32 for any raw Q32.32 values, on magnitudes: up to four 32×32→64 partial
+/// products (fewer when an operand is below 1 in magnitude), rounded to nearest, saturated.
+#[inline]
+fn mul_magnitudes(a: i64, b: i64) -> i64 {
+    use kernel::mul_u32;
+    let neg = (a ^ b) < 0;
+    let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
+    let (ah, al) = ((ua >> 32) as u32, ua as u32);
+    let (bh, bl) = ((ub >> 32) as u32, ub as u32);
+    let ll = mul_u32(al, bl);
+    let mut m = (ll >> 32) + ((ll >> 31) & 1);
+    if ah != 0 {
+        m += kernel::mul_int_word(ah, bl); // < 2^63
+    }
+    if bh != 0 {
+        m = m.saturating_add(kernel::mul_int_word(bh, al));
         if ah != 0 {
-            m += kernel::mul_int_word(ah, bl); // < 2^63
+            let hh = mul_u32(ah, bh);
+            m = if hh >= 1 << 31 {
+                u64::MAX
+            } else {
+                m.saturating_add(hh << 32)
+            };
         }
-        if bh != 0 {
-            m = m.saturating_add(kernel::mul_int_word(bh, al));
-            if ah != 0 {
-                let hh = mul_u32(ah, bh);
-                m = if hh >= 1 << 31 {
-                    u64::MAX
-                } else {
-                    m.saturating_add(hh << 32)
-                };
-            }
-        }
-        let lim = if neg { 1u64 << 63 } else { i64::MAX as u64 };
-        if m > lim {
-            return if neg { Self::MIN } else { Self::MAX };
-        }
-        let m = m as i64; // 2^63 wraps to i64::MIN, which negates to itself
-        Self::from_bits(if neg { m.wrapping_neg() } else { m })
+    }
+    let lim = if neg { 1u64 << 63 } else { i64::MAX as u64 };
+    if m > lim {
+        return if neg { i64::MIN } else { i64::MAX };
+    }
+    let m = m as i64; // 2^63 wraps to i64::MIN, which negates to itself
+    if neg {
+        m.wrapping_neg()
+    } else {
+        m
     }
 }
 
@@ -511,38 +603,56 @@ impl Div for Fx32 {
     type Output = Self;
     #[inline]
     fn div(self, rhs: Self) -> Self {
-        // Reciprocal of the divisor's top 32 bits (relative error < 2^-29), one 64×32
-        // product: quotient to ≈ 1e-9 relative, saturated; x/0 saturates by the sign of x.
+        // Reciprocal of the divisor's top 32 bits (relative error < 2^-30), one 64×32
+        // product: quotient to ≈ 1e-9 relative, truncated, saturated; x/0 saturates by
+        // the sign of x. All shifts by variable amounts are below 32 (no 64-bit shift
+        // routine on Armv6-M).
         let (a, b) = (self.to_bits(), rhs.to_bits());
         if b == 0 {
             return if a < 0 { Self::MIN } else { Self::MAX };
         }
-        let neg = (a < 0) != (b < 0);
+        let neg = (a ^ b) < 0;
         let (ua, ub) = (a.unsigned_abs(), b.unsigned_abs());
-        let s = kernel::clz64(ub);
-        let y = kernel::recip_q31(((ub << s) >> 32) as u32);
-        let sat = if neg { Self::MIN } else { Self::MAX };
-        // q = ua·2^32/ub ≈ ua·y·2^s / 2^63, with p = ua·y = p_hi·2^32 + p_lo (96 bits).
-        let (p_hi, p_lo) = if y >> 32 != 0 {
+        let (bh, bl) = ((ub >> 32) as u32, ub as u32);
+        // d = ub·2^k/2^32 in [2^31, 2^32) with k = s + 32·[bh = 0], s < 32.
+        let (big, s) = if bh != 0 {
+            (true, kernel::clz32(bh))
+        } else {
+            (false, kernel::clz32(bl))
+        };
+        let d = if big {
+            (bh << s) | ((bl >> 1) >> (31 - s))
+        } else {
+            bl << s
+        };
+        // q = ua·2^32/ub ≈ ua·y/2^(63 − k) = P/2^(95 − k), P = ua·y = hi·2^32 + lo (96 bits).
+        let y = kernel::recip_q31(d);
+        let (hi, lo) = if y >> 32 != 0 {
             (ua, 0u32) // y = 2^32 exactly: a power-of-two divisor
         } else {
-            let lo = kernel::mul_u32(ua as u32, y as u32);
-            let hi = kernel::mul_u32((ua >> 32) as u32, y as u32) + (lo >> 32);
-            (hi, lo as u32)
+            let l = kernel::mul_u32(ua as u32, y as u32);
+            let h = kernel::mul_u32((ua >> 32) as u32, y as u32) + (l >> 32);
+            (h, l as u32)
         };
-        let sh = 63 - s;
-        let q = if sh >= 32 {
-            p_hi >> (sh - 32)
-        } else if p_hi >> (31 + sh) != 0 {
-            return sat;
+        let n = 31 - s;
+        let (hh, hl) = ((hi >> 32) as u32, hi as u32);
+        let q = if big {
+            // |b| ≥ 1: q = hi/2^n ≤ ua.
+            (((hh >> n) as u64) << 32) | ((hl >> n) | ((hh << 1) << (31 - n))) as u64
+        } else if hh >> n != 0 {
+            return if neg { Self::MIN } else { Self::MAX };
         } else {
-            (p_hi << (32 - sh)) | ((p_lo as u64) >> sh)
+            // |b| < 1: q = P/2^n, which fits in 64 bits.
+            let q_hi = (hl >> n) | ((hh << 1) << (31 - n));
+            let q_lo = (lo >> n) | ((hl << 1) << (31 - n));
+            ((q_hi as u64) << 32) | q_lo as u64
         };
-        if q > i64::MAX as u64 {
-            return sat;
+        let lim = if neg { 1u64 << 63 } else { i64::MAX as u64 };
+        if q > lim {
+            return if neg { Self::MIN } else { Self::MAX };
         }
-        let q = q as i64;
-        Self::from_bits(if neg { -q } else { q })
+        let q = q as i64; // 2^63 wraps to i64::MIN, which negates to itself
+        Self::from_bits(if neg { q.wrapping_neg() } else { q })
     }
 }
 
@@ -724,7 +834,85 @@ narrow_fixed!(Fx16, 16, 4e-4, "Fx16 (I16F16)");
 narrow_fixed!(Fx24, 24, 2e-6, "Fx24 (I8F24)");
 #[cfg(test)]
 mod tests {
-    use super::kernel::{clz64, clz64_search, mul_int_word, mul_u32, mul_u32_pieces};
+    use super::kernel::{
+        clz32, clz64, clz64_search, mul_int_word, mul_u32, mul_u32_pieces, recip_q31,
+        recip_q31_from, recip_seed_div, recip_seed_table,
+    };
+    use super::{mul_frac, mul_magnitudes, mul_small};
+
+    fn xorshift(x: &mut u64) -> u64 {
+        *x ^= *x << 13;
+        *x ^= *x >> 7;
+        *x ^= *x << 17;
+        *x
+    }
+
+    /// Both reciprocal seeds (divider and table) and the two Newton steps: never above
+    /// 2^63/d, relative error below 2^-30, exact at d = 2^31.
+    #[test]
+    fn reciprocal_from_below_to_2_pow_minus_30() {
+        let check = |d: u32| {
+            let exact = (1u128 << 63) as f64 / d as f64;
+            for (name, y0) in [("div", recip_seed_div(d)), ("table", recip_seed_table(d))] {
+                assert!(y0 as f64 <= exact, "{name} seed above 1/f at {d:#x}");
+                assert!(
+                    y0 as f64 >= exact * (1.0 - 1.0 / 256.0),
+                    "{name} seed at {d:#x}"
+                );
+                let y = recip_q31_from(d, y0) as f64;
+                assert!(
+                    y <= exact && y >= exact * (1.0 - 2f64.powi(-30)),
+                    "{name} {d:#x}"
+                );
+            }
+            assert_eq!(recip_q31(d), recip_q31_from(d, recip_seed_div(d)));
+        };
+        assert_eq!(recip_q31(1 << 31), 1 << 32);
+        for d in [
+            (1u32 << 31) + 1,
+            0x8080_0000,
+            0xBFFF_FFFF,
+            0xFFFF_FFFF,
+            0xFF80_0000,
+        ] {
+            check(d);
+        }
+        let mut x: u64 = 0x2545_F491_4F6C_DD1D;
+        for _ in 0..200_000 {
+            check((xorshift(&mut x) as u32) | 1 << 31);
+        }
+    }
+
+    /// The signed small-operand product against the saturating one on magnitudes (equal
+    /// but for ties, which round up instead of away from zero), and the fraction product.
+    #[test]
+    fn small_product_and_fraction_product() {
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..200_000 {
+            let r = xorshift(&mut x);
+            // Integer words anywhere in [−2^15, 2^15).
+            let a = (r as i64) >> (16 + (r >> 59) as u32 % 16);
+            let b = (xorshift(&mut x) as i64) >> (16 + (r >> 54) as u32 % 16);
+            let exact = a as i128 * b as i128;
+            let want = (exact + (1 << 31)) >> 32;
+            assert_eq!(mul_small(a, b) as i128, want, "{a} {b}");
+            let m = mul_magnitudes(a, b) as i128;
+            assert!((m - want).abs() <= 1);
+            if exact & 0xFFFF_FFFF != 1 << 31 {
+                assert_eq!(m, want, "{a} {b}");
+            }
+            let p = xorshift(&mut x) as i64;
+            let u = xorshift(&mut x) as u32;
+            assert_eq!(mul_frac(p, u) as i128, (p as i128 * u as i128) >> 32);
+            let w = xorshift(&mut x) as u32 | 1;
+            assert_eq!(clz32(w), w.leading_zeros());
+        }
+        assert_eq!(mul_small(-(1 << 47), -(1 << 47)), 1 << 62);
+        assert_eq!(
+            mul_small((1 << 47) - 1, -(1 << 47)) as i128,
+            (((1i128 << 47) - 1) * -(1i128 << 47) + (1 << 31)) >> 32
+        );
+    }
 
     #[test]
     fn armv6m_long_multiply_is_exact() {

@@ -26,6 +26,10 @@ pub const FREE_BAND: f64 = 0.05;
 /// it grows without bound where K1 s x2 + K2′ → 0 (dK_c/dk2 → 0). Above this the
 /// inversion is refused with [`PtsError::IllConditioned`].
 pub const MAX_CONDITION: f64 = 2.0;
+/// Stiffness (N·m/rad) above K_c,tip still read as a contact at the tip: rounding-level
+/// (far below any measurement), so that K_c computed at k2 = l2 by another formula
+/// ([`Model::kc_distal`]) is not refused as beyond the tip.
+pub const TIP_TOLERANCE: f64 = 1e-9;
 /// Reference uncertainty of a measured θa (rad) for refusing noisy estimates: one count of
 /// the default drive, 2π/(64 counts·3072) ≈ 3.2e-5 rad, rounded up.
 pub const THETA_A_NOISE_RAD: f64 = 3.2e-5;
@@ -132,6 +136,26 @@ pub struct Model<R> {
     z1: R,
     z2: R,
     z3: R,
+    /// l1/(2 l2): the inversion works with lengths in units of 2 l2, where l1 cos θ2 is
+    /// this times cos θ2, l2 is ½ and the condition number loses its factor 2 l2.
+    cos_scale: R,
+    /// 2 l2 (m), back to metres.
+    two_l2: R,
+    /// K1/2 and K1/4 (N·m/rad).
+    k1_half: R,
+    k1_quarter: R,
+}
+
+/// Quantities of the monotonicity test that the inversion reuses (lengths in units of 2 l2).
+struct Mono<R> {
+    /// L = (l1 cos θ2 + l2)/(2 l2) = c + ½.
+    big_l: R,
+    /// (s_tip − x2)·L = ½ − x2 L (negative).
+    dt: R,
+    /// K2′ = K2 − T_a dx2/dθ2.
+    k2p: R,
+    /// K2′ L.
+    k2p_l: R,
 }
 
 fn check<R: Real>(x: R, limit: f64) -> Result<R, PtsError> {
@@ -139,8 +163,10 @@ fn check<R: Real>(x: R, limit: f64) -> Result<R, PtsError> {
         return Err(PtsError::NonFinite);
     }
     // A value at a fixed-point limit may stand for anything beyond it (and the limit itself
-    // may be below `limit` in a narrow type).
-    if x.abs() > R::from_f64(limit) || x.is_saturated() {
+    // may be below `limit` in a narrow type). Where the limit is representable, the range
+    // test already excludes the saturation values (`lim` is a constant: this folds).
+    let lim = R::from_f64(limit);
+    if x > lim || x < -lim || (lim.is_saturated() && x.is_saturated()) {
         return Err(PtsError::OutOfRange);
     }
     Ok(x)
@@ -175,6 +201,10 @@ impl<R: Real> Model<R> {
             z1: conv(z1)?,
             z2: conv(f.c / f.l1)?,
             z3: conv(f.c / f.a)?,
+            cos_scale: conv(f.l1 / (2.0 * f.l2))?,
+            two_l2: conv(2.0 * f.l2)?,
+            k1_half: conv(0.5 * f.k1)?,
+            k1_quarter: conv(0.25 * f.k1)?,
         })
     }
 
@@ -402,20 +432,42 @@ impl<R: Real> Model<R> {
     /// [`Model::check_monotone`] with cos θ2 supplied by the caller (a table, say).
     pub fn check_monotone_cos(&self, cfg: &Config<R>, cos_theta2: R) -> Result<(), PtsError> {
         let c2 = check(cos_theta2, 1.0 + 1e-3)?;
-        if !(c2 > R::zero()) || !(cfg.x2 < R::one()) || !(cfg.x2 > R::zero()) {
+        self.monotone(cfg, c2 * self.cos_scale).map(|_| ())
+    }
+
+    /// cos θ2 → c = l1 cos θ2/(2 l2), the scaled value the inversion takes, checked.
+    pub(crate) fn scaled_cos(&self, cos_theta2: R) -> Result<R, PtsError> {
+        Ok(check(cos_theta2, 1.0 + 1e-3)? * self.cos_scale)
+    }
+
+    /// The monotonicity conditions, division-free, with lengths in units of 2 l2
+    /// (c = l1 cos θ2/(2 l2), L = c + ½), and the quantities the inversion shares.
+    #[inline(always)]
+    fn monotone(&self, cfg: &Config<R>, c: R) -> Result<Mono<R>, PtsError> {
+        let x2 = cfg.x2;
+        if !(c > R::zero()) || !(x2 < R::one()) || !(x2 > R::zero()) {
             return Err(PtsError::NotMonotone);
         }
-        let l1c = self.l1 * c2;
-        // Locking point k2* = x2 l1 cos θ2/(1 − x2) must lie beyond the tip.
-        if !(cfg.x2 * l1c > self.l2 * (R::one() - cfg.x2)) {
+        let half = R::from_f64(0.5);
+        let big_l = c + half;
+        // (s_tip − x2)·L with s_tip = ½/L: negative exactly when the locking point
+        // k2* = x2 l1 cos θ2/(1 − x2) lies beyond the tip (x2 L > ½).
+        let dt = half - x2 * big_l;
+        if !(dt < R::zero()) {
             return Err(PtsError::NotMonotone);
         }
         let k2p = self.k2 - cfg.ta * cfg.dx2;
-        // K1 s_tip x2 + K2′ > 0 with s_tip = l2/(l1c + l2), l1c + l2 > 0: division-free.
-        if !(k2p > R::zero()) || !(self.k1 * self.l2 * cfg.x2 + k2p * (l1c + self.l2) > R::zero()) {
+        let k2p_l = k2p * big_l;
+        // (K1 s_tip x2 + K2′)·L = K1 x2/2 + K2′ L > 0, L > 0: division-free.
+        if !(k2p > R::zero()) || !(self.k1_half * x2 + k2p_l > R::zero()) {
             return Err(PtsError::NotMonotone);
         }
-        Ok(())
+        Ok(Mono {
+            big_l,
+            dt,
+            k2p,
+            k2p_l,
+        })
     }
 
     /// Classifies a measured stiffness K_c (N·m/rad) at the contact configuration and,
@@ -432,33 +484,45 @@ impl<R: Real> Model<R> {
         cos_theta2: R,
         kc: R,
     ) -> Result<Contact<R>, PtsError> {
-        self.invert_inner(cfg, cos_theta2, kc, None)
+        let kc = check(kc, MAX_STIFFNESS)?;
+        let c = self.scaled_cos(cos_theta2)?;
+        self.invert_inner(cfg, c, kc, None)
     }
 
-    /// The inversion; with `dtheta_a` also refuses when θa noise would move k2 too far.
+    /// The inversion at a checked K_c and c = l1 cos θ2/(2 l2) ([`Model::scaled_cos`]);
+    /// with `dtheta_a` also refuses when θa noise would move k2 too far.
+    ///
+    /// Written for few operations: lengths in units of 2 l2, every shared product computed
+    /// once, divisions only for the five values that are quotients (K_c free, proximal,
+    /// tip, the root s, k2), the comparisons cross-multiplied.
+    #[inline(always)]
     fn invert_inner(
         &self,
         cfg: &Config<R>,
-        cos_theta2: R,
+        c: R,
         kc: R,
         dtheta_a: Option<R>,
     ) -> Result<Contact<R>, PtsError> {
-        let kc = check(kc, MAX_STIFFNESS)?;
-        let cl = Closure {
-            lambda: R::zero(),
-            gamma: R::zero(),
-            x2: cfg.x2,
-            dx2: cfg.dx2,
-        };
-        self.check_monotone_cos(cfg, cos_theta2)?;
-        let k2p = self.k2_prime(cfg.ta, &cl);
+        let Mono {
+            big_l,
+            dt,
+            k2p,
+            k2p_l,
+        } = self.monotone(cfg, c)?;
         let x2 = cfg.x2;
-        let kc_free = ok_value(self.kc_free_from(cfg.ta, &cl))?;
-        let kc_prox = ok_value(k2p / (x2 * x2))?;
-        let l1c = self.l1 * cos_theta2;
-        let s_tip = self.l2 / (l1c + self.l2);
-        let d_tip = s_tip - x2;
-        let kc_tip = ok_value((self.k1 * s_tip * s_tip + k2p) / (d_tip * d_tip))?;
+        let x2sq = x2 * x2;
+        // Free motion: K1 K2′/(K2′ + K1 x2²) (as `kc_free_from`, K2′ > 0 here).
+        let den_free = k2p + self.k1 * x2sq;
+        let k1k2p = self.k1 * k2p;
+        let kc_free = if den_free > R::from_f64(1e-12) {
+            k1k2p / den_free
+        } else {
+            R::zero()
+        };
+        let kc_free = ok_value(kc_free)?;
+        let kc_prox = ok_value(k2p / x2sq)?;
+        // (K1 s_tip² + K2′)/(s_tip − x2)², numerator and denominator multiplied by L².
+        let kc_tip = ok_value((self.k1_quarter + k2p_l * big_l) / (dt * dt))?;
         let mut contact = Contact {
             phalanx: Phalanx::None,
             k2: None,
@@ -477,34 +541,41 @@ impl<R: Real> Model<R> {
             contact.phalanx = Phalanx::Proximal;
             return Ok(contact);
         }
-        if kc > kc_tip {
+        // A hair above K_c,tip is the tip: the closed form above and `kc_distal` at k2 = l2
+        // round differently.
+        if kc > kc_tip + R::from_f64(TIP_TOLERANCE) {
             return Err(PtsError::BeyondTip);
         }
         // (Kc − K1) s² − 2 Kc x2 s + Kc x2² − K2′ = 0; the root below x2, in the form
         // that neither cancels nor divides by Kc − K1.
-        let disc = kc * (k2p + self.k1 * x2 * x2) - self.k1 * k2p;
+        let disc = kc * den_free - k1k2p;
         if disc < R::zero() {
             return Err(PtsError::NotMonotone);
         }
-        let s = (kc * x2 * x2 - k2p) / (kc * x2 + disc.sqrt());
-        let s = ok_value(s)?.max(R::zero()).min(s_tip);
+        let kc_x2 = kc * x2;
+        let s = (kc_x2 * x2 - k2p) / (kc_x2 + disc.sqrt());
+        // s ≤ s_tip follows from K_c ≤ K_c,tip (k2 is clamped to l2 below).
+        let s = ok_value(s)?.max(R::zero());
         // Conditioning, division-free: κ = l1c (x2 − s)(K1 s² + K2′) / (2 l2 (1 − s)² (K1 s x2 + K2′)).
-        let slope = self.k1 * s * x2 + k2p;
+        // At the root K1 s² + K2′ = Kc e² and K1 s x2 + K2′ = e (Kc e + K1 s), e = x2 − s, so
+        // in units of 2 l2, κ = c Kc e² / ((1 − s)² (Kc e + K1 s)).
+        let e = x2 - s;
+        let kc_e = kc * e;
+        let slope = kc_e + self.k1 * s;
         let one_s = R::one() - s;
-        let lhs = l1c * (x2 - s) * (self.k1 * s * s + k2p);
-        let den = R::from_f64(2.0) * self.l2 * one_s * one_s * slope;
-        let rhs = R::from_f64(MAX_CONDITION) * den;
+        let lhs = c * (kc_e * e);
+        // κ ≤ MAX_CONDITION and, with Δθa, κ·δθ/Δθa ≤ MAX_K2_NOISE (the smaller bound),
+        // ordered so that no product underflows in Q16.16.
+        let mut bound = R::from_f64(MAX_CONDITION);
+        if let Some(dth) = dtheta_a {
+            bound = bound.min(R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD) * dth);
+        }
+        let rhs = bound * (one_s * one_s * slope);
         if !(slope > R::zero()) || !(lhs <= rhs) || lhs.is_saturated() || rhs.is_saturated() {
             return Err(PtsError::IllConditioned);
         }
-        if let Some(dth) = dtheta_a {
-            // κ·δθ/Δθa ≤ MAX_K2_NOISE, ordered so that no product underflows in Q16.16.
-            let rhs = R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD) * dth * den;
-            if !(lhs <= rhs) || rhs.is_saturated() {
-                return Err(PtsError::IllConditioned);
-            }
-        }
-        let k2 = s * l1c / (R::one() - s);
+        // k2 = l1 cos θ2 s/(1 − s) = 2 l2 c s/(1 − s).
+        let k2 = self.two_l2 * (s * c / one_s);
         let k2 = ok_value(k2)?.min(self.l2);
         if !(k2 > R::zero()) {
             // s rounded to 0 (K̂c a hair above K_c,proximal in a coarse back end): O2.
@@ -548,6 +619,31 @@ impl<R: Real> Model<R> {
     where
         F: FnOnce(R) -> Result<(Config<R>, R), PtsError>,
     {
+        self.estimate_scaled(theta_a_c, ta_c, theta_a, ta, |t| {
+            let (cfg, cos_theta2) = contact_config(t)?;
+            Ok((cfg, self.scaled_cos(cos_theta2)?))
+        })
+    }
+
+    /// l1/(2 l2), the factor from cos θ2 to the inversion's c (for tables that store c).
+    pub(crate) fn cos_scale(&self) -> R {
+        self.cos_scale
+    }
+
+    /// [`Model::estimate_two_point_with`] where `contact_config` gives the configuration
+    /// with c = l1 cos θ2/(2 l2) (checked) instead of cos θ2; its torque is not used.
+    #[inline(always)]
+    pub(crate) fn estimate_scaled<F>(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+        contact_config: F,
+    ) -> Result<Estimate<R>, PtsError>
+    where
+        F: FnOnce(R) -> Result<(Config<R>, R), PtsError>,
+    {
         let theta_a_c = check(theta_a_c, MAX_ANGLE)?;
         let theta_a = check(theta_a, MAX_ANGLE)?;
         let ta_c = check(ta_c, MAX_TORQUE)?;
@@ -564,10 +660,11 @@ impl<R: Real> Model<R> {
         if kc_hat > R::from_f64(MAX_STIFFNESS) {
             return Err(PtsError::BeyondTip);
         }
-        let (mut cfg, cos_theta2) = contact_config(theta_a_c)?;
+        let (mut cfg, c) = contact_config(theta_a_c)?;
+        let kc_hat = check(kc_hat, MAX_STIFFNESS)?;
         // The G term carries the torque actually applied at contact.
         cfg.ta = ta_c;
-        let contact = self.invert_inner(&cfg, cos_theta2, kc_hat, Some(dtheta_a))?;
+        let contact = self.invert_inner(&cfg, c, kc_hat, Some(dtheta_a))?;
         Ok(Estimate {
             kc_hat,
             dta,

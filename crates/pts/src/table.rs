@@ -22,15 +22,28 @@ pub const TABLE_INTERVALS: usize = 32;
 pub const TABLE_TA_MIN_NM: f64 = -0.3;
 /// Highest free-motion torque covered by the table (N·m).
 pub const TABLE_TA_MAX_NM: f64 = 1.6;
-/// Fields per knot: θ2, θ1, x2, dx2/dθ2, cos θ2.
-const FIELDS: usize = 5;
+/// Fields per knot: θ2, θ1, x2, dx2/dθ2, cos θ2 and c = l1 cos θ2/(2 l2) (the scaled cosine
+/// the inversion takes, so the estimate needs no multiply for it).
+const FIELDS: usize = 6;
 
 /// A back end the table can index: splits a non-negative grid coordinate into the
 /// interval number and the fraction within it.
 pub trait TableReal: Real {
     /// `(floor(t), t − floor(t))` for finite `t ≥ 0` below 2³¹; `None` otherwise.
     fn split_index(self) -> Option<(usize, Self)>;
+
+    /// The cubic c0 + u(c1 + u(c2 + u·c3)) at a fraction u ∈ [0, 1) from
+    /// [`TableReal::split_index`], for coefficients with Σ|c_i| ≤ [`MAX_COEFFICIENT_SUM`]
+    /// (what [`FreeTable::new`] accepts): no partial sum can then overflow, so a back end
+    /// may skip saturation (the result for other arguments is unspecified, never a panic).
+    #[inline(always)]
+    fn cubic(c: &[Self; 4], u: Self) -> Self {
+        c[0] + u * (c[1] + u * (c[2] + u * c[3]))
+    }
 }
+
+/// Largest Σ|c_i| of one field's cubic on one interval that a table accepts.
+pub const MAX_COEFFICIENT_SUM: f64 = 1e6;
 
 impl TableReal for f64 {
     fn split_index(self) -> Option<(usize, Self)> {
@@ -59,6 +72,18 @@ impl TableReal for crate::fixed::Fx32 {
             return None;
         }
         Some(((b >> 32) as usize, Self::from_bits(b & 0xFFFF_FFFF)))
+    }
+
+    #[inline(always)]
+    fn cubic(c: &[Self; 4], u: Self) -> Self {
+        // u < 1 and Σ|c_i| ≤ 1e6 bound every partial sum: one 64×32 product and a plain
+        // add per step, truncated (≤ 3 units of 2^-32 in all).
+        let u = u.to_bits() as u32;
+        let mut p = c[3].to_bits();
+        for c in [c[2], c[1], c[0]] {
+            p = c.to_bits().wrapping_add(crate::fixed::mul_frac(p, u));
+        }
+        Self::from_bits(p)
     }
 }
 
@@ -99,10 +124,11 @@ pub struct FreeTable<R> {
     seg: [Segment<R>; TABLE_INTERVALS],
 }
 
-/// Free-motion fields at θa from the f64 model: θ2, θ1, x2, dx2, cos θ2.
+/// Free-motion fields at θa from the f64 model: θ2, θ1, x2, dx2, cos θ2, l1 cos θ2/(2 l2).
 fn fields(m: &Model<f64>, theta_a: f64) -> Result<[f64; FIELDS], PtsError> {
     let c = m.free_from_theta_a(theta_a)?;
-    Ok([c.theta2, c.theta1, c.x2, c.dx2, libm::cos(c.theta2)])
+    let cos2 = libm::cos(c.theta2);
+    Ok([c.theta2, c.theta1, c.x2, c.dx2, cos2, cos2 * m.cos_scale()])
 }
 
 impl<R: TableReal> FreeTable<R> {
@@ -147,12 +173,16 @@ impl<R: TableReal> FreeTable<R> {
             let next = knot(i + 1)?;
             let ((p0, m0), (p1, m1)) = (prev, next);
             for (f, c) in s.c.iter_mut().enumerate() {
-                *c = [
-                    conv(p0[f])?,
-                    conv(m0[f])?,
-                    conv(3.0 * (p1[f] - p0[f]) - 2.0 * m0[f] - m1[f])?,
-                    conv(2.0 * (p0[f] - p1[f]) + m0[f] + m1[f])?,
+                let v = [
+                    p0[f],
+                    m0[f],
+                    3.0 * (p1[f] - p0[f]) - 2.0 * m0[f] - m1[f],
+                    2.0 * (p0[f] - p1[f]) + m0[f] + m1[f],
                 ];
+                if !(v.iter().map(|x| x.abs()).sum::<f64>() <= MAX_COEFFICIENT_SUM) {
+                    return Err(PtsError::OutOfRange);
+                }
+                *c = [conv(v[0])?, conv(v[1])?, conv(v[2])?, conv(v[3])?];
             }
             prev = next;
         }
@@ -177,22 +207,26 @@ impl<R: TableReal> FreeTable<R> {
         (lo, lo + TABLE_INTERVALS as f64 / self.inv_h.to_f64())
     }
 
+    /// The fields numbered `which` at θa inside the table; `None` outside it.
+    #[inline(always)]
+    fn lookup<const N: usize>(&self, theta_a: R, which: [usize; N]) -> Option<[R; N]> {
+        let t = (theta_a - self.theta_a0) * self.inv_h;
+        let (i, u) = t.split_index()?;
+        let s = self.seg.get(i)?;
+        let zero = [R::zero(); 4];
+        Some(which.map(|f| R::cubic(s.c.get(f).unwrap_or(&zero), u)))
+    }
+
     /// Free-motion configuration at θa (rad) and its cos θ2, interpolated (no trigonometry,
     /// no division) inside the table, by the model's Newton solve outside it.
     pub fn free_from_theta_a(&self, theta_a: R) -> Result<(Config<R>, R), PtsError> {
         if !theta_a.is_finite() || theta_a.is_saturated() {
             return Err(PtsError::NonFinite);
         }
-        let t = (theta_a - self.theta_a0) * self.inv_h;
-        let hit = t
-            .split_index()
-            .and_then(|(i, u)| self.seg.get(i).map(|s| (s, u)));
-        let Some((s, u)) = hit else {
+        let Some([theta2, theta1, x2, dx2, cos2]) = self.lookup(theta_a, [0, 1, 2, 3, 4]) else {
             let c = self.model.free_from_theta_a(theta_a)?;
             return Ok((c, c.theta2.cos()));
         };
-        let ev = |c: &[R; 4]| c[0] + u * (c[1] + u * (c[2] + u * c[3]));
-        let [theta2, theta1, x2, dx2, cos2] = s.c.each_ref().map(ev);
         let cfg = Config {
             theta1,
             theta2,
@@ -214,6 +248,26 @@ impl<R: TableReal> FreeTable<R> {
         ta: R,
     ) -> Result<Estimate<R>, PtsError> {
         self.model
-            .estimate_two_point_with(theta_a_c, ta_c, theta_a, ta, |t| self.free_from_theta_a(t))
+            .estimate_scaled(theta_a_c, ta_c, theta_a, ta, |t| {
+                // θa,c has passed the estimate's input checks. The free-motion torque is not
+                // computed: the estimate replaces it by the measured T_a,c.
+                match self.lookup(t, [0, 1, 2, 3, 5]) {
+                    Some([theta2, theta1, x2, dx2, c]) => Ok((
+                        Config {
+                            theta1,
+                            theta2,
+                            theta_a: t,
+                            ta: R::zero(),
+                            x2,
+                            dx2,
+                        },
+                        c,
+                    )),
+                    None => {
+                        let (cfg, cos2) = self.free_from_theta_a(t)?;
+                        Ok((cfg, self.model.scaled_cos(cos2)?))
+                    }
+                }
+            })
     }
 }
