@@ -564,13 +564,16 @@ impl<R: Real> Model<R> {
         let slope = kc_e + self.k1 * s;
         let one_s = R::one() - s;
         let lhs = c * (kc_e * e);
-        // κ ≤ MAX_CONDITION and, with Δθa, κ·δθ/Δθa ≤ MAX_K2_NOISE (the smaller bound),
-        // ordered so that no product underflows in Q16.16.
-        let mut bound = R::from_f64(MAX_CONDITION);
-        if let Some(dth) = dtheta_a {
-            bound = bound.min(R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD) * dth);
-        }
-        let rhs = bound * (one_s * one_s * slope);
+        // κ ≤ MAX_CONDITION and, with Δθa, κ·δθ/Δθa ≤ MAX_K2_NOISE: the smaller bound,
+        // min(MAX_CONDITION, C·Δθa) with C = MAX_K2_NOISE/δθ, ordered so that no product
+        // underflows in Q16.16. C·Δθa is the smaller only for Δθa below MAX_CONDITION/C (C
+        // as the back end holds it: Q8.24 saturates it), which folds to a constant.
+        let q = one_s * one_s * slope;
+        let c_noise = R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD);
+        let rhs = match dtheta_a {
+            Some(dth) if dth < R::from_f64(MAX_CONDITION / c_noise.to_f64()) => c_noise * dth * q,
+            _ => times_const(q, MAX_CONDITION),
+        };
         if !(slope > R::zero()) || !(lhs <= rhs) || lhs.is_saturated() || rhs.is_saturated() {
             return Err(PtsError::IllConditioned);
         }
@@ -672,6 +675,16 @@ impl<R: Real> Model<R> {
             contact_config: cfg,
             contact,
         })
+    }
+}
+
+/// k·x for a constant k, as an addition when k = 2.
+#[inline(always)]
+fn times_const<R: Real>(x: R, k: f64) -> R {
+    if k == 2.0 {
+        x + x
+    } else {
+        R::from_f64(k) * x
     }
 }
 

@@ -5,11 +5,13 @@
 //! [`FreeTable`] replaces it by a lookup: θ2, θ1, x2, dx2/dθ2 and cos θ2 as piecewise cubic
 //! (Hermite) functions of θa on a uniform grid, built once at init from the **f64** model
 //! (values and central-difference slopes), then evaluated in the back end's arithmetic:
-//! one multiply for the index and three per field. With cos θ2 in the table the inversion
+//! one multiply for the index and three per field (for Q32.32, 32-bit products where the
+//! cubic's slope terms are small, as they are for the paper's finger). With cos θ2 in the
+//! table (and l1 cos θ2/(2 l2), the form the inversion takes) the inversion
 //! ([`Model::invert_cos`], the closed-form quadratic) needs no trigonometry at all.
 //!
 //! The grid spans the free motion for T_a from [`TABLE_TA_MIN_NM`] to [`TABLE_TA_MAX_NM`]
-//! (θa ≈ −0.99 … 0.60 rad for the paper's finger); outside it the lookup falls back to the
+//! (θa ≈ −1.40 … 1.98 rad for the paper's finger); outside it the lookup falls back to the
 //! model's Newton solve, so the answers are the same function of the inputs everywhere.
 
 use crate::model::{Config, Estimate, Model};
@@ -40,10 +42,21 @@ pub trait TableReal: Real {
     fn cubic(c: &[Self; 4], u: Self) -> Self {
         c[0] + u * (c[1] + u * (c[2] + u * c[3]))
     }
+
+    /// [`TableReal::cubic`] for coefficients that also have |c1| + |c2| + |c3| ≤
+    /// [`SMALL_SLOPE_SUM`] (every partial sum but the last below ½ in magnitude), which a
+    /// back end may evaluate in narrower arithmetic. [`FreeTable`] uses it when every
+    /// interval of every field qualifies (the paper's finger: ≤ 0.06).
+    #[inline(always)]
+    fn cubic_small(c: &[Self; 4], u: Self) -> Self {
+        Self::cubic(c, u)
+    }
 }
 
 /// Largest Σ|c_i| of one field's cubic on one interval that a table accepts.
 pub const MAX_COEFFICIENT_SUM: f64 = 1e6;
+/// Largest |c1| + |c2| + |c3| for [`TableReal::cubic_small`] (margin below ½).
+pub const SMALL_SLOPE_SUM: f64 = 0.25;
 
 impl TableReal for f64 {
     fn split_index(self) -> Option<(usize, Self)> {
@@ -85,6 +98,18 @@ impl TableReal for crate::fixed::Fx32 {
         }
         Self::from_bits(p)
     }
+
+    #[inline(always)]
+    fn cubic_small(c: &[Self; 4], u: Self) -> Self {
+        // The partial sums c3, c2 + u·c3, c1 + u(…) are below ½: their raw bits fit in an
+        // i32 and each step is one 32×32 product.
+        use crate::fixed::mul_frac32;
+        let u = u.to_bits() as u32;
+        let mut p = c[3].to_bits() as i32;
+        p = (c[2].to_bits() as i32).wrapping_add(mul_frac32(p, u));
+        p = (c[1].to_bits() as i32).wrapping_add(mul_frac32(p, u));
+        Self::from_bits(c[0].to_bits().wrapping_add(mul_frac32(p, u) as i64))
+    }
 }
 
 impl TableReal for crate::fixed::Fx16 {
@@ -121,6 +146,8 @@ pub struct FreeTable<R> {
     inv_h: R,
     k1: R,
     theta01: R,
+    /// Every cubic qualifies for [`TableReal::cubic_small`].
+    small: bool,
     seg: [Segment<R>; TABLE_INTERVALS],
 }
 
@@ -168,6 +195,7 @@ impl<R: TableReal> FreeTable<R> {
         let mut seg = [Segment {
             c: [[zero; 4]; FIELDS],
         }; TABLE_INTERVALS];
+        let mut small = true;
         let mut prev = knot(0)?;
         for (i, s) in seg.iter_mut().enumerate() {
             let next = knot(i + 1)?;
@@ -182,6 +210,7 @@ impl<R: TableReal> FreeTable<R> {
                 if !(v.iter().map(|x| x.abs()).sum::<f64>() <= MAX_COEFFICIENT_SUM) {
                     return Err(PtsError::OutOfRange);
                 }
+                small &= v[1].abs() + v[2].abs() + v[3].abs() <= SMALL_SLOPE_SUM;
                 *c = [conv(v[0])?, conv(v[1])?, conv(v[2])?, conv(v[3])?];
             }
             prev = next;
@@ -192,6 +221,7 @@ impl<R: TableReal> FreeTable<R> {
             inv_h: conv(1.0 / h)?,
             k1: conv(finger.k1)?,
             theta01: conv(finger.theta01)?,
+            small,
             seg,
         })
     }
@@ -207,14 +237,23 @@ impl<R: TableReal> FreeTable<R> {
         (lo, lo + TABLE_INTERVALS as f64 / self.inv_h.to_f64())
     }
 
-    /// The fields numbered `which` at θa inside the table; `None` outside it.
+    /// The interval holding θa and the fraction within it; `None` outside the table.
     #[inline(always)]
-    fn lookup<const N: usize>(&self, theta_a: R, which: [usize; N]) -> Option<[R; N]> {
+    fn locate(&self, theta_a: R) -> Option<(&Segment<R>, R)> {
         let t = (theta_a - self.theta_a0) * self.inv_h;
         let (i, u) = t.split_index()?;
-        let s = self.seg.get(i)?;
-        let zero = [R::zero(); 4];
-        Some(which.map(|f| R::cubic(s.c.get(f).unwrap_or(&zero), u)))
+        Some((self.seg.get(i)?, u))
+    }
+
+    /// Field `f` of segment `s` at the fraction `u`.
+    #[inline(always)]
+    fn field(&self, s: &Segment<R>, f: usize, u: R) -> R {
+        let c = &s.c[f];
+        if self.small {
+            R::cubic_small(c, u)
+        } else {
+            R::cubic(c, u)
+        }
     }
 
     /// Free-motion configuration at θa (rad) and its cos θ2, interpolated (no trigonometry,
@@ -223,19 +262,20 @@ impl<R: TableReal> FreeTable<R> {
         if !theta_a.is_finite() || theta_a.is_saturated() {
             return Err(PtsError::NonFinite);
         }
-        let Some([theta2, theta1, x2, dx2, cos2]) = self.lookup(theta_a, [0, 1, 2, 3, 4]) else {
+        let Some((s, u)) = self.locate(theta_a) else {
             let c = self.model.free_from_theta_a(theta_a)?;
             return Ok((c, c.theta2.cos()));
         };
+        let theta1 = self.field(s, 1, u);
         let cfg = Config {
             theta1,
-            theta2,
+            theta2: self.field(s, 0, u),
             theta_a,
             ta: self.k1 * (theta1 - self.theta01),
-            x2,
-            dx2,
+            x2: self.field(s, 2, u),
+            dx2: self.field(s, 3, u),
         };
-        Ok((cfg, cos2))
+        Ok((cfg, self.field(s, 4, u)))
     }
 
     /// The paper's two-point estimate ([`Model::estimate_two_point`]) with the contact
@@ -251,17 +291,17 @@ impl<R: TableReal> FreeTable<R> {
             .estimate_scaled(theta_a_c, ta_c, theta_a, ta, |t| {
                 // θa,c has passed the estimate's input checks. The free-motion torque is not
                 // computed: the estimate replaces it by the measured T_a,c.
-                match self.lookup(t, [0, 1, 2, 3, 5]) {
-                    Some([theta2, theta1, x2, dx2, c]) => Ok((
+                match self.locate(t) {
+                    Some((s, u)) => Ok((
                         Config {
-                            theta1,
-                            theta2,
+                            theta1: self.field(s, 1, u),
+                            theta2: self.field(s, 0, u),
                             theta_a: t,
                             ta: R::zero(),
-                            x2,
-                            dx2,
+                            x2: self.field(s, 2, u),
+                            dx2: self.field(s, 3, u),
                         },
-                        c,
+                        self.field(s, 5, u),
                     )),
                     None => {
                         let (cfg, cos2) = self.free_from_theta_a(t)?;

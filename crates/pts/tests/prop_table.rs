@@ -52,6 +52,40 @@ fn table_matches_newton() {
     assert!(e.iter().all(|&x| x < 2e-4), "{e:?}");
 }
 
+/// Fingers with softer and stiffer springs (wider and narrower θa ranges, so larger and
+/// smaller cubic slopes, on either side of the narrow-evaluation bound): the Fx32 table
+/// interpolates like the f64 one.
+#[test]
+fn fx32_table_matches_f64_table_for_other_fingers() {
+    for k1 in [0.2, 0.4, 0.6895, 2.0] {
+        let f = Finger {
+            k1,
+            ..Finger::PAPER
+        };
+        let (Ok(t64), Ok(tx)) = (FreeTable::<f64>::new(&f), FreeTable::<Fx32>::new(&f)) else {
+            continue;
+        };
+        let (lo, hi) = t64.theta_a_range();
+        let mut worst = 0.0f64;
+        for i in 0..=2000 {
+            let th = Fx32::from_f64(lo + (hi - lo) * i as f64 / 2000.0);
+            let (a, ca) = t64.free_from_theta_a(th.to_f64()).unwrap();
+            let (b, cb) = tx.free_from_theta_a(th).unwrap();
+            for (x, y) in [
+                (a.theta2, b.theta2),
+                (a.theta1, b.theta1),
+                (a.x2, b.x2),
+                (a.dx2, b.dx2),
+                (ca, cb),
+            ] {
+                worst = worst.max((x - y.to_f64()).abs());
+            }
+        }
+        println!("k1 {k1}: range {lo:.3}..{hi:.3}, max |Fx32 − f64| {worst:.2e}");
+        assert!(worst < 1e-8, "k1 {k1}: {worst:e}");
+    }
+}
+
 #[test]
 fn table_covers_working_range_and_falls_back_outside() {
     let m = Model::<f64>::paper().unwrap();
@@ -156,6 +190,26 @@ proptest! {
             (Err(a), Err(b)) => prop_assert_eq!(a, b),
             (w, g) => prop_assert!(false, "f64 {w:?} vs {g:?}"),
         }
+    }
+
+    /// The fixed-point cubics against f64: the full one (Σ|c_i| ≤ 1e6) and the narrow one
+    /// (|c1| + |c2| + |c3| ≤ ¼) within a few units of 2^-32, at any fraction.
+    #[test]
+    fn fx32_cubics_match_f64(c0 in -1e5f64..1e5, c in prop::array::uniform3(-1.0f64..1.0),
+                             scale in 0.0f64..1.0, u in 0u32..=u32::MAX) {
+        let big = [c0, 3e3 * c[0], 3e3 * c[1], 3e3 * c[2]].map(Fx32::from_f64);
+        let small = [c0, 0.08 * scale * c[0], 0.08 * scale * c[1], 0.08 * scale * c[2]].map(Fx32::from_f64);
+        let uf = Fx32::from_bits(u as i64);
+        let exact = |k: &[Fx32; 4]| {
+            let (k, x) = (k.map(|v| v.to_f64()), uf.to_f64());
+            k[0] + x * (k[1] + x * (k[2] + x * k[3]))
+        };
+        let ulp = 2f64.powi(-32);
+        // Truncated steps (≤ 1 unit each) plus f64 rounding of the 1e5-sized sum.
+        let tol = 4.0 * ulp + 1e-16 * c0.abs();
+        prop_assert!((<Fx32 as TableReal>::cubic(&big, uf).to_f64() - exact(&big)).abs() <= tol + 1e-15 * 1e4);
+        prop_assert!((<Fx32 as TableReal>::cubic_small(&small, uf).to_f64() - exact(&small)).abs() <= tol);
+        prop_assert!((<Fx32 as TableReal>::cubic(&small, uf).to_f64() - exact(&small)).abs() <= tol);
     }
 
     /// Any input, every back end: Ok with finite unsaturated values or a typed Err.
