@@ -31,6 +31,6 @@ pub use real::Real;
 /// The numeric back end of the firmware's estimator: Q32.32 fixed point, on every target.
 ///
 /// The product is a fixed-point solver (issue 2); `cargo xtask bench` also measures f32,
-/// which on the Cortex-M4F FPU is cheaper (table+f32 ≈ 800 instructions per estimate
-/// against ≈ 3,900 for table+Fx32), and keeps it as the comparison.
+/// which on the Cortex-M4F FPU is cheaper (table+f32 ≈ 380 instructions per estimate
+/// against ≈ 1,700 for table+Fx32), and keeps it as the comparison.
 pub type FirmwareReal = fixed::Fx32;
