@@ -260,8 +260,6 @@ pub struct LoopOutput {
     pub sample_ready: bool,
     /// The loop switched the bridge off this tick (its own fault, or the setpoint).
     pub went_off: bool,
-    /// Calibration finished this tick (the supervisor starts the approach).
-    pub calibrated: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -344,11 +342,6 @@ impl ControlLoop {
         self.driving
     }
 
-    /// Calibrated zero-current offset (ADC code ×256).
-    pub fn offset_q8(&self) -> i32 {
-        self.cur.offset_q8()
-    }
-
     /// Bridge off now, reference and integrator cleared (the setpoint still decides
     /// whether the next tick drives again).
     pub fn stop<H: Hardware + ?Sized>(&mut self, hw: &mut H) {
@@ -421,7 +414,6 @@ impl ControlLoop {
                     Ok(offset_q8) => {
                         self.phase = Phase::Running;
                         link.calibrated = Some((self.tick, offset_q8));
-                        out.calibrated = true;
                     }
                     Err(offset_q8) => {
                         self.trip(hw, link, FaultReason::AdcOffset { offset_q8 }, &mut out)

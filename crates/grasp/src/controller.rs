@@ -411,9 +411,8 @@ impl Controller {
 
     /// One control period: the loop's tick, then the supervisor on what it handed over.
     pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H) -> TickOutput {
-        let o = self.lp.tick(hw, &mut self.link);
+        let mut o = self.lp.tick(hw, &mut self.link);
         let estimate_ready = self.sup.service(&mut self.link);
-        let mut o = o;
         if !self.link.setpoint.enable && self.lp.driving() {
             // A fault or the end found by the state machine: bridge off within this tick
             // (on the target the loop applies it at its next tick, ≤ one period later).
