@@ -226,6 +226,31 @@ mod kernel {
         }
     }
 
+    /// num·2^62/den for |num| ≤ den/8 and den ∈ [2^59, 2^63): a reciprocal of den's top
+    /// word (relative error < 2^-30) and one exact-remainder correction in 128-bit
+    /// products, within a unit of the truncated quotient; a 128-bit division is a
+    /// software loop of thousands of instructions on the Cortex-M.
+    pub(super) fn div_q62(num: i64, den: u64) -> i64 {
+        let nu = num.unsigned_abs();
+        let lz = den.leading_zeros(); // 1..=4
+        let dh = ((den << lz) >> 32) as u32; // [2^31, 2^32)
+        let y = recip_q31(dh) as u128; // ≈ 2^63/dh; 1/den ≈ y/2^(95 − lz)
+        let u0 = ((nu as u128 * y) >> (33 - lz)) as u64;
+        // |r| < den·2^30: the remainder against the exact quotient, then r/den.
+        let r = ((nu as u128) << 62) as i128 - (u0 as u128 * den as u128) as i128;
+        let corr = if r >= 0 {
+            ((r as u128 * y) >> (95 - lz)) as i64
+        } else {
+            -((((-r) as u128 * y) >> (95 - lz)) as i64)
+        };
+        let u = (u0 as i64).wrapping_add(corr);
+        if num < 0 {
+            -u
+        } else {
+            u
+        }
+    }
+
     /// atan2(y, x) in Q32 for y, x in any common scale; (0, 0) gives 0. Range (−π, π].
     pub(super) fn atan2_q32(y: i64, x: i64) -> i64 {
         if y == 0 && x == 0 {
@@ -257,7 +282,7 @@ mod kernel {
         if den <= 0 {
             return 0;
         }
-        let u = ((num << 62) / den) as i64;
+        let u = div_q62(num as i64, den as u64);
         let u2 = mul62(u, u);
         let mut p = -(ONE / 11);
         p = ONE / 9 + mul62(u2, p);
@@ -878,6 +903,28 @@ mod tests {
         *x ^= *x >> 7;
         *x ^= *x << 17;
         *x
+    }
+
+    /// The atan2 kernel's quotient without a 128-bit division: within one unit of the exact
+    /// truncated num·2^62/den over its whole domain (|num| ≤ den/8, den ∈ [2^59, 2^63)).
+    #[test]
+    fn q62_quotient_within_a_unit_of_the_exact_one() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut check = |num: i64, den: u64| {
+            let exact = ((num as i128) << 62) / den as i128;
+            let got = super::kernel::div_q62(num, den) as i128;
+            assert!((got - exact).abs() <= 1, "{num} / {den}: {got} vs {exact}");
+        };
+        for den in [1u64 << 59, (1 << 63) - 1, 3 << 60, (1 << 62) + 1] {
+            for num in [0i64, 1, -1, (den / 8) as i64, -((den / 8) as i64)] {
+                check(num, den);
+            }
+        }
+        for _ in 0..200_000 {
+            let den = (1u64 << 59) + xorshift(&mut x) % ((1u64 << 63) - (1 << 59));
+            let num = (xorshift(&mut x) % (den / 8 + 1)) as i64;
+            check(if xorshift(&mut x) & 1 == 0 { num } else { -num }, den);
+        }
     }
 
     /// Both reciprocal seeds (divider and table) and the two Newton steps: never above

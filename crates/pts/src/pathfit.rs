@@ -199,7 +199,7 @@ pub struct PathFitConfig {
 impl PathFitConfig {
     /// Defaults for the paper's finger on a board with a quadrature encoder and a current ADC.
     pub const DEFAULT: PathFitConfig = PathFitConfig {
-        bins: 10,
+        bins: 8,
         dead_band_rad: 0.0,
         skip_fraction: 0.0,
         min_travel_rad: 2e-3,
@@ -460,12 +460,16 @@ struct Eval<R> {
 
 /// Converts a small count to the back end without going through f64 arithmetic at run time.
 fn from_count<R: Real>(n: u32) -> R {
-    // Binary expansion: ≤ 32 doublings, exact for every back end that holds n.
+    // Binary expansion from the top set bit (≤ 8 doublings for the counts here), exact for
+    // every back end that holds n.
     let mut acc = R::zero();
-    let mut bit = 1u64 << 31;
+    if n == 0 {
+        return acc;
+    }
+    let mut bit = 1u32 << (31 - n.leading_zeros());
     while bit > 0 {
         acc = acc + acc;
-        if u64::from(n) & bit != 0 {
+        if n & bit != 0 {
             acc = acc + R::one();
         }
         bit >>= 1;
@@ -770,6 +774,8 @@ struct Corrected<R, I> {
     next: Option<PathSample<R>>,
     cur: Option<PathSample<R>>,
     done: bool,
+    /// The uniform sample period h (s), its tolerance (s) and J/h² (kg·m²/s²).
+    uniform: Option<(R, R, R)>,
 }
 
 impl<R: Real, I: Iterator<Item = PathSample<R>>> Iterator for Corrected<R, I> {
@@ -794,13 +800,32 @@ impl<R: Real, I: Iterator<Item = PathSample<R>>> Iterator for Corrected<R, I> {
                 }
                 (Some(n), Some(c)) => {
                     let (dt1, dt2) = (c.time_s - prev.time_s, n.time_s - c.time_s);
-                    let span = n.time_s - prev.time_s;
                     let mut s = c;
                     if dt1 > R::zero() && dt2 > R::zero() && self.inertia > R::zero() {
-                        let v1 = (c.theta_a_rad - prev.theta_a_rad) / dt1;
-                        let v2 = (n.theta_a_rad - c.theta_a_rad) / dt2;
-                        let acc = (v2 - v1) * R::from_f64(2.0) / span;
-                        s.torque_nm = c.torque_nm - self.inertia * acc;
+                        let (d1, d2) = (
+                            c.theta_a_rad - prev.theta_a_rad,
+                            n.theta_a_rad - c.theta_a_rad,
+                        );
+                        let near = |a: R, b: R, tol: R| (a - b).abs() <= tol;
+                        let jacc = match self.uniform {
+                            // A uniform sample period (the controller's, to rounding): J/h²
+                            // once, no division per sample.
+                            Some((h, tol, k)) if near(dt1, h, tol) && near(dt2, h, tol) => {
+                                k * (d2 - d1)
+                            }
+                            _ => {
+                                let tol = dt1 * R::from_f64(1e-6);
+                                if near(dt1, dt2, tol) {
+                                    let k = self.inertia / (dt1 * dt1);
+                                    self.uniform = Some((dt1, tol, k));
+                                    k * (d2 - d1)
+                                } else {
+                                    let span = n.time_s - prev.time_s;
+                                    self.inertia * (d2 / dt2 - d1 / dt1) * R::from_f64(2.0) / span
+                                }
+                            }
+                        };
+                        s.torque_nm = c.torque_nm - jacc;
                     }
                     Some(s)
                 }
@@ -828,6 +853,7 @@ fn corrected_rev<R: Real, I: DoubleEndedIterator<Item = PathSample<R>>>(
         next: None,
         cur: None,
         done: false,
+        uniform: None,
     }
 }
 
@@ -1024,6 +1050,7 @@ fn initial_k2<R: Real>(model: &Model<R>, cfg: &Config<R>, w: &Work<R>, l2: R) ->
 
 /// Evaluates the path at every bin for p = (k2c, R, ·, θa,c) (m, m, ·, rad) and accumulates
 /// the normal equations.
+#[allow(clippy::needless_range_loop)]
 fn evaluate<R: Real>(
     pm: &mut PathModel<R>,
     model: &Model<R>,
@@ -1125,16 +1152,22 @@ fn evaluate<R: Real>(
     sse = sse + wc * dc * dc;
     a[TC][TC] = wc;
     g[TC] = -wc * dc;
+    // The upper triangle with the weight applied once per column, then mirrored.
     for ((b, &r0), col) in w.bins.iter().take(w.nb).zip(res.iter()).zip(cols.iter()) {
         let r = (r0 - tf) * ks;
-        sse = sse + b.w * r * r;
-        for (ri, ci) in a.iter_mut().zip(col.iter()) {
-            for (aij, cj) in ri.iter_mut().zip(col.iter()) {
-                *aij = *aij + b.w * *ci * *cj;
+        let wr = b.w * r;
+        sse = sse + wr * r;
+        for (i, ci) in col.iter().enumerate() {
+            g[i] = g[i] - wr * *ci;
+            let wci = b.w * *ci;
+            for j in i..NP {
+                a[i][j] = a[i][j] + wci * col[j];
             }
         }
-        for (gi, ci) in g.iter_mut().zip(col.iter()) {
-            *gi = *gi - b.w * *ci * r;
+    }
+    for i in 1..NP {
+        for j in 0..i {
+            a[i][j] = a[j][i];
         }
     }
     Ok(Eval {

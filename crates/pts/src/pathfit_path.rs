@@ -455,7 +455,8 @@ impl<R: Real> PathModel<R> {
         dphi: R,
         d2: R,
     ) -> Result<(R, R), PathFail> {
-        let st = self.eval(model, k2c, radius, dphi, d2)?;
+        let mut st = EvalState::zero();
+        self.eval(model, k2c, radius, dphi, d2, &mut st)?;
         if !(st.det.abs() > self.eps_det) {
             return Err(PathFail::OutOfRange);
         }
@@ -478,10 +479,12 @@ impl<R: Real> PathModel<R> {
     ) -> Result<PathPoint<R>, PathFail> {
         let (mut dphi, mut d2) = guess;
         let mut it = 0usize;
+        // Filled in place: a returned 14-value state is copied twice per step (memcpy).
+        let mut st = EvalState::zero();
         while it < MAX_PATH_NEWTON {
             it += 1;
             self.newton_iters = self.newton_iters.saturating_add(1);
-            let st = self.eval(model, k2c, radius, dphi, d2)?;
+            self.eval(model, k2c, radius, dphi, d2, &mut st)?;
             let e1 = st.s2 - st.s2p - (k2c * st.sp + radius * (R::one() - st.cp)) * self.inv_l1;
             let e2 = dphi - st.dgamma - dta;
             if !(st.det.abs() > self.eps_det) {
@@ -590,7 +593,8 @@ impl<R: Real> PathModel<R> {
         radius: R,
         dphi: R,
         d2: R,
-    ) -> Result<EvalState<R>, PathFail> {
+        out: &mut EvalState<R>,
+    ) -> Result<(), PathFail> {
         if !dphi.is_finite() || dphi.abs() > self.max_delta || d2.abs() > self.max_delta {
             return Err(PathFail::OutOfRange);
         }
@@ -607,7 +611,7 @@ impl<R: Real> PathModel<R> {
         let a21 = R::one();
         let a22 = x2 - R::one();
         let det = a11 * a22 - a12 * a21;
-        Ok(EvalState {
+        *out = EvalState {
             s2,
             c2,
             s2p,
@@ -622,7 +626,8 @@ impl<R: Real> PathModel<R> {
             a21,
             a22,
             det,
-        })
+        };
+        Ok(())
     }
 
     /// Signed clearance (m) between a cylinder of radius R tangent at k2,c and the proximal
@@ -663,6 +668,28 @@ struct EvalState<R> {
     a21: R,
     a22: R,
     det: R,
+}
+
+impl<R: Real> EvalState<R> {
+    fn zero() -> Self {
+        let z = R::zero();
+        Self {
+            s2: z,
+            c2: z,
+            s2p: z,
+            c2p: z,
+            sp: z,
+            cp: z,
+            dgamma: z,
+            x2: z,
+            dx2: z,
+            a11: z,
+            a12: z,
+            a21: z,
+            a22: z,
+            det: z,
+        }
+    }
 }
 
 /// The four-bar closure (`Model::closure`) from sin λ, cos λ: γ = atan2(Q, P) −
