@@ -33,37 +33,24 @@ pub const NODES: usize = 14;
 pub const MAX_DELTA: f64 = 1.25;
 /// Newton iterations per path point (a warm-started solve needs 1–2).
 pub const MAX_PATH_NEWTON: usize = 8;
-/// A Newton step below this (rad) ends the solve; it is applied to the outputs to first order.
-pub const ACCEPT_STEP: f64 = 1.5e-4;
+/// A Newton step below this (rad) ends the solve; it is applied to the outputs to first order
+/// (remainder ~step² < 3e-7 rad; from 1.5e-4 to 5e-4 the grid's estimates moved < 0.01 % l2
+/// and a fit costs ~10 % fewer instructions).
+pub const ACCEPT_STEP: f64 = 5e-4;
 
-/// sin and cos of a small angle |x| ≤ [`MAX_DELTA`] by Taylor polynomials (error < 3e-7 at
-/// 1.25 rad, < 6e-9 below 0.5 rad).
+/// sin and cos of a small angle |x| ≤ [`MAX_DELTA`] by Taylor polynomials in Horner form
+/// in x² (error < 3e-7 at 1.25 rad, < 6e-9 below 0.5 rad).
 pub fn sin_cos_small<R: Real>(x: R, c: &PolyConsts<R>) -> (R, R) {
     let x2 = x * x;
     if x2 < c.quarter {
         // |x| < 0.5 (every step of a path point): two terms fewer, error < 6e-9
         // (x⁹/9! at 0.5), below f32's resolution.
-        let s = R::one() - x2 * c.inv42;
-        let s = R::one() - x2 * c.inv20 * s;
-        let s = x * (R::one() - x2 * c.inv6 * s);
-        let k = R::one() - x2 * c.inv56;
-        let k = R::one() - x2 * c.inv30 * k;
-        let k = R::one() - x2 * c.inv12 * k;
-        let k = R::one() - x2 * c.half * k;
+        let s = x + x * (x2 * (c.s[0] + x2 * (c.s[1] + x2 * c.s[2])));
+        let k = R::one() + x2 * (c.c[0] + x2 * (c.c[1] + x2 * (c.c[2] + x2 * c.c[3])));
         return (s, k);
     }
-    // sin: x (1 − x²/6 (1 − x²/20 (1 − x²/42 (1 − x²/72))))
-    let s = R::one() - x2 * c.inv72;
-    let s = R::one() - x2 * c.inv42 * s;
-    let s = R::one() - x2 * c.inv20 * s;
-    let s = R::one() - x2 * c.inv6 * s;
-    let s = x * s;
-    // cos: 1 − x²/2 (1 − x²/12 (1 − x²/30 (1 − x²/56 (1 − x²/90))))
-    let k = R::one() - x2 * c.inv90;
-    let k = R::one() - x2 * c.inv56 * k;
-    let k = R::one() - x2 * c.inv30 * k;
-    let k = R::one() - x2 * c.inv12 * k;
-    let k = R::one() - x2 * c.half * k;
+    let s = x + x * (x2 * (c.s[0] + x2 * (c.s[1] + x2 * (c.s[2] + x2 * c.s[3]))));
+    let k = R::one() + x2 * (c.c[0] + x2 * (c.c[1] + x2 * (c.c[2] + x2 * (c.c[3] + x2 * c.c[4]))));
     (s, k)
 }
 
@@ -71,15 +58,10 @@ pub fn sin_cos_small<R: Real>(x: R, c: &PolyConsts<R>) -> (R, R) {
 #[derive(Clone, Copy, Debug)]
 pub struct PolyConsts<R> {
     quarter: R,
-    half: R,
-    inv6: R,
-    inv12: R,
-    inv20: R,
-    inv30: R,
-    inv42: R,
-    inv56: R,
-    inv72: R,
-    inv90: R,
+    /// −1/3!, 1/5!, −1/7!, 1/9!.
+    s: [R; 4],
+    /// −1/2!, 1/4!, −1/6!, 1/8!, −1/10!.
+    c: [R; 5],
 }
 
 impl<R: Real> PolyConsts<R> {
@@ -88,15 +70,8 @@ impl<R: Real> PolyConsts<R> {
         let f = |d: f64| R::from_f64(1.0 / d);
         Self {
             quarter: f(4.0),
-            half: f(2.0),
-            inv6: f(6.0),
-            inv12: f(12.0),
-            inv20: f(20.0),
-            inv30: f(30.0),
-            inv42: f(42.0),
-            inv56: f(56.0),
-            inv72: f(72.0),
-            inv90: f(90.0),
+            s: [f(-6.0), f(120.0), f(-5040.0), f(362_880.0)],
+            c: [f(-2.0), f(24.0), f(-720.0), f(40_320.0), f(-3_628_800.0)],
         }
     }
 }
@@ -158,9 +133,10 @@ pub struct PathModel<R> {
     eps_force: R,
     two: R,
     three: R,
-    four: R,
-    six: R,
     nodes: [Option<Node<R>>; NODES],
+    /// Index of the table segment last interpolated and its cubics' coefficients (γ then x2).
+    seg_index: usize,
+    seg: [R; 8],
     /// sin, cos of λ = θ2 − φ2 + π at the reference node (the closure's angle).
     slb: R,
     clb: R,
@@ -297,9 +273,9 @@ impl<R: Real> PathModel<R> {
             eps_force: conv(1e-6)?,
             two: conv(2.0)?,
             three: conv(3.0)?,
-            four: conv(4.0)?,
-            six: conv(6.0)?,
             nodes,
+            seg_index: usize::MAX,
+            seg: [R::zero(); 8],
             slb,
             clb,
             sh,
@@ -425,24 +401,32 @@ impl<R: Real> PathModel<R> {
             lo = lo + self.h;
             i += 1;
         }
-        let a = self.node(model, i)?;
-        let b = self.node(model, i + 1)?;
+        if self.seg_index != i {
+            let a = self.node(model, i)?;
+            let b = self.node(model, i + 1)?;
+            // Power-basis coefficients of the segment's two Hermite cubics in t = (θ2 − θ2,i)/h,
+            // once per segment: γ with slopes 1 − x2, x2 with slopes dx2/dθ2.
+            let (ma, mb) = ((R::one() - a.x2) * self.h, (R::one() - b.x2) * self.h);
+            let dg = b.gamma - a.gamma;
+            let (xa, xb) = (a.dx2 * self.h, b.dx2 * self.h);
+            let dx = b.x2 - a.x2;
+            self.seg = [
+                a.gamma,
+                ma,
+                self.three * dg - self.two * ma - mb,
+                ma + mb - self.two * dg,
+                a.x2,
+                xa,
+                self.three * dx - self.two * xa - xb,
+                xa + xb - self.two * dx,
+            ];
+            self.seg_index = i;
+        }
         let t = (d2 - lo) * self.inv_h;
-        let t2 = t * t;
-        let t3 = t2 * t;
-        let (two, three, four, six) = (self.two, self.three, self.four, self.six);
-        let h00 = two * t3 - three * t2 + R::one();
-        let h10 = t3 - two * t2 + t;
-        let h01 = three * t2 - two * t3;
-        let h11 = t3 - t2;
-        // Derivatives of the basis with respect to t.
-        let g00 = six * t2 - six * t;
-        let g10 = three * t2 - four * t + R::one();
-        let g11 = three * t2 - two * t;
-        let (ga, gb) = (R::one() - a.x2, R::one() - b.x2);
-        let gamma = h00 * a.gamma + h10 * self.h * ga + h01 * b.gamma + h11 * self.h * gb;
-        let x2 = h00 * a.x2 + h10 * self.h * a.dx2 + h01 * b.x2 + h11 * self.h * b.dx2;
-        let dx2 = (g00 * (a.x2 - b.x2)) * self.inv_h + g10 * a.dx2 + g11 * b.dx2;
+        let c = &self.seg;
+        let gamma = c[0] + t * (c[1] + t * (c[2] + t * c[3]));
+        let x2 = c[4] + t * (c[5] + t * (c[6] + t * c[7]));
+        let dx2 = (c[5] + t * (self.two * c[6] + t * self.three * c[7])) * self.inv_h;
         Ok((gamma, x2, dx2))
     }
 
@@ -540,16 +524,26 @@ impl<R: Real> PathModel<R> {
         }
         let inv_den = R::one() / den;
         let ta = num * inv_den;
-        // Total derivative of T_a for a direction (dδφ, dδ2, dk2c, dR).
-        let dt = |xphi: R, x2d: R, xk: R, xr: R| -> R {
-            let dk2 = dk2_dphi * xphi + dk2_d2 * x2d + st.cp * xk + st.sp * xr;
-            let dl = -self.l1 * st.s2 * x2d + dk2;
-            let dd1 = xphi - x2d;
-            let dn = self.k1 * (k2 * dd1 + d1 * dk2) - self.k2 * (l * x2d + dd2 * dl);
-            let dden = dk2 - st.x2 * dl - l * st.dx2 * x2d;
+        // T_a is linear in a direction (dδφ, dδ2, dk2c, dR) to first order: its four partial
+        // derivatives once, then a dot product per use (stiffness, sensitivities, last step).
+        // dT = (dn − T·dden)/den with n = K1 Δ1 k2 − K2 Δ2 L, den = k2 − x2 L, L = l1 cos θ2 + k2.
+        let t_phi = {
+            let (dk2, dl) = (dk2_dphi, dk2_dphi);
+            let dn = self.k1 * (k2 + d1 * dk2) - self.k2 * dd2 * dl;
+            let dden = dk2 - st.x2 * dl;
             (dn - ta * dden) * inv_den
         };
-        let ta_fin = ta + dt(fin.0, fin.1, R::zero(), R::zero());
+        // Along δ2, k2 gains l1 sin θ2 and L = l1 cos θ2 + k2 stays put (∂L/∂δ2 = 0).
+        let t_2 = {
+            let dk2 = dk2_d2;
+            let dn = self.k1 * (d1 * dk2 - k2) - self.k2 * l;
+            let dden = dk2 - l * st.dx2;
+            (dn - ta * dden) * inv_den
+        };
+        // ∂k2 = ∂L = cos δφ per k2c and sin δφ per R: both share one factor.
+        let q = (self.k1 * d1 - self.k2 * dd2 - ta * (R::one() - st.x2)) * inv_den;
+        let (t_k, t_r) = (q * st.cp, q * st.sp);
+        let ta_fin = ta + t_phi * fin.0 + t_2 * fin.1;
         let fk2 = ta * st.x2 - self.k2 * dd2;
         if fk2 < -self.eps_force {
             return Err(PathFail::ContactOpens);
@@ -557,7 +551,7 @@ impl<R: Real> PathModel<R> {
         // Tangent along the path: J t = (0, 1).
         let tphi = -st.a12 * inv;
         let t2 = st.a11 * inv;
-        let stiffness = dt(tphi, t2, R::zero(), R::zero());
+        let stiffness = t_phi * tphi + t_2 * t2;
         // Sensitivities at fixed θa: J dδ = −(∂E1/∂p, 0).
         let e1k = -st.sp * self.inv_l1;
         let e1r = -(R::one() - st.cp) * self.inv_l1;
@@ -565,8 +559,8 @@ impl<R: Real> PathModel<R> {
         let d2_k = (st.a21 * e1k) * inv;
         let dphi_r = -(st.a22 * e1r) * inv;
         let d2_r = (st.a21 * e1r) * inv;
-        let dta_dk2c = dt(dphi_k, d2_k, R::one(), R::zero());
-        let dta_dr = dt(dphi_r, d2_r, R::zero(), R::one());
+        let dta_dk2c = t_phi * dphi_k + t_2 * d2_k + t_k;
+        let dta_dr = t_phi * dphi_r + t_2 * d2_r + t_r;
         let out = PathPoint {
             dphi: dphi + fin.0,
             d2: d2 + fin.1,
