@@ -159,7 +159,19 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
                         out +=
                             &format!("{:.9} {:.9} {:.9}\n", s.time_s, s.theta_a_rad, s.torque_nm);
                     }
-                    std::fs::write(path, out).expect("dump");
+                    // A directory gets one file per request (the cost benchmark's cases).
+                    let path = std::path::Path::new(&path);
+                    let file = if path.is_dir() {
+                        let plant = if scene.sensors == scene.ideal().sensors {
+                            "ideal"
+                        } else {
+                            "realistic"
+                        };
+                        path.join(format!("{plant}_r{radius}_k{k2c_frac:.1}_dta{dta}.txt"))
+                    } else {
+                        path.to_path_buf()
+                    };
+                    std::fs::write(file, out).expect("dump");
                 }
                 if std::env::var("PATHFIT_TRACE").is_ok() {
                     println!(

@@ -910,7 +910,7 @@ mod tests {
     #[test]
     fn q62_quotient_within_a_unit_of_the_exact_one() {
         let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        let mut check = |num: i64, den: u64| {
+        let check = |num: i64, den: u64| {
             let exact = ((num as i128) << 62) / den as i128;
             let got = super::kernel::div_q62(num, den) as i128;
             assert!((got - exact).abs() <= 1, "{num} / {den}: {got} vs {exact}");

@@ -37,18 +37,17 @@
 //! No allocation, no panics, bounded iterations ([`MAX_EVALS`] path evaluations of at most
 //! [`MAX_BINS`] points, each a warm-started Newton solve of ≤ [`path::MAX_PATH_NEWTON`] steps;
 //! each point is warm-started from the previous hypothesis through its sensitivities, so a
-//! point costs ~1.2 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
-//! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh`,
-//! realistic plant requests dumped from the grid): f32 on the FPU 89–97 k instructions for
-//! fits of 3–4 path evaluations (a vertex, Table 2, R = 9.75 cm; 99 of the 159 realistic grid
-//! fits), 158 k for the grid's slowest (R = 1 cm, 7 evaluations, 138 samples; 60 fits need
-//! 5–7): the 100 k budget holds for the typical request, not the worst. 4.2 KB peak stack.
-//! `Fx32` 0.62–1.23 M instructions, 9.1 KB peak stack. No library trigonometry runs (libm's
-//! sinf/cosf go through soft double on a Cortex-M4F); the count is the sample pass
-//! (≈ 23 k), the path evaluations (≈ 13 k each in f32: 10 bins × ~1.3 Newton steps) and the
-//! 4×4 solves. It runs once per contact in the low-priority task. The firmware's back end
-//! (`pts::FirmwareReal`) is `Fx32`, which is 6–12× over the 100 k budget; f32 on the M4F's
-//! FPU is the cheaper option measured above. Neither meets the budget for every request yet.
+//! point costs ~1.5 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
+//! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh
+//! --summary`, the 160 realistic plant requests of the grid): f32 on the FPU min 55 k /
+//! median 75 k / max 122 k instructions (150 of 160 within the 100 k budget; the rest need
+//! 6–10 path evaluations), 4.2 KB peak stack; `Fx32` min 232 k / median 358 k / max 579 k,
+//! 8.8 KB peak stack. No library trigonometry runs (libm's sinf/cosf go through soft double
+//! on a Cortex-M4F); the count is the sample pass (f32 ≈ 17 k, Fx32 ≈ 49 k for ~100
+//! samples), the path evaluations (f32 ≈ 10 k, Fx32 ≈ 60 k each: 8 bins × ~1.5 Newton
+//! steps) and the 4×4 solves. It runs once per contact in the low-priority task. The
+//! firmware's back end (`pts::FirmwareReal`) is `Fx32`, still 2.3–5.8× over the 100 k
+//! budget (every add saturates and every product takes 3–4 long multiplies in I32F32).
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};
