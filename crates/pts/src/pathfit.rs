@@ -392,9 +392,8 @@ struct Prev<R> {
     sens_r: (R, R),
 }
 
-/// The working state of one fit (bins, priors, warm starts); see the README for its size.
+/// The statistics of one fit shared by every kernel: bin counts, noise, priors, budget.
 struct Work<R> {
-    bins: [Bin<R>; MAX_BINS],
     nb: usize,
     /// Pooled within-bin variance of one sample ((mN·m)²).
     var_sample: R,
@@ -410,20 +409,12 @@ struct Work<R> {
     prior_w: [R; NP],
     /// θa,c the bins are measured from (rad).
     theta_a_c0: R,
-    /// The last solved point of each bin, to warm-start the next hypothesis.
-    prev: [Option<Prev<R>>; MAX_BINS],
 }
 
 impl<R: Real> Work<R> {
     fn new(theta_a_c0: R) -> Self {
         let z = R::zero();
         Self {
-            bins: [Bin {
-                n: 0,
-                dta: z,
-                t: z,
-                w: z,
-            }; MAX_BINS],
             nb: 0,
             var_sample: z,
             n_total: 0,
@@ -433,9 +424,44 @@ impl<R: Real> Work<R> {
             prior: [z; NP],
             prior_w: [z; NP],
             theta_a_c0,
-            prev: [None; MAX_BINS],
         }
     }
+}
+
+/// What the fit needs from a path model and the binned samples: the generic
+/// [`GenericKernel`] (any [`Real`], the reference) or the firmware's integer kernel
+/// ([`q`]). The orchestration (priors, Levenberg–Marquardt, the radius decision, σ and the
+/// refusals) is written once against it.
+trait Kernel<R: Real> {
+    /// Distal phalanx length (m).
+    fn l2(&self) -> R;
+    /// θa,c of the current contact configuration (rad, the finger's frame).
+    fn theta_a_c(&self) -> R;
+    /// T_a of the free-motion equilibrium at the current contact (N·m).
+    fn tac(&self) -> R;
+    /// The current contact configuration.
+    fn contact(&self) -> Config<R>;
+    /// Moves the contact to another θa,c (rad); drops the warm starts.
+    fn set_contact(&mut self, theta_a_c: R) -> Result<(), PtsError>;
+    /// The path at every bin for p = (k2c, R, ·, θa,c) (m, m, ·, rad), with the normal
+    /// equations (see [`Eval`]); counts one evaluation in `w`.
+    fn evaluate(&mut self, w: &mut Work<R>, p: &[R; NP]) -> Result<Eval<R>, PathFail>;
+    /// Chord stiffness (N·m/rad) from the first bin above θa,c to the middle of the rest
+    /// (`None` when the bins do not span enough θa).
+    fn chord_stiffness(&self, nb: usize) -> Option<R>;
+    /// See [`PathModel::proximal_clearance`].
+    fn proximal_clearance(&self, k2c: R, radius: R, dphi: R, d2: R) -> Option<R>;
+    /// Newton iterations and exact closures spent so far.
+    fn counters(&self) -> (u32, u16);
+}
+
+/// The reference kernel: [`PathModel`] in the back end's own arithmetic.
+struct GenericKernel<'m, R> {
+    pm: PathModel<R>,
+    model: &'m Model<R>,
+    bins: [Bin<R>; MAX_BINS],
+    /// The last solved point of each bin, to warm-start the next hypothesis.
+    prev: [Option<Prev<R>>; MAX_BINS],
 }
 
 /// Result of one path evaluation at the bins.
@@ -505,36 +531,96 @@ where
     if !theta_a_c_rad.is_finite() {
         return Err(PathFitError::Model(PtsError::NonFinite));
     }
-    let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
-    let zero = R::zero();
+    let c = FitConsts::new(cfg)?;
     // The bins are measured from the caller's (encoder) θa,c; the model works at the finger's
     // θa, behind the encoder by the backlash lead. Only θa differences enter the bins.
-    let lead = conv(cfg.encoder_lead_rad)?;
     let meas_c = theta_a_c_rad;
-    let theta_a_c_rad = meas_c - lead;
-    let mut pm = PathModel::new(model, theta_a_c_rad)?;
-    let l2 = pm.l2();
+    let theta_a_c_rad = meas_c - c.lead;
+    let pm = PathModel::new(model, theta_a_c_rad)?;
     let mut w = Work::new(theta_a_c_rad);
-    bin_samples(&mut w, cfg, meas_c, samples)?;
+    let mut k = GenericKernel {
+        pm,
+        model,
+        bins: [Bin {
+            n: 0,
+            dta: R::zero(),
+            t: R::zero(),
+            w: R::zero(),
+        }; MAX_BINS],
+        prev: [None; MAX_BINS],
+    };
+    bin_samples(&mut k.bins, &mut w, cfg, meas_c, samples)?;
+    run_fit(&mut k, model, &c, &mut w, approach_torque_nm)
+}
 
-    let noise_w = conv(cfg.torque_noise_floor_nm)?;
-    let noise_s = noise_w * w.ks;
+/// [`PathFitConfig`] in the back end (converted once: run-time f64 conversions cost soft
+/// double on the target).
+#[derive(Clone, Copy, Debug)]
+struct FitConsts<R> {
+    lead: R,
+    noise_floor: R,
+    friction_prior_sigma: R,
+    contact_angle_sigma: R,
+    fit_contact_angle: bool,
+    object: ObjectModel,
+    max_radius: R,
+    inflation: R,
+    sigma_floor: R,
+    max_chi2: R,
+    max_sigma_frac: R,
+    tip_margin: R,
+    radius_rel_sigma: R,
+}
+
+impl<R: Real> FitConsts<R> {
+    fn new(cfg: &PathFitConfig) -> Result<Self, PathFitError> {
+        let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
+        Ok(Self {
+            lead: conv(cfg.encoder_lead_rad)?,
+            noise_floor: conv(cfg.torque_noise_floor_nm)?,
+            friction_prior_sigma: conv(cfg.friction_prior_sigma_nm)?,
+            contact_angle_sigma: conv(cfg.contact_angle_sigma_rad)?,
+            fit_contact_angle: cfg.fit_contact_angle,
+            object: cfg.object,
+            max_radius: conv(cfg.max_radius_m)?,
+            inflation: conv(cfg.sigma_inflation)?,
+            sigma_floor: conv(cfg.sigma_floor_m)?,
+            max_chi2: conv(cfg.max_chi2)?,
+            max_sigma_frac: conv(cfg.max_sigma_frac_l2)?,
+            tip_margin: conv(cfg.tip_margin_frac_l2)?,
+            radius_rel_sigma: conv(cfg.radius_rel_sigma)?,
+        })
+    }
+}
+
+/// Everything after the binning: priors, the fits, σ and the refusals (see [`fit_path`]).
+fn run_fit<R: Real, K: Kernel<R>>(
+    pm: &mut K,
+    model: &Model<R>,
+    c: &FitConsts<R>,
+    w: &mut Work<R>,
+    approach_torque_nm: Option<R>,
+) -> Result<PathFit<R>, PathFitError> {
+    let zero = R::zero();
+    let theta_a_c_rad = pm.theta_a_c();
+    let l2 = pm.l2();
+    let noise_s = c.noise_floor * w.ks;
     let s2_bins = (w.var_sample * w.inv_n).max(noise_s * noise_s * w.inv_n);
     let mut n_priors = 0u32;
     if let Some(tac) = approach_torque_nm {
-        let sp = conv(cfg.friction_prior_sigma_nm)?;
+        let sp = c.friction_prior_sigma;
         if !tac.is_finite() {
             return Err(PathFitError::Model(PtsError::NonFinite));
         }
         if sp > zero {
-            w.prior[TF] = tac - pm.tac;
+            w.prior[TF] = tac - pm.tac();
             let sps = sp * w.ks;
             w.prior_w[TF] = s2_bins / (sps * sps);
             n_priors += 1;
         }
     }
-    let sc = conv(cfg.contact_angle_sigma_rad)?;
-    let fit_contact = sc > zero && cfg.fit_contact_angle;
+    let sc = c.contact_angle_sigma;
+    let fit_contact = sc > zero && c.fit_contact_angle;
     let has_tc = sc > zero;
     if has_tc {
         w.prior[TC] = theta_a_c_rad;
@@ -544,8 +630,8 @@ where
 
     // Initial k2,c from the chord stiffness of the first half of the bins, inverted at the
     // contact configuration (the two-point estimate on the early path).
-    let k2_init = initial_k2(model, &pm.contact, &w, l2);
-    let rmax = conv(cfg.max_radius_m)?;
+    let k2_init = initial_k2(model, &pm.contact(), pm.chord_stiffness(w.nb), l2);
+    let rmax = c.max_radius;
     let bounds = Bounds {
         k_lo: l2 * R::from_f64(0.01),
         l2,
@@ -602,7 +688,7 @@ where
         }
         let r_allowed = (sigma_r_lin * R::from_f64(3.0)).min(rmax);
         let bias_pot = (per_r * r_allowed).abs();
-        let want = match cfg.object {
+        let want = match c.object {
             ObjectModel::Vertex => false,
             ObjectModel::Cylinder => true,
             ObjectModel::Auto => {
@@ -622,22 +708,13 @@ where
     // step with R free starts the cylinder fit: the vertex fit's iterations would be spent
     // on a model that is then dropped); otherwise the vertex fit runs to convergence and
     // decides again there.
-    let first = lm(&mut pm, model, &mut w, &mut p, &vset, &bounds, 0, None)?;
+    let first = lm(pm, w, &mut p, &vset, &bounds, 0, None)?;
     let p_first = p;
     let early = decide(&first)?;
     let mut vertex_done = !early.want;
     let (mut vertex, mut dec) = (first, early);
     if vertex_done {
-        vertex = lm(
-            &mut pm,
-            model,
-            &mut w,
-            &mut p,
-            &vset,
-            &bounds,
-            8,
-            Some(first),
-        )?;
+        vertex = lm(pm, w, &mut p, &vset, &bounds, 8, Some(first))?;
         dec = decide(&vertex)?;
     }
     let p_vertex = p;
@@ -650,7 +727,7 @@ where
         let mut pc = p_vertex;
         pc[K] = (pc[K] + dec.dk_lin).max(bounds.k_lo).min(l2);
         pc[RAD] = dec.dr_lin.max(zero).min(rmax);
-        match lm(&mut pm, model, &mut w, &mut pc, &cset, &bounds, 10, None) {
+        match lm(pm, w, &mut pc, &cset, &bounds, 10, None) {
             Ok(e) if e.sse <= vertex.sse => {
                 fit = e;
                 pfit = pc;
@@ -662,7 +739,7 @@ where
             // The cylinder fit failed or is no better: keep the vertex, with the bias.
             _ => {
                 if fit_contact {
-                    pm.set_contact(model, p_vertex[TC])?;
+                    pm.set_contact(p_vertex[TC])?;
                 }
             }
         }
@@ -670,16 +747,7 @@ where
     if !vertex_done {
         // The early cylinder fit was refused: the vertex fit after all.
         let mut pv = p_first;
-        vertex = lm(
-            &mut pm,
-            model,
-            &mut w,
-            &mut pv,
-            &vset,
-            &bounds,
-            8,
-            Some(first),
-        )?;
+        vertex = lm(pm, w, &mut pv, &vset, &bounds, 8, Some(first))?;
         dec = decide(&vertex)?;
         fit = vertex;
         pfit = pv;
@@ -702,8 +770,8 @@ where
         sigma_r_lin * sigma_r_lin / (l2 * l2)
     };
     let var_tc = if has_tc { cov[TC][TC] * s2 } else { zero };
-    let infl = conv(cfg.sigma_inflation)?;
-    let floor = conv(cfg.sigma_floor_m)?;
+    let infl = c.inflation;
+    let floor = c.sigma_floor;
     let sig_stat = var_k.max(zero).sqrt() * l2 * infl;
     // Bias of an unseen radius: half its possible range as one σ.
     let sig_bias = bias_k * R::from_f64(0.5);
@@ -722,13 +790,13 @@ where
     if k2c > l2 {
         return Err(PathFitError::PastTip);
     }
-    if chi2_raw > conv(cfg.max_chi2)? {
+    if chi2_raw > c.max_chi2 {
         return Err(PathFitError::BadFit);
     }
-    if sigma_k2 > l2 * conv(cfg.max_sigma_frac_l2)? {
+    if sigma_k2 > l2 * c.max_sigma_frac {
         return Err(PathFitError::NotDetermined);
     }
-    if fit.k2_last > l2 * (R::one() - conv(cfg.tip_margin_frac_l2)?) {
+    if fit.k2_last > l2 * (R::one() - c.tip_margin) {
         return Err(PathFitError::PastTip);
     }
     let zero_c = pm.proximal_clearance(k2c, radius, zero, zero);
@@ -736,9 +804,8 @@ where
     if zero_c.is_some_and(|c| c < zero) || end_c.is_some_and(|c| c < zero) {
         return Err(PathFitError::SecondContact);
     }
-    let radius_observable = object == FittedObject::Cylinder
-        && radius > zero
-        && sigma_r < radius * conv(cfg.radius_rel_sigma)?;
+    let radius_observable =
+        object == FittedObject::Cylinder && radius > zero && sigma_r < radius * c.radius_rel_sigma;
     let rms = (fit.sse).max(zero).sqrt() / w.ks;
     Ok(PathFit {
         k2_contact_m: k2c,
@@ -755,10 +822,10 @@ where
         bins: w.nb as u8,
         samples_used: w.n_total,
         path_evals: w.evals as u8,
-        newton_iters: pm.newton_iters,
-        closures: pm.closures,
-        contact_config: pm.contact,
-        theta_a_c_rad: pfit[TC] + lead,
+        newton_iters: pm.counters().0,
+        closures: pm.counters().1,
+        contact_config: pm.contact(),
+        theta_a_c_rad: pfit[TC] + c.lead,
         sigma_theta_a_c_rad: var_tc.max(zero).sqrt(),
     })
 }
@@ -887,6 +954,7 @@ fn envelope<R: Real, I: Iterator<Item = PathSample<R>>>(
 /// second moments about its first sample, so the within-bin scatter about the local trend
 /// needs no second pass.
 fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedIterator>(
+    bins: &mut [Bin<R>; MAX_BINS],
     w: &mut Work<R>,
     cfg: &PathFitConfig,
     theta_a_c: R,
@@ -972,7 +1040,7 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
         }
         let inv = R::one() / from_count::<R>(c);
         let (mth, mt) = (a[2] * inv, a[3] * inv);
-        if let (Some(b), Some(m)) = (w.bins.get_mut(nb), mom.get_mut(nb)) {
+        if let (Some(b), Some(m)) = (bins.get_mut(nb), mom.get_mut(nb)) {
             *b = Bin {
                 n: c,
                 dta: a[0] + mth,
@@ -991,8 +1059,8 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
     // noise estimate must not contain the path's own rise across a bin.
     let mut ss = z;
     for i in 0..nb {
-        let a = w.bins.get(i.saturating_sub(1));
-        let b = w.bins.get((i + 1).min(nb - 1));
+        let a = bins.get(i.saturating_sub(1));
+        let b = bins.get((i + 1).min(nb - 1));
         let mut sl = z;
         if let (Some(a), Some(b)) = (a, b) {
             let dth = b.dta - a.dta;
@@ -1010,7 +1078,7 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
     let dof = from_count::<R>(total.saturating_sub(nb as u32).max(1));
     w.var_sample = ss / dof;
     w.inv_n = R::one() / n_r;
-    for b in w.bins.iter_mut().take(nb) {
+    for b in bins.iter_mut().take(nb) {
         b.w = from_count::<R>(b.n) * w.inv_n;
     }
     w.nb = nb;
@@ -1018,25 +1086,13 @@ fn bin_samples<R: Real, I: Iterator<Item = PathSample<R>> + Clone + DoubleEndedI
     Ok(())
 }
 
-fn initial_k2<R: Real>(model: &Model<R>, cfg: &Config<R>, w: &Work<R>, l2: R) -> R {
-    // Chord from the first bin above θa,c to the middle of the rest.
-    let i0 = w
-        .bins
-        .iter()
-        .take(w.nb)
-        .position(|b| b.dta > R::zero())
-        .unwrap_or(0);
-    let first = w.bins.get(i0);
-    let mid = w.bins.get(i0 + (w.nb.saturating_sub(i0)) / 2);
+/// Initial k2,c: the chord stiffness of the early path inverted at the contact
+/// configuration (the two-point estimate on the first half of the bins).
+fn initial_k2<R: Real>(model: &Model<R>, cfg: &Config<R>, chord: Option<R>, l2: R) -> R {
     let fallback = l2 * R::from_f64(0.5);
-    let (Some(a), Some(b)) = (first, mid) else {
+    let Some(kc) = chord else {
         return fallback;
     };
-    let dth = b.dta - a.dta;
-    if !(dth > R::from_f64(1e-6)) {
-        return fallback;
-    }
-    let kc = (b.t - a.t) / dth;
     match model.invert(cfg, kc) {
         Ok(c) => match c.k2 {
             Some(k) => k.max(l2 * R::from_f64(0.05)).min(l2 * R::from_f64(0.95)),
@@ -1047,21 +1103,64 @@ fn initial_k2<R: Real>(model: &Model<R>, cfg: &Config<R>, w: &Work<R>, l2: R) ->
     }
 }
 
+/// Chord from the first bin above θa,c to the middle of the rest (N·m/rad).
+fn chord_of<R: Real>(bins: &[Bin<R>]) -> Option<R> {
+    let i0 = bins.iter().position(|b| b.dta > R::zero()).unwrap_or(0);
+    let a = bins.get(i0)?;
+    let b = bins.get(i0 + (bins.len().saturating_sub(i0)) / 2)?;
+    let dth = b.dta - a.dta;
+    if !(dth > R::from_f64(1e-6)) {
+        return None;
+    }
+    Some((b.t - a.t) / dth)
+}
+
+impl<R: Real> Kernel<R> for GenericKernel<'_, R> {
+    fn l2(&self) -> R {
+        self.pm.l2()
+    }
+    fn theta_a_c(&self) -> R {
+        self.pm.theta_a_c
+    }
+    fn tac(&self) -> R {
+        self.pm.tac
+    }
+    fn contact(&self) -> Config<R> {
+        self.pm.contact
+    }
+    fn set_contact(&mut self, theta_a_c: R) -> Result<(), PtsError> {
+        if theta_a_c != self.pm.theta_a_c {
+            self.pm.set_contact(self.model, theta_a_c)?;
+            self.prev = [None; MAX_BINS];
+        }
+        Ok(())
+    }
+    fn evaluate(&mut self, w: &mut Work<R>, p: &[R; NP]) -> Result<Eval<R>, PathFail> {
+        evaluate(self, w, p)
+    }
+    fn chord_stiffness(&self, nb: usize) -> Option<R> {
+        chord_of(self.bins.get(..nb)?)
+    }
+    fn proximal_clearance(&self, k2c: R, radius: R, dphi: R, d2: R) -> Option<R> {
+        self.pm.proximal_clearance(k2c, radius, dphi, d2)
+    }
+    fn counters(&self) -> (u32, u16) {
+        (self.pm.newton_iters, self.pm.closures)
+    }
+}
+
 /// Evaluates the path at every bin for p = (k2c, R, ·, θa,c) (m, m, ·, rad) and accumulates
 /// the normal equations.
 #[allow(clippy::needless_range_loop)]
 fn evaluate<R: Real>(
-    pm: &mut PathModel<R>,
-    model: &Model<R>,
+    k: &mut GenericKernel<'_, R>,
     w: &mut Work<R>,
     p: &[R; NP],
 ) -> Result<Eval<R>, PathFail> {
     w.evals += 1;
     let (k2c, radius, tc) = (p[K], p[RAD], p[TC]);
-    if tc != pm.theta_a_c {
-        pm.set_contact(model, tc)?;
-        w.prev = [None; MAX_BINS];
-    }
+    k.set_contact(tc)?;
+    let (pm, model) = (&mut k.pm, k.model);
     let shift = tc - w.theta_a_c0;
     let l2 = pm.l2();
     let z = R::zero();
@@ -1074,7 +1173,7 @@ fn evaluate<R: Real>(
     let mut last = (z, z);
     let mut res = [z; MAX_BINS];
     let mut cols = [[z; NP]; MAX_BINS];
-    for (i, b) in w.bins.iter().take(w.nb).enumerate() {
+    for (i, b) in k.bins.iter().take(w.nb).enumerate() {
         let dta = b.dta - shift;
         if !(dta > R::from_f64(1e-6)) {
             // Below the contact: free motion, linearised about θa,c (its slope is the
@@ -1089,7 +1188,7 @@ fn evaluate<R: Real>(
         }
         // Warm start: this bin's point of the previous hypothesis moved by its sensitivities,
         // else the previous bin's point moved along its tangent, else the tangent at contact.
-        let guess = match (w.prev.get(i).copied().flatten(), prev_pt) {
+        let guess = match (k.prev.get(i).copied().flatten(), prev_pt) {
             (Some(q), _) => {
                 let (dk, dr) = (k2c - q.k2c, radius - q.radius);
                 (
@@ -1108,7 +1207,7 @@ fn evaluate<R: Real>(
         };
         let pt = pm.point(model, k2c, radius, dta, guess)?;
         prev_pt = Some((dta, pt.dphi, pt.d2, pt.tangent));
-        if let Some(slot) = w.prev.get_mut(i) {
+        if let Some(slot) = k.prev.get_mut(i) {
             *slot = Some(Prev {
                 k2c,
                 radius,
@@ -1152,7 +1251,7 @@ fn evaluate<R: Real>(
     a[TC][TC] = wc;
     g[TC] = -wc * dc;
     // The upper triangle with the weight applied once per column, then mirrored.
-    for ((b, &r0), col) in w.bins.iter().take(w.nb).zip(res.iter()).zip(cols.iter()) {
+    for ((b, &r0), col) in k.bins.iter().take(w.nb).zip(res.iter()).zip(cols.iter()) {
         let r = (r0 - tf) * ks;
         let wr = b.w * r;
         sse = sse + wr * r;
@@ -1207,9 +1306,8 @@ struct Bounds<R> {
 /// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
 /// the global [`MAX_EVALS`].
 #[allow(clippy::too_many_arguments)]
-fn lm<R: Real>(
-    pm: &mut PathModel<R>,
-    model: &Model<R>,
+fn lm<R: Real, K: Kernel<R>>(
+    pm: &mut K,
     w: &mut Work<R>,
     p: &mut [R; NP],
     set: &[bool; NP],
@@ -1225,7 +1323,7 @@ fn lm<R: Real>(
         if let Some(e) = start {
             break e;
         }
-        match evaluate(pm, model, w, p) {
+        match pm.evaluate(w, p) {
             Ok(e) => break e,
             Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
             Err(PathFail::PastTip) => p[K] = (p[K] + b.k_lo) * R::from_f64(0.5),
@@ -1258,7 +1356,7 @@ fn lm<R: Real>(
         trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
         trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
         trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
-        match evaluate(pm, model, w, &trial) {
+        match pm.evaluate(w, &trial) {
             Ok(e) if e.sse <= best.sse => {
                 *p = trial;
                 best = e;
@@ -1274,10 +1372,7 @@ fn lm<R: Real>(
         }
     }
     // Leave the path model at the accepted contact (a rejected trial may have moved it).
-    if p[TC] != pm.theta_a_c {
-        pm.set_contact(model, p[TC])?;
-        w.prev = [None; MAX_BINS];
-    }
+    pm.set_contact(p[TC])?;
     Ok(best)
 }
 
