@@ -24,7 +24,7 @@ use core::ops::{Add, Div, Mul, Neg, Sub};
 use fixed::types::{I16F16, I32F32, I8F24};
 
 /// Integer kernels in Q62/Q32 shared by both widths.
-mod kernel {
+pub(crate) mod kernel {
     /// 1.0 in Q62.
     const ONE: i64 = 1 << 62;
     /// π/2 in Q62 (and π in Q61: the same integer).
@@ -324,7 +324,7 @@ mod kernel {
     /// cycles on the Cortex-M4, relative error < 2^-14) and from a 256-entry table on
     /// Armv6-M, which has no divide instruction (relative error < 2^-8).
     #[inline(always)]
-    pub(super) fn recip_q31(d: u32) -> u64 {
+    pub(crate) fn recip_q31(d: u32) -> u64 {
         #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
         {
             recip_q31_from(d, recip_seed_table(d))

@@ -64,6 +64,8 @@
 
 #[path = "pathfit_path.rs"]
 pub mod path;
+#[path = "pathfit_q.rs"]
+pub mod q;
 
 use crate::{Config, Model, PtsError, Real};
 use path::{PathFail, PathModel};
@@ -594,6 +596,7 @@ impl<R: Real> FitConsts<R> {
 }
 
 /// Everything after the binning: priors, the fits, σ and the refusals (see [`fit_path`]).
+#[inline(never)]
 fn run_fit<R: Real, K: Kernel<R>>(
     pm: &mut K,
     model: &Model<R>,

@@ -18,7 +18,7 @@ if [ "$1" = "--summary" ]; then
 fi
 [ $# -gt 0 ] || set -- "$here"/cases/*.txt
 for c in "$@"; do
-    for entry in run_f32 run; do
+    for entry in run_f32 run run_q; do
         printf '%s %s: ' "$(basename "$c")" "$entry"
         python3 "$here/count.py" "$elf" "$c" "$entry" | tr '\n' ' '
         echo

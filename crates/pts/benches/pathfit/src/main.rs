@@ -1,12 +1,15 @@
-//! Instruction count of pts::pathfit::fit_path on thumbv7em (run under unicorn by count.py,
-//! `count.sh`): `run` on Fx32, `run_f32` on the Cortex-M4F single-precision FPU, with
-//! `PathFitConfig::DEFAULT` (the paper finger on the RE10 drive) and the case in INPUT.
+//! Instruction count of the path fit on thumbv7em (run under unicorn by emu.py, `count.sh`):
+//! `run` = the generic `pts::pathfit::fit_path` on Fx32, `run_f32` the same on the Cortex-M4F
+//! single-precision FPU, `run_q` the firmware's integer fit `pts::pathfit::q::fit_path_q` (its
+//! table built by `init_q` beforehand, as the firmware does at init), with
+//! `PathFitConfig::DEFAULT` (the paper finger on the RE10 drive) and the case in INPUT*.
 #![no_std]
 #![no_main]
 
 use pts::fixed::Fx32;
+use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
 use pts::pathfit::{fit_path, PathFitConfig, PathSample};
-use pts::Model;
+use pts::{Finger, Model};
 
 /// Filled by the harness: Fx32 bits of θa,c, T_a,c and N samples (θa, T_a).
 #[no_mangle]
@@ -16,6 +19,11 @@ pub static mut N: u32 = 0;
 /// The same input as f32 (filled by the harness).
 #[no_mangle]
 pub static mut INPUT_F32: [f32; 2 + 3 * 256] = [0.0; 2 + 3 * 256];
+/// The same samples as the controller's integers: tick (100 µs), θa (µrad), T_a (µN·m).
+#[no_mangle]
+pub static mut INPUT_RAW: [i32; 3 * 256] = [0; 3 * 256];
+/// The integer fit's table, built by `init_q`.
+static mut TABLE: Option<PathTable> = None;
 /// Outputs: k2 bits, σ bits, status (0 ok, 1 + error index otherwise).
 #[no_mangle]
 pub static mut OUT: [i64; 4] = [0; 4];
@@ -78,6 +86,57 @@ pub extern "C" fn run_f32() -> i32 {
             out[1] = (fit.sigma_k2_m as f64 * 4294967296.0) as i64;
             out[2] = 0;
             out[3] = fit.path_evals as i64;
+            0
+        }
+        Err(_) => {
+            out[2] = 1;
+            1
+        }
+    }
+}
+
+/// Builds the integer fit's table (the firmware does this once at init; not counted).
+#[no_mangle]
+#[inline(never)]
+pub extern "C" fn init_q() -> i32 {
+    let t = PathTable::new(&Finger::PAPER, &CFG, 1e-4).ok();
+    let ok = t.is_some();
+    unsafe { *core::ptr::addr_of_mut!(TABLE) = t };
+    if ok {
+        0
+    } else {
+        -1
+    }
+}
+
+/// The firmware's integer fit (`pts::pathfit::q`).
+#[no_mangle]
+#[inline(never)]
+pub extern "C" fn run_q() -> i32 {
+    let input = unsafe { &*core::ptr::addr_of!(INPUT) };
+    let raw = unsafe { &*core::ptr::addr_of!(INPUT_RAW) };
+    let n = unsafe { N } as usize;
+    let Some(table) = (unsafe { &*core::ptr::addr_of!(TABLE) }) else {
+        return -1;
+    };
+    let samples = raw[..3 * n.min(256)].chunks_exact(3).map(|c| RawSample {
+        tick: c[0] as u32,
+        theta_a_urad: c[1],
+        torque_unm: c[2],
+    });
+    let r = fit_path_q(
+        table,
+        Fx32::from_bits(input[0]),
+        Some(Fx32::from_bits(input[1])),
+        samples,
+    );
+    let out = unsafe { &mut *core::ptr::addr_of_mut!(OUT) };
+    match r {
+        Ok(f) => {
+            out[0] = f.k2_contact_m.to_bits();
+            out[1] = f.sigma_k2_m.to_bits();
+            out[2] = 0;
+            out[3] = f.path_evals as i64;
             0
         }
         Err(_) => {

@@ -1,0 +1,1229 @@
+//! The firmware's path fit: the samples, the closure table and the path points in 32-bit
+//! integers with a fixed binary point per quantity; only the 4×4 normal equations, the
+//! Levenberg–Marquardt steps and σ (a few hundred operations per fit) stay in [`Fx32`].
+//!
+//! Why a kernel of its own: in Q32.32 every add saturates and every product takes three to
+//! four long multiplies, which put the generic fit ([`super::fit_path`] on [`Fx32`]) at
+//! 0.23–0.58 M instructions on a Cortex-M4, where the budget is 0.1 M. Here a product is one
+//! `SMULL` and a shift, sums of products accumulate in 64 bits (`SMLAL`), a quotient is a
+//! reciprocal seeded by the hardware divider, and the samples never leave the integers the
+//! controller measured (µrad, µN·m, ticks). The formats (value = raw · 2^-Q):
+//!
+//! | quantity | Q | range | resolution |
+//! |---|---|---|---|
+//! | angles (rad), sin/cos, x2, dx2/dθ2, lengths in units of l1 | 28 | ±8 | 3.7e-9 |
+//! | torques (N·m), K1, K2 (N·m/rad) | 24 | ±128 | 6.0e-8 |
+//! | torque derivatives (N·m/rad, N·m per l1 or l2) | 16 | ±32768 | 1.5e-5 |
+//!
+//! The closure γ(θ2), x2(θ2) and sin θ2, cos θ2 come from a table of cubic Hermite
+//! segments [`SEG_STEP`] apart in θ2, built once from the f64 model ([`PathTable::new`]),
+//! so a fit runs no closure, no trigonometry and no library call. Bounds: the angles the
+//! Newton solves reach are limited to ±[`MAX_DELTA`] about the contact and to the table, the
+//! hypothesis (k2,c, R) by the fit's bounds, and the finger by [`PathTable::new`] (lengths,
+//! stiffnesses and transmission within the formats): every product and sum is then in
+//! range, and every quotient is checked ([`PathFail::OutOfRange`] otherwise).
+//!
+//! Tested against the generic kernel in f64 (`tests/pathfit_q.rs`: path points, the fit on
+//! synthesized paths and arbitrary samples; `tests/pathfit_grid.rs`: the plant grid).
+
+use super::path::{PathFail, ACCEPT_STEP, MAX_DELTA, MAX_PATH_NEWTON};
+use super::{
+    run_fit, Eval, FitConsts, Kernel, PathFit, PathFitConfig, PathFitError, Work, MAX_BINS,
+    MIN_BINS, NP, RAD, TC, TF,
+};
+use crate::fixed::{kernel::recip_q31, Fx32};
+use crate::table::{TABLE_TA_MAX_NM, TABLE_TA_MIN_NM};
+use crate::{Config, Finger, Model, PtsError, Real};
+
+/// Binary point of angles, sin/cos, x2, dx2/dθ2 and lengths in units of l1.
+const QA: u32 = 28;
+/// Binary point of torques (N·m) and the spring constants (N·m/rad).
+const QT: u32 = 24;
+/// Binary point of torque derivatives.
+const QD: u32 = 16;
+/// 1.0 in Q28.
+const ONE: i32 = 1 << QA;
+
+/// log2 of the table's segments per radian of θ2.
+const SEG_SHIFT: u32 = 4;
+/// Spacing of the closure table in θ2 (rad): 1/16 (cubic Hermite error of sin θ2 < 4e-8).
+pub const SEG_STEP: f64 = 1.0 / (1u32 << SEG_SHIFT) as f64;
+/// Most table segments (4 rad of θ2).
+pub const MAX_SEGMENTS: usize = 64;
+/// θ2 covered below the free motion at [`TABLE_TA_MIN_NM`] and above it at
+/// [`TABLE_TA_MAX_NM`] (rad): the path's excursions.
+const BELOW: f64 = 0.25;
+const ABOVE: f64 = MAX_DELTA + 0.125;
+
+/// Rounded conversion to a Q format, `None` outside i32.
+fn to_q(v: f64, q: u32) -> Option<i32> {
+    let y = v * (1u64 << q) as f64;
+    let r = if y < 0.0 { y - 0.5 } else { y + 0.5 };
+    (v.is_finite() && r > i32::MIN as f64 && r < i32::MAX as f64).then_some(r as i32)
+}
+
+/// a·b / 2^S. The callers keep |a·b| / 2^S within i32 (see the module bounds).
+#[inline(always)]
+fn mul<const S: u32>(a: i32, b: i32) -> i32 {
+    ((a as i64 * b as i64) >> S) as i32
+}
+
+/// The full product a·b.
+#[inline(always)]
+fn wide(a: i32, b: i32) -> i64 {
+    a as i64 * b as i64
+}
+
+/// `v` when it fits in i32.
+#[inline(always)]
+fn narrow(v: i64) -> Result<i32, PathFail> {
+    i32::try_from(v).map_err(|_| PathFail::OutOfRange)
+}
+
+/// `v` clamped to i32.
+#[inline(always)]
+fn clamp32(v: i64) -> i32 {
+    v.clamp(i32::MIN as i64, i32::MAX as i64) as i32
+}
+
+/// A reciprocal 1/d (d ≠ 0) to divide several numerators by one denominator: one
+/// normalisation, a hardware-divider seed and two Newton steps ([`recip_q31`]), then one
+/// product and a shift per quotient (relative error < 2^-29).
+#[derive(Clone, Copy, Debug)]
+struct Recip {
+    /// ≈ 2^62 / (|d| · 2^lz), in [2^30, 2^31).
+    y: i32,
+    /// 62 − lz: 1/|d| = y · 2^-sh.
+    sh: i32,
+    neg: bool,
+}
+
+impl Recip {
+    fn new(d: i32) -> Option<Recip> {
+        if d == 0 {
+            return None;
+        }
+        let a = d.unsigned_abs();
+        let lz = a.leading_zeros();
+        let y = (recip_q31(a << lz) >> 1).min(i32::MAX as u64) as i32;
+        Some(Recip {
+            y,
+            sh: 62 - lz as i32,
+            neg: d < 0,
+        })
+    }
+
+    /// x / d scaled by 2^K: for x in Q(a), d in Q(b) and the quotient in Q(c), K = c − a + b.
+    #[inline(always)]
+    fn div<const K: i32>(self, x: i32) -> Result<i32, PathFail> {
+        let p = wide(x, self.y);
+        let s = self.sh - K;
+        let q = if s >= 63 {
+            p >> 63
+        } else if s > 0 {
+            p >> s
+        } else if x == 0 {
+            0
+        } else {
+            return Err(PathFail::OutOfRange);
+        };
+        narrow(if self.neg { -q } else { q })
+    }
+}
+
+/// sin and cos in Q28 of x (Q28 rad), |x| ≤ 1.25 (the Taylor polynomials of
+/// [`super::path::sin_cos_small`], error < 3e-7 at 1.25 rad, < 6e-9 below 0.5 rad).
+#[inline(always)]
+fn sin_cos(x: i32) -> (i32, i32) {
+    // 1/3!, 1/5!, 1/7!, 1/9! and 1/2!, …, 1/10! in Q28.
+    const S: [i32; 4] = [44_739_243, 2_236_962, 53_261, 740];
+    const C: [i32; 5] = [134_217_728, 11_184_811, 372_827, 6_658, 74];
+    let x2 = mul::<QA>(x, x);
+    if x2 < ONE / 4 {
+        let s = x - mul::<QA>(
+            x,
+            mul::<QA>(x2, S[0] - mul::<QA>(x2, S[1] - mul::<QA>(x2, S[2]))),
+        );
+        let c = ONE
+            - mul::<QA>(
+                x2,
+                C[0] - mul::<QA>(x2, C[1] - mul::<QA>(x2, C[2] - mul::<QA>(x2, C[3]))),
+            );
+        return (s, c);
+    }
+    let s = x - mul::<QA>(
+        x,
+        mul::<QA>(
+            x2,
+            S[0] - mul::<QA>(x2, S[1] - mul::<QA>(x2, S[2] - mul::<QA>(x2, S[3]))),
+        ),
+    );
+    let c = ONE
+        - mul::<QA>(
+            x2,
+            C[0] - mul::<QA>(
+                x2,
+                C[1] - mul::<QA>(x2, C[2] - mul::<QA>(x2, C[3] - mul::<QA>(x2, C[4]))),
+            ),
+        );
+    (s, c)
+}
+
+/// sin and cos of |x| ≤ 2.5 rad (Q28): halved and doubled above 1.25.
+fn sin_cos_wide(x: i32) -> (i32, i32) {
+    let lim = to_q(MAX_DELTA, QA).unwrap_or(i32::MAX);
+    if x.unsigned_abs() <= lim as u32 {
+        return sin_cos(x);
+    }
+    let (s, c) = sin_cos(x / 2);
+    (2 * mul::<QA>(s, c), mul::<QA>(c, c) - mul::<QA>(s, s))
+}
+
+/// Fields of one table segment: cubics in t ∈ [0, 1) for γ, x2, sin θ2, cos θ2
+/// (4 coefficients each, Q28).
+const FIELDS: usize = 16;
+
+/// The closure at one θ2 from the table.
+#[derive(Clone, Copy, Debug)]
+struct Closure {
+    gamma: i32,
+    x2: i32,
+    dx2: i32,
+    s2: i32,
+    c2: i32,
+}
+
+/// Everything the integer fit needs that does not depend on the samples: the closure
+/// table, the finger's constants in their Q formats, the fit configuration converted once,
+/// and the [`Model<Fx32>`] the fit's initial guess inverts with. Built once (at init: f64
+/// arithmetic, ~40 exact closures); about 4.8 KB.
+#[derive(Clone, Debug)]
+pub struct PathTable {
+    model: Model<Fx32>,
+    consts: FitConsts<Fx32>,
+    /// θ2 of the first node (Q28 rad) and the number of segments.
+    theta2_0: i32,
+    segs: usize,
+    seg: [[i32; FIELDS]; MAX_SEGMENTS],
+    /// Free-motion θa at each node (Q28 rad), increasing: the start of the contact solve.
+    theta_a_free: [i32; MAX_SEGMENTS + 1],
+    k1: i32,
+    k2: i32,
+    phi2: i32,
+    theta01: i32,
+    theta02: i32,
+    /// l2/l1 (Q28) and l1 (Q28 m).
+    l2_l1: i32,
+    l1: i32,
+    /// 1/l1 (Q24 per m).
+    inv_l1: i32,
+    /// The sample pass, in the controller's units.
+    samples: SampleConsts,
+}
+
+/// [`PathFitConfig`]'s sample-pass settings in integers (µrad, µN·m, ticks).
+#[derive(Clone, Copy, Debug)]
+struct SampleConsts {
+    nbins: u32,
+    dead_urad_q16: i64,
+    min_travel_urad_q16: i64,
+    /// Fraction of the travel skipped (Q16).
+    skip_q16: i64,
+    /// Approach span (µrad, Q16) when the approach samples are used, else `None`.
+    approach_urad_q16: Option<i64>,
+    /// J/dt² (µN·m per µrad of second difference per tick², Q16): the inertial correction.
+    inertia_q16: i64,
+    envelope_urad: i64,
+    drop_plateaus: bool,
+}
+
+impl PathTable {
+    /// Builds the table for a finger, the fit configuration and the controller's tick period
+    /// `tick_s` (s; sample times are ticks). Refuses ([`PtsError::OutOfRange`]) a finger or a
+    /// configuration outside the formats: K1 or K2 not in (0, 100) N·m/rad, l2 + R_max above
+    /// 4 l1, |x2| or |dx2/dθ2| above 4 on the table, more bins than [`MAX_BINS`].
+    pub fn new(finger: &Finger, cfg: &PathFitConfig, tick_s: f64) -> Result<Self, PtsError> {
+        let m64 = Model::<f64>::new(finger)?;
+        let model = Model::<Fx32>::new(finger)?;
+        let consts = FitConsts::new(cfg).map_err(|e| match e {
+            PathFitError::Model(p) => p,
+            _ => PtsError::OutOfRange,
+        })?;
+        let f = finger;
+        let oor = PtsError::OutOfRange;
+        if !(f.k1 > 0.0 && f.k1 < 100.0 && f.k2 > 0.0 && f.k2 < 100.0) {
+            return Err(oor);
+        }
+        if !((f.l2 + cfg.max_radius_m) <= 4.0 * f.l1 && f.l1 > 1e-3 && f.l1 < 4.0) {
+            return Err(oor);
+        }
+        let sane = cfg.skip_fraction >= 0.0
+            && cfg.skip_fraction < 1.0
+            && tick_s > 0.0
+            && tick_s < 1.0
+            && cfg.inertia_kgm2 >= 0.0;
+        if !sane {
+            return Err(oor);
+        }
+        // The θ2 range: free motion over the torque table's range, plus the path's excursions.
+        let lo = m64.free_from_torque(TABLE_TA_MIN_NM)?.theta2 - BELOW;
+        let hi = m64.free_from_torque(TABLE_TA_MAX_NM)?.theta2 + ABOVE;
+        let segs = (libm::ceil((hi - lo) / SEG_STEP) as usize).min(MAX_SEGMENTS);
+        if !(lo > -7.0 && lo + segs as f64 * SEG_STEP < 7.0) || segs < 2 {
+            return Err(oor);
+        }
+        let mut seg = [[0i32; FIELDS]; MAX_SEGMENTS];
+        let mut theta_a_free = [0i32; MAX_SEGMENTS + 1];
+        // γ from atan2 − acos jumps by 2π somewhere on the circle: unwrapped node to node.
+        let mut gamma_prev: Option<f64> = None;
+        let mut node = |i: usize| -> Result<[f64; 9], PtsError> {
+            let th2 = lo + i as f64 * SEG_STEP;
+            let c = m64.closure(th2)?;
+            let tau = 2.0 * core::f64::consts::PI;
+            let mut gamma = c.gamma;
+            if let Some(g) = gamma_prev {
+                gamma -= tau * libm::round((gamma - g) / tau);
+            }
+            gamma_prev = Some(gamma);
+            // Free motion through this θ2: K1(θ1 − θ01) x2 = K2(θ2 − θ02).
+            let th1 = f.theta01 + f.k2 * (th2 - f.theta02) / (f.k1 * c.x2);
+            let ta_free = th1 + th2 - f.phi2 - gamma;
+            let (s, co) = (libm::sin(th2), libm::cos(th2));
+            // Values and slopes per radian: γ′ = 1 − x2.
+            Ok([gamma, 1.0 - c.x2, c.x2, c.dx2, s, co, co, -s, ta_free])
+        };
+        // The free-motion θa at the nodes only starts the contact solve: clipped to the
+        // format (the table's top lies far beyond any contact).
+        let free_q = |v: f64| to_q(v.clamp(-7.5, 7.5), QA).ok_or(oor);
+        let mut a = node(0)?;
+        theta_a_free[0] = free_q(a[8])?;
+        for i in 0..segs {
+            let b = node(i + 1)?;
+            if !(b[8] > a[8]) || b[0].abs() > 7.5 || b[2].abs() > 4.0 || b[3].abs() > 4.0 {
+                // Free motion must be monotone in θ2 for the contact solve's start.
+                return Err(oor);
+            }
+            theta_a_free[i + 1] = free_q(b[8])?;
+            let s = seg.get_mut(i).ok_or(oor)?;
+            for (fld, out) in s.chunks_exact_mut(4).enumerate() {
+                let (f0, m0, f1, m1) = (a[2 * fld], a[2 * fld + 1], b[2 * fld], b[2 * fld + 1]);
+                let (m0, m1) = (m0 * SEG_STEP, m1 * SEG_STEP);
+                let d = f1 - f0;
+                let c = [f0, m0, 3.0 * d - 2.0 * m0 - m1, m0 + m1 - 2.0 * d];
+                for (o, v) in out.iter_mut().zip(c) {
+                    *o = to_q(v, QA).ok_or(oor)?;
+                }
+            }
+            a = b;
+        }
+        let q16 = |v: f64| -> Result<i64, PtsError> {
+            let y = v * 65536.0;
+            if !(y.is_finite() && y.abs() < 9e18) {
+                return Err(oor);
+            }
+            Ok(libm::round(y) as i64)
+        };
+        if !(cfg.dead_band_rad >= 0.0 && cfg.min_travel_rad >= 0.0 && cfg.envelope_tol_rad >= 0.0) {
+            return Err(oor);
+        }
+        let approach = cfg.fit_contact_angle
+            && cfg.contact_angle_sigma_rad > 0.0
+            && cfg.approach_span_rad > 0.0;
+        let samples = SampleConsts {
+            nbins: (cfg.bins as usize).clamp(MIN_BINS, MAX_BINS) as u32,
+            dead_urad_q16: q16(cfg.dead_band_rad * 1e6)?,
+            min_travel_urad_q16: q16(cfg.min_travel_rad * 1e6)?,
+            skip_q16: q16(cfg.skip_fraction)?,
+            approach_urad_q16: if approach {
+                Some(q16(cfg.approach_span_rad * 1e6)?)
+            } else {
+                None
+            },
+            inertia_q16: q16(cfg.inertia_kgm2 / (tick_s * tick_s))?,
+            envelope_urad: libm::round(cfg.envelope_tol_rad * 1e6).min(1e9) as i64,
+            drop_plateaus: cfg.drop_plateaus,
+        };
+        Ok(PathTable {
+            model,
+            consts,
+            theta2_0: to_q(lo, QA).ok_or(oor)?,
+            segs,
+            seg,
+            theta_a_free,
+            k1: to_q(f.k1, QT).ok_or(oor)?,
+            k2: to_q(f.k2, QT).ok_or(oor)?,
+            phi2: to_q(f.phi2, QA).ok_or(oor)?,
+            theta01: to_q(f.theta01, QA).ok_or(oor)?,
+            theta02: to_q(f.theta02, QA).ok_or(oor)?,
+            l2_l1: to_q(f.l2 / f.l1, QA).ok_or(oor)?,
+            l1: to_q(f.l1, QA).ok_or(oor)?,
+            inv_l1: to_q(1.0 / f.l1, QT).ok_or(oor)?,
+            samples,
+        })
+    }
+
+    /// The model the fit inverts its initial guess with.
+    pub fn model(&self) -> &Model<Fx32> {
+        &self.model
+    }
+
+    /// The closure at θ2 (Q28 rad) from the table.
+    #[inline(always)]
+    fn closure(&self, theta2: i32) -> Result<Closure, PathFail> {
+        let x = theta2.wrapping_sub(self.theta2_0);
+        let i = (x >> (QA - SEG_SHIFT)) as usize;
+        let c = match (x >= 0).then(|| self.seg.get(i)).flatten() {
+            Some(c) if i < self.segs => c,
+            _ => return Err(PathFail::OutOfRange),
+        };
+        let t = (x << SEG_SHIFT) & (ONE - 1);
+        let cubic = |k: usize| {
+            c[k] + mul::<QA>(
+                t,
+                c[k + 1] + mul::<QA>(t, c[k + 2] + mul::<QA>(t, c[k + 3])),
+            )
+        };
+        let dx2 = (c[5] + mul::<QA>(t, 2 * c[6] + mul::<QA>(t, 3 * c[7]))) << SEG_SHIFT;
+        Ok(Closure {
+            gamma: cubic(0),
+            x2: cubic(4),
+            dx2,
+            s2: cubic(8),
+            c2: cubic(12),
+        })
+    }
+}
+
+/// One sample as the controller records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RawSample {
+    /// Controller tick of the sample (the period given to [`PathTable::new`]).
+    pub tick: u32,
+    /// θa, absolute model angle (µrad).
+    pub theta_a_urad: i32,
+    /// T_a at the actuator (µN·m).
+    pub torque_unm: i32,
+}
+
+/// One θa bin in the kernel's formats.
+#[derive(Clone, Copy, Debug, Default)]
+struct QBin {
+    n: u32,
+    /// Mean θa − θa,c (given, the finger's frame) (Q28 rad).
+    dta: i32,
+    /// Mean measured T_a (Q24 N·m).
+    t: i32,
+    /// n / N (Q16).
+    w: i32,
+}
+
+/// A solved point kept for warm starts (Q28; sensitivities per unit of k2,c/l1 and R/l1).
+#[derive(Clone, Copy, Debug)]
+struct QPrev {
+    kap: i32,
+    rho: i32,
+    dphi: i32,
+    d2: i32,
+    sens_k: (i32, i32),
+    sens_r: (i32, i32),
+}
+
+/// A solved path point (see [`super::path::PathPoint`]), in the kernel's formats.
+#[derive(Clone, Copy, Debug)]
+struct QPoint {
+    dphi: i32,
+    d2: i32,
+    /// k2/l1 (Q28).
+    k2: i32,
+    /// T_a (Q24 N·m).
+    ta: i32,
+    /// ∂T_a/∂(k2,c/l1), ∂T_a/∂(R/l1) (Q16 N·m).
+    dta_dk: i32,
+    dta_dr: i32,
+    /// dT_a/dθa along the path (Q16 N·m/rad).
+    stiffness: i32,
+    tangent: (i32, i32),
+    sens_k: (i32, i32),
+    sens_r: (i32, i32),
+}
+
+/// The state of one Newton step (see `super::path::EvalState`).
+#[derive(Clone, Copy, Debug, Default)]
+struct St {
+    sp: i32,
+    cp: i32,
+    s2p: i32,
+    c2p: i32,
+    s2: i32,
+    c2: i32,
+    dgamma: i32,
+    x2: i32,
+    dx2: i32,
+    a11: i32,
+    a22: i32,
+    det: i32,
+}
+
+/// The integer kernel of one fit: the contact configuration, the bins, the warm starts.
+struct QKernel<'t> {
+    tb: &'t PathTable,
+    bins: [QBin; MAX_BINS],
+    prev: [Option<QPrev>; MAX_BINS],
+    /// θa,c as given to the model (Fx32 rad) and its configuration.
+    theta_a_c: Fx32,
+    contact: Config<Fx32>,
+    theta2c: i32,
+    s2c: i32,
+    c2c: i32,
+    gamma_c: i32,
+    d1c: i32,
+    d2c: i32,
+    /// T_a at contact (Q24) and the free-motion stiffness there (Q16).
+    tac: i32,
+    kfree: i32,
+    newton: u32,
+}
+
+/// Fx32 (Q32) to Q28, rounded.
+#[inline(always)]
+fn fx_to_q28(v: Fx32) -> i64 {
+    (v.to_bits() + 8) >> 4
+}
+
+impl<'t> QKernel<'t> {
+    fn new(tb: &'t PathTable) -> Self {
+        let z = Fx32::zero();
+        QKernel {
+            tb,
+            bins: [QBin::default(); MAX_BINS],
+            prev: [None; MAX_BINS],
+            theta_a_c: z,
+            contact: Config {
+                theta1: z,
+                theta2: z,
+                theta_a: z,
+                ta: z,
+                x2: z,
+                dx2: z,
+            },
+            theta2c: 0,
+            s2c: 0,
+            c2c: ONE,
+            gamma_c: 0,
+            d1c: 0,
+            d2c: 0,
+            tac: 0,
+            kfree: 0,
+            newton: 0,
+        }
+    }
+
+    /// The free-motion configuration at θa,c (Newton on θ2 from the node table, or from the
+    /// current contact when there is one).
+    fn solve_contact(&mut self, theta_a_c: Fx32, warm: bool) -> Result<(), PtsError> {
+        let tb = self.tb;
+        let oor = PtsError::OutOfRange;
+        let tha = fx_to_q28(theta_a_c);
+        let tha = i32::try_from(tha).map_err(|_| oor)?;
+        let mut th2 = if warm {
+            self.theta2c
+        } else {
+            // The node interval holding θa, then linear interpolation in it.
+            let free = tb.theta_a_free.get(..=tb.segs).ok_or(oor)?;
+            let i = free.iter().position(|&v| v > tha).ok_or(oor)?;
+            if i == 0 {
+                return Err(oor);
+            }
+            let (a, b) = (free[i - 1], free[i]);
+            let frac = ((tha - a) as i64 * ONE as i64) / ((b - a) as i64).max(1);
+            let x0 = tb.theta2_0 as i64 + (((i - 1) as i64) << (QA - SEG_SHIFT));
+            narrow(x0 + (frac >> SEG_SHIFT)).map_err(|_| oor)?
+        };
+        let tol = to_q(ACCEPT_STEP * 0.01, QA).unwrap_or(1);
+        let lim = ONE / 2;
+        for _ in 0..2 * MAX_PATH_NEWTON {
+            let c = tb.closure(th2).map_err(|_| oor)?;
+            // θ1 = θa − θ2 + φ2 + γ; g = K2(θ2 − θ02) − K1(θ1 − θ01)·x2; g′ = K2 − T dx2 + K1 x2².
+            let th1 = (tha as i64 - th2 as i64 + tb.phi2 as i64 + c.gamma as i64) as i32;
+            let ta = mul::<QA>(tb.k1, th1.wrapping_sub(tb.theta01));
+            let g = mul::<QA>(tb.k2, th2 - tb.theta02) - mul::<QA>(ta, c.x2);
+            let dg = tb.k2 - mul::<QA>(ta, c.dx2) + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
+            if dg < (1 << 8) {
+                return Err(PtsError::NoConvergence);
+            }
+            let r = Recip::new(dg).ok_or(PtsError::NoConvergence)?;
+            let step = r.div::<{ QA as i32 }>(g).map_err(|_| oor)?.clamp(-lim, lim);
+            if step.abs() <= tol {
+                let k2p = tb.k2 - mul::<QA>(ta, c.dx2);
+                let den = k2p + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
+                let kfree = Recip::new(den)
+                    .ok_or(PtsError::NoConvergence)?
+                    .div::<{ QD as i32 }>(mul::<QT>(tb.k1, k2p))
+                    .map_err(|_| oor)?;
+                let fx = |v: i32, q: u32| Fx32::from_bits((v as i64) << (32 - q));
+                self.contact = Config {
+                    theta1: fx(th1, QA),
+                    theta2: fx(th2, QA),
+                    theta_a: theta_a_c,
+                    ta: fx(ta, QT),
+                    x2: fx(c.x2, QA),
+                    dx2: fx(c.dx2, QA),
+                };
+                self.theta_a_c = theta_a_c;
+                self.theta2c = th2;
+                self.s2c = c.s2;
+                self.c2c = c.c2;
+                self.gamma_c = c.gamma;
+                self.d1c = th1.wrapping_sub(tb.theta01);
+                self.d2c = th2 - tb.theta02;
+                self.tac = ta;
+                self.kfree = kfree;
+                self.prev = [None; MAX_BINS];
+                return Ok(());
+            }
+            th2 -= step;
+        }
+        Err(PtsError::NoConvergence)
+    }
+
+    /// One Newton state at (δφ, δ2) for k2,c/l1 = `kap`, R/l1 = `rho`.
+    #[inline(always)]
+    fn eval(&self, kap: i32, rho: i32, dphi: i32, d2: i32, st: &mut St) -> Result<(), PathFail> {
+        let (sp, cp) = sin_cos(dphi);
+        let s2p = ((wide(self.s2c, cp) + wide(self.c2c, sp)) >> QA) as i32;
+        let c2p = ((wide(self.c2c, cp) - wide(self.s2c, sp)) >> QA) as i32;
+        let c = self.tb.closure(self.theta2c + d2)?;
+        let a11 = -c2p - ((wide(kap, cp) + wide(rho, sp)) >> QA) as i32;
+        let a22 = c.x2 - ONE;
+        // det = a11 a22 − a12 a21 with a12 = cos θ2, a21 = 1.
+        let det = narrow((wide(a11, a22) >> QA) - c.c2 as i64)?;
+        *st = St {
+            sp,
+            cp,
+            s2p,
+            c2p,
+            s2: c.s2,
+            c2: c.c2,
+            dgamma: c.gamma - self.gamma_c,
+            x2: c.x2,
+            dx2: c.dx2,
+            a11,
+            a22,
+            det,
+        };
+        Ok(())
+    }
+
+    /// The path point at Δθa = `dta` (Q28) from the guess (Newton, warm-started; the last
+    /// step below [`ACCEPT_STEP`] applied to first order, as [`super::path::PathModel::point`]).
+    #[inline(never)]
+    fn point(
+        &mut self,
+        kap: i32,
+        rho: i32,
+        dta: i32,
+        guess: (i32, i32),
+    ) -> Result<QPoint, PathFail> {
+        const MAXD: i32 = (MAX_DELTA * (1u64 << QA) as f64) as i32;
+        const ACCEPT: i32 = (ACCEPT_STEP * (1u64 << QA) as f64) as i32;
+        const EPS_DET: i32 = (1e-6 * (1u64 << QA) as f64) as i32;
+        let (mut dphi, mut d2) = guess;
+        let mut st = St::default();
+        for _ in 0..MAX_PATH_NEWTON {
+            self.newton = self.newton.saturating_add(1);
+            if dphi.abs() > MAXD || d2.abs() > MAXD {
+                return Err(PathFail::OutOfRange);
+            }
+            self.eval(kap, rho, dphi, d2, &mut st)?;
+            let e1 = st.s2 - st.s2p - ((wide(kap, st.sp) + wide(rho, ONE - st.cp)) >> QA) as i32;
+            let e2 = dphi - st.dgamma - dta;
+            if st.det.abs() <= EPS_DET {
+                return Err(PathFail::OutOfRange);
+            }
+            let r = Recip::new(st.det).ok_or(PathFail::OutOfRange)?;
+            // [a11 c2; 1 a22] [dδφ; dδ2] = −[e1; e2]
+            let n1 = clamp32((wide(st.a22, e1) - wide(st.c2, e2)) >> QA);
+            let n2 = clamp32((wide(st.a11, e2) - e1 as i64 * ONE as i64) >> QA);
+            let sphi = -r.div::<{ QA as i32 }>(n1)?;
+            let s2 = -r.div::<{ QA as i32 }>(n2)?;
+            if sphi.abs() <= ACCEPT && s2.abs() <= ACCEPT {
+                return self.outputs(kap, rho, dphi, d2, &st, r, (sphi, s2));
+            }
+            dphi = dphi.saturating_add(sphi);
+            d2 = d2.saturating_add(s2);
+        }
+        Err(PathFail::NoConvergence)
+    }
+
+    /// The outputs at (δφ, δ2) moved by the last Newton step `fin` to first order (see
+    /// `super::path::PathModel::outputs` for the equations; lengths here in units of l1).
+    #[allow(clippy::too_many_arguments)]
+    fn outputs(
+        &self,
+        kap: i32,
+        rho: i32,
+        dphi: i32,
+        d2: i32,
+        st: &St,
+        rdet: Recip,
+        fin: (i32, i32),
+    ) -> Result<QPoint, PathFail> {
+        const EPS_DEN: i32 = 1 << 4;
+        const EPS_FORCE: i32 = (1e-6 * (1u64 << QT) as f64) as i32;
+        let tb = self.tb;
+        let sh = |v: i64| (v >> QA) as i32;
+        let dk2_dphi = -st.s2p + sh(wide(rho, st.cp) - wide(kap, st.sp));
+        let dk2_d2 = st.s2;
+        let k2 = st.c2p - st.c2 + sh(wide(kap, st.cp) + wide(rho, st.sp));
+        let k2_fin = k2 + sh(wide(dk2_dphi, fin.0) + wide(dk2_d2, fin.1));
+        if k2_fin > tb.l2_l1 {
+            return Err(PathFail::PastTip);
+        }
+        if k2_fin <= 0 {
+            return Err(PathFail::PastJoint);
+        }
+        let l = st.c2 + k2;
+        let d1 = self.d1c + dphi - d2;
+        let dd2 = self.d2c + d2;
+        let k1d1 = mul::<QA>(tb.k1, d1);
+        let k2dd2 = mul::<QA>(tb.k2, dd2);
+        // T_a = (K1 Δ1 k2 − K2 Δ2 L)/(k2 − x2 L): numerator Q24, denominator Q28.
+        let num = narrow((wide(k1d1, k2) - wide(k2dd2, l)) >> QA)?;
+        let den = k2 - mul::<QA>(st.x2, l);
+        if den.abs() <= EPS_DEN {
+            return Err(PathFail::OutOfRange);
+        }
+        let rden = Recip::new(den).ok_or(PathFail::OutOfRange)?;
+        // Q24 / Q28 → Q24 and Q24 / Q28 → Q16.
+        const KT: i32 = QA as i32;
+        const KD: i32 = QD as i32 - QT as i32 + QA as i32;
+        let ta = rden.div::<KT>(num)?;
+        // dT = (dn − T dden)/den along δφ (dk2 = dL = dk2_dphi) and along δ2 (dL = 0).
+        let dn_phi =
+            sh(wide(tb.k1, k2 + mul::<QA>(d1, dk2_dphi)) - wide(tb.k2, mul::<QA>(dd2, dk2_dphi)));
+        let dden_phi = dk2_dphi - mul::<QA>(st.x2, dk2_dphi);
+        let t_phi = rden.div::<KD>(narrow(dn_phi as i64 - (wide(ta, dden_phi) >> QA))?)?;
+        let dn_2 = sh(wide(tb.k1, mul::<QA>(d1, dk2_d2) - k2) - wide(tb.k2, l));
+        let dden_2 = dk2_d2 - mul::<QA>(l, st.dx2);
+        let t_2 = rden.div::<KD>(narrow(dn_2 as i64 - (wide(ta, dden_2) >> QA))?)?;
+        // ∂k2 = ∂L = cos δφ per k2,c and sin δφ per R.
+        let qn = narrow(k1d1 as i64 - k2dd2 as i64 - (wide(ta, ONE - st.x2) >> QA))?;
+        let q = rden.div::<KD>(qn)?;
+        let (t_k, t_r) = (mul::<QA>(q, st.cp), mul::<QA>(q, st.sp));
+        // Corrections by the last step: Q16 · Q28 → Q24.
+        let ta_fin =
+            narrow(ta as i64 + ((wide(t_phi, fin.0) + wide(t_2, fin.1)) >> (QD + QA - QT)))?;
+        let fk2 = mul::<QA>(ta, st.x2) - k2dd2;
+        if fk2 < -EPS_FORCE {
+            return Err(PathFail::ContactOpens);
+        }
+        // Tangent: J t = (0, 1); sensitivities: J dδ = −(∂E1/∂p, 0), ∂E1/∂κ = −sin δφ,
+        // ∂E1/∂ρ = −(1 − cos δφ).
+        const K0: i32 = QA as i32;
+        let tphi = rdet.div::<K0>(-st.c2)?;
+        let t2 = rdet.div::<K0>(st.a11)?;
+        let stiffness = narrow((wide(t_phi, tphi) + wide(t_2, t2)) >> QA)?;
+        let e1k = -st.sp;
+        let e1r = st.cp - ONE;
+        let dphi_k = rdet.div::<K0>(-mul::<QA>(st.a22, e1k))?;
+        let d2_k = rdet.div::<K0>(e1k)?;
+        let dphi_r = rdet.div::<K0>(-mul::<QA>(st.a22, e1r))?;
+        let d2_r = rdet.div::<K0>(e1r)?;
+        let dta_dk = narrow(((wide(t_phi, dphi_k) + wide(t_2, d2_k)) >> QA) + t_k as i64)?;
+        let dta_dr = narrow(((wide(t_phi, dphi_r) + wide(t_2, d2_r)) >> QA) + t_r as i64)?;
+        Ok(QPoint {
+            dphi: dphi + fin.0,
+            d2: d2 + fin.1,
+            k2: k2_fin,
+            ta: ta_fin,
+            dta_dk,
+            dta_dr,
+            stiffness,
+            tangent: (tphi, t2),
+            sens_k: (dphi_k, d2_k),
+            sens_r: (dphi_r, d2_r),
+        })
+    }
+
+    /// The path's tangent dδ/dθa at contact.
+    fn tangent0(&self, kap: i32, rho: i32) -> Result<(i32, i32), PathFail> {
+        let mut st = St::default();
+        self.eval(kap, rho, 0, 0, &mut st)?;
+        let r = Recip::new(st.det).ok_or(PathFail::OutOfRange)?;
+        Ok((
+            r.div::<{ QA as i32 }>(-st.c2)?,
+            r.div::<{ QA as i32 }>(st.a11)?,
+        ))
+    }
+
+    /// Hypothesis (k2,c, R) in m (Fx32) → units of l1 (Q28).
+    fn to_l1(&self, v: Fx32) -> Result<i32, PathFail> {
+        // Q32 m · Q24 /m → Q56 → Q28; |v| < 8 m keeps the product in i64.
+        let b = v.to_bits();
+        if b.unsigned_abs() >= 1 << 35 {
+            return Err(PathFail::OutOfRange);
+        }
+        narrow((b * self.tb.inv_l1 as i64) >> 28)
+    }
+}
+
+/// Fx32 bits from a sum in Q`q` (q ≥ 32) of N·m-based products, times 10^6 (the fit's
+/// statistics are in (mN·m)²), saturating: value·1e6 in Q32 = sum·15625 / 2^(q − 38).
+#[inline(always)]
+fn stat_bits(sum: i64, q: u32) -> Fx32 {
+    const LIM: i64 = i64::MAX / 15625 / 64;
+    let v = if sum.abs() <= LIM {
+        let p = sum * 15625;
+        if q <= 38 {
+            p << (38 - q)
+        } else {
+            p >> (q - 38)
+        }
+    } else if sum > 0 {
+        i64::MAX
+    } else {
+        -i64::MAX
+    };
+    Fx32::from_bits(v)
+}
+
+impl Kernel<Fx32> for QKernel<'_> {
+    fn l2(&self) -> Fx32 {
+        self.tb.model.l2()
+    }
+    fn theta_a_c(&self) -> Fx32 {
+        self.theta_a_c
+    }
+    fn tac(&self) -> Fx32 {
+        self.contact.ta
+    }
+    fn contact(&self) -> Config<Fx32> {
+        self.contact
+    }
+    fn set_contact(&mut self, theta_a_c: Fx32) -> Result<(), PtsError> {
+        if theta_a_c != self.theta_a_c {
+            self.solve_contact(theta_a_c, true)?;
+        }
+        Ok(())
+    }
+
+    fn evaluate(&mut self, w: &mut Work<Fx32>, p: &[Fx32; NP]) -> Result<Eval<Fx32>, PathFail> {
+        w.evals += 1;
+        self.set_contact(p[TC])?;
+        let tb = self.tb;
+        let kap = self.to_l1(p[super::K])?;
+        let rho = self.to_l1(p[RAD])?;
+        let shift = narrow(fx_to_q28(p[TC] - w.theta_a_c0))?;
+        const FREE: i32 = (1e-6 * (1u64 << QA) as f64) as i32;
+        const COL_MAX: i32 = 1 << 28;
+        let nb = w.nb.min(MAX_BINS);
+        let mut res = [0i32; MAX_BINS];
+        let mut cols = [[0i32; NP]; MAX_BINS];
+        let mut prev_pt: Option<(i32, i32, i32, (i32, i32))> = None;
+        let mut k_first: Option<i32> = None;
+        let (mut k2_last, mut last) = (0i32, (0i32, 0i32));
+        let mut sum_r = 0i64;
+        for i in 0..nb {
+            let b = self.bins[i];
+            let dta = narrow(b.dta as i64 - shift as i64)?;
+            let (r, col) = if dta <= FREE {
+                // Free motion below the contact, linearised about θa,c.
+                let r = b.t as i64 - self.tac as i64 - (wide(self.kfree, dta) >> (QD + QA - QT));
+                (narrow(r)?, [0, 0, 1 << QD, 0])
+            } else {
+                let guess = match (self.prev[i], prev_pt) {
+                    (Some(q), _) => {
+                        let (dk, dr) = (kap - q.kap, rho - q.rho);
+                        (
+                            q.dphi + mul::<QA>(q.sens_k.0, dk) + mul::<QA>(q.sens_r.0, dr),
+                            q.d2 + mul::<QA>(q.sens_k.1, dk) + mul::<QA>(q.sens_r.1, dr),
+                        )
+                    }
+                    (None, Some((dta0, dphi0, d20, t))) => {
+                        let step = dta - dta0;
+                        (dphi0 + mul::<QA>(t.0, step), d20 + mul::<QA>(t.1, step))
+                    }
+                    (None, None) => {
+                        let t = self.tangent0(kap, rho)?;
+                        (mul::<QA>(t.0, dta), mul::<QA>(t.1, dta))
+                    }
+                };
+                let pt = self.point(kap, rho, dta, guess)?;
+                prev_pt = Some((dta, pt.dphi, pt.d2, pt.tangent));
+                self.prev[i] = Some(QPrev {
+                    kap,
+                    rho,
+                    dphi: pt.dphi,
+                    d2: pt.d2,
+                    sens_k: pt.sens_k,
+                    sens_r: pt.sens_r,
+                });
+                k_first.get_or_insert(pt.stiffness);
+                k2_last = pt.k2;
+                last = (pt.dphi, pt.d2);
+                // ∂T/∂p per (l2, l2, N·m, rad), Q16.
+                let col = [
+                    mul::<QA>(pt.dta_dk, tb.l2_l1),
+                    mul::<QA>(pt.dta_dr, tb.l2_l1),
+                    1 << QD,
+                    self.kfree - pt.stiffness,
+                ];
+                (narrow(b.t as i64 - pt.ta as i64)?, col)
+            };
+            if col.iter().any(|c| c.unsigned_abs() > COL_MAX as u32) || r.unsigned_abs() > 1 << 29 {
+                return Err(PathFail::OutOfRange);
+            }
+            sum_r += wide(b.w, r);
+            res[i] = r;
+            cols[i] = col;
+        }
+        // Optimal offset with the approach prior: (Σ w r + w_p T_f,prior)/(1 + w_p).
+        let z = Fx32::zero();
+        let ks = w.ks;
+        let wp = w.prior_w[TF];
+        let tf_data = Fx32::from_bits(sum_r >> (QT + QD - 32));
+        let tf = (tf_data + wp * w.prior[TF]) / (Fx32::one() + wp);
+        let tf_q = narrow(tf.to_bits() >> (32 - QT))?;
+        let mut sa = [[0i64; NP]; NP];
+        let mut sg = [0i64; NP];
+        let mut ss = 0i64;
+        for i in 0..nb {
+            let r = res[i] - tf_q;
+            let wr = mul::<QD>(self.bins[i].w, r);
+            ss += wide(wr, r);
+            let col = cols[i];
+            for j in 0..NP {
+                sg[j] -= wide(wr, col[j]);
+                let wc = mul::<QD>(self.bins[i].w, col[j]);
+                for k in j..NP {
+                    sa[j][k] += wide(wc, col[k]);
+                }
+            }
+        }
+        let mut a = [[z; NP]; NP];
+        let mut g = [z; NP];
+        for j in 0..NP {
+            g[j] = stat_bits(sg[j], QT + QD);
+            for k in j..NP {
+                a[j][k] = stat_bits(sa[j][k], 2 * QD);
+                a[k][j] = a[j][k];
+            }
+        }
+        let dp = (w.prior[TF] - tf) * ks;
+        let mut sse = stat_bits(ss, 2 * QT) + wp * dp * dp;
+        a[TF][TF] = a[TF][TF] + wp * ks * ks;
+        g[TF] = g[TF] - wp * ks * dp;
+        let wc = w.prior_w[TC];
+        let dc = w.prior[TC] - p[TC];
+        sse = sse + wc * dc * dc;
+        a[TC][TC] = a[TC][TC] + wc;
+        g[TC] = g[TC] - wc * dc;
+        let fx = |v: i32, q: u32| Fx32::from_bits((v as i64) << (32 - q));
+        Ok(Eval {
+            a,
+            g,
+            sse,
+            tf,
+            k2_last: Fx32::from_bits(wide(k2_last, tb.l1) >> (2 * QA - 32)),
+            k_first: fx(k_first.unwrap_or(0), QD),
+            last: (fx(last.0, QA), fx(last.1, QA)),
+        })
+    }
+
+    fn chord_stiffness(&self, nb: usize) -> Option<Fx32> {
+        let bins = self.bins.get(..nb)?;
+        let i0 = bins.iter().position(|b| b.dta > 0).unwrap_or(0);
+        let a = bins.get(i0)?;
+        let b = bins.get(i0 + (bins.len().saturating_sub(i0)) / 2)?;
+        let dth = b.dta as i64 - a.dta as i64;
+        if dth <= (1e-6 * (1u64 << QA) as f64) as i64 {
+            return None;
+        }
+        // Q24 / Q28 → N·m/rad, in Fx32.
+        let num = (b.t as i64 - a.t as i64) << (32 - QT);
+        Some(Fx32::from_bits(num) / Fx32::from_bits(dth << (32 - QA)))
+    }
+
+    fn proximal_clearance(&self, k2c: Fx32, radius: Fx32, dphi: Fx32, d2: Fx32) -> Option<Fx32> {
+        let kap = self.to_l1(k2c).ok()?;
+        let rho = self.to_l1(radius).ok()?;
+        let d1 = i32::try_from(fx_to_q28(dphi - d2)).ok()?;
+        if d1.unsigned_abs() > (2.0 * MAX_DELTA * (1u64 << QA) as f64) as u32 {
+            return None;
+        }
+        // C − O1 in the contact frame, in units of l1; the proximal phalanx at δ1 − θ2c.
+        let cx = self.c2c + kap;
+        let cy = rho - self.s2c;
+        let (sd, cd) = sin_cos_wide(d1);
+        let ce = mul::<QA>(cd, self.c2c) + mul::<QA>(sd, self.s2c);
+        let se = mul::<QA>(sd, self.c2c) - mul::<QA>(cd, self.s2c);
+        let along = mul::<QA>(cx, ce) + mul::<QA>(cy, se);
+        let normal = mul::<QA>(cy, ce) - mul::<QA>(cx, se);
+        (along > 0 && along < ONE)
+            .then(|| Fx32::from_bits(wide(normal - rho, self.tb.l1) >> (2 * QA - 32)))
+    }
+
+    fn counters(&self) -> (u32, u16) {
+        (self.newton, 0)
+    }
+}
+
+/// The backwards sample pass in the controller's integers (the same cleaning as
+/// `super::bin_samples`: inertia removed, stiction plateaus dropped, lower envelope in time,
+/// θa bins with their within-bin scatter), filling the kernel's bins and `w`.
+#[inline(never)]
+fn bin_raw<I>(
+    k: &mut QKernel<'_>,
+    w: &mut Work<Fx32>,
+    theta_meas_c: Fx32,
+    samples: I,
+) -> Result<(), PathFitError>
+where
+    I: DoubleEndedIterator<Item = RawSample>,
+{
+    let sc = k.tb.samples;
+    let nbins = sc.nbins as usize;
+    // θa,c (measured frame) in µrad, Q16.
+    let thc_q16 = ((theta_meas_c.to_bits() as i128 * 1_000_000) >> 16) as i64;
+    // Per bin: count, reference sample (θ µrad, T µN·m), Σdθ, Σdt, Σdθ², Σdt², Σdθ·dt.
+    let mut cnt = [0u32; MAX_BINS];
+    let mut refs = [(0i32, 0i32); MAX_BINS];
+    let mut acc = [[0i64; 5]; MAX_BINS];
+    let mut frame: Option<(i32, u32)> = None; // (lo µrad, span µrad)
+    let mut min_th: Option<i32> = None;
+    let mut last_kept: Option<i32> = None;
+    let mut next: Option<RawSample> = None;
+    let mut cur: Option<RawSample> = None;
+    let mut k_uniform: Option<(u32, i64)> = None;
+    let mut it = samples.rev();
+    loop {
+        // `cur` with its neighbours `prev` (earlier) and `next` (later): the corrected
+        // sample, or `None` when it is a plateau sample.
+        let prev = it.next();
+        let out = match (prev, next, cur) {
+            (None, _, Some(c)) => Some(c), // the earliest sample, uncorrected
+            (None, _, None) => break,
+            (Some(_), None, c) => c, // the latest, uncorrected
+            (Some(p), Some(n), Some(c)) => {
+                if sc.drop_plateaus
+                    && (c.theta_a_urad == p.theta_a_urad || c.theta_a_urad == n.theta_a_urad)
+                {
+                    None
+                } else {
+                    Some(correct(&sc, &mut k_uniform, p, c, n))
+                }
+            }
+            (Some(_), Some(_), None) => None,
+        };
+        let done = prev.is_none();
+        next = cur;
+        cur = prev;
+        if let Some(s) = out {
+            let th = s.theta_a_urad;
+            // Lower envelope in time; one sample per stiction plateau.
+            let below = min_th.is_none_or(|m| (th as i64) < m as i64 + sc.envelope_urad);
+            let moved = last_kept != Some(th);
+            min_th = Some(min_th.map_or(th, |m| m.min(th)));
+            if below && moved {
+                last_kept = Some(th);
+                let (lo, span) = match frame {
+                    Some(f) => f,
+                    None => {
+                        let hi_q16 = (th as i64) << 16;
+                        let travel = hi_q16 - thc_q16 - sc.dead_urad_q16;
+                        if travel <= sc.min_travel_urad_q16 {
+                            return Err(PathFitError::NoMotion);
+                        }
+                        let lo_q16 = match sc.approach_urad_q16 {
+                            Some(span) => thc_q16 - span,
+                            None => {
+                                thc_q16
+                                    + sc.dead_urad_q16
+                                    + ((travel as i128 * sc.skip_q16 as i128) >> 16) as i64
+                            }
+                        };
+                        let lo = ((lo_q16 + 0xFFFF) >> 16) as i32;
+                        let span = (th as i64 - lo as i64).max(1) as u32;
+                        frame = Some((lo, span));
+                        (lo, span)
+                    }
+                };
+                if th >= lo {
+                    // floor(off·nbins/span) by the 32-bit divider (off within 2^28 µrad).
+                    let off = (th as i64 - lo as i64).min(1 << 28) as u32;
+                    let i = ((off * sc.nbins) / span).min(sc.nbins - 1) as usize;
+                    let t = s.torque_unm;
+                    if cnt[i] == 0 {
+                        refs[i] = (th, t);
+                    }
+                    let dth = (th as i64 - refs[i].0 as i64) as i32;
+                    let dt = (t as i64 - refs[i].1 as i64).clamp(-(1 << 30), 1 << 30) as i32;
+                    let a = &mut acc[i];
+                    a[0] += dth as i64;
+                    a[1] += dt as i64;
+                    a[2] = a[2].saturating_add(wide(dth, dth));
+                    a[3] = a[3].saturating_add(wide(dt, dt));
+                    a[4] = a[4].saturating_add(wide(dth, dt));
+                    cnt[i] = cnt[i].saturating_add(1);
+                }
+            }
+        }
+        if done {
+            break;
+        }
+    }
+    if frame.is_none() {
+        return Err(PathFitError::NoMotion);
+    }
+    let mut nb = 0usize;
+    let mut total = 0u32;
+    // Centred moments of each used bin (µrad², µN·m², µrad·µN·m) and the means in µ units Q16.
+    let mut mom = [[0i64; 3]; MAX_BINS];
+    let mut mean = [(0i64, 0i64); MAX_BINS];
+    for i in 0..nbins {
+        let c = cnt[i];
+        if c == 0 {
+            continue;
+        }
+        let a = acc[i];
+        let n = c as i64;
+        let mth_q16 = (a[0] << 16) / n;
+        let mt_q16 = (a[1] << 16) / n;
+        mean[nb] = (
+            ((refs[i].0 as i64) << 16) + mth_q16,
+            ((refs[i].1 as i64) << 16) + mt_q16,
+        );
+        mom[nb] = [
+            a[2].saturating_sub(mul_sat(a[0], mth_q16) >> 16),
+            a[3].saturating_sub(mul_sat(a[1], mt_q16) >> 16),
+            a[4].saturating_sub(mul_sat(a[0], mt_q16) >> 16),
+        ];
+        k.bins[nb] = QBin {
+            n: c,
+            // µrad Q16 → rad Q28: · 2^12 / 10^6; µN·m Q16 → N·m Q24: · 2^8 / 10^6 (both
+            // 4.096e-3 · 2^34 / 2^32 on a quarter: constant to 1e-9, products within i64).
+            dta: clamp32(
+                (((mean[nb].0 - thc_q16).clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 32,
+            ),
+            t: clamp32(((mean[nb].1.clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 36),
+            w: 0,
+        };
+        nb += 1;
+        total = total.saturating_add(c);
+    }
+    if nb < MIN_BINS {
+        return Err(PathFitError::TooFewSamples);
+    }
+    // Within-bin scatter about the local trend (slope from the neighbouring bins' means).
+    let mut ss = 0i64;
+    for i in 0..nb {
+        let (a, b) = (mean[i.saturating_sub(1)], mean[(i + 1).min(nb - 1)]);
+        let dth = b.0 - a.0;
+        // Slope in µN·m per µrad (= N·m/rad), Q16.
+        let sl = if dth > (1 << 16) / 10 {
+            ((b.1 - a.1).clamp(-(1 << 46), 1 << 46) << 16) / dth
+        } else {
+            0
+        };
+        let m = mom[i];
+        let v = m[1]
+            .saturating_sub(mul_sat(2 * sl, m[2]) >> 16)
+            .saturating_add(mul_sat(sl, mul_sat(sl, m[0]) >> 16) >> 16);
+        ss = ss.saturating_add(v.max(0));
+    }
+    let dof = total.saturating_sub(nb as u32).max(1) as i128;
+    // µN·m² per sample → (mN·m)² in Q32: · 2^32 / 10^6.
+    w.var_sample = Fx32::from_bits(((ss as i128) * 4_294_967_296 / (1_000_000 * dof)) as i64);
+    w.inv_n = Fx32::one() / Fx32::from_bits((total as i64) << 32);
+    for b in k.bins.iter_mut().take(nb) {
+        b.w = (((b.n as u64) << QD) / total.max(1) as u64) as i32;
+    }
+    w.nb = nb;
+    w.n_total = total;
+    Ok(())
+}
+
+/// 4.096e-3 · 2^34: µ-units in Q16 to Q28 (·2^12/10^6) after a quarter, with a shift of 32.
+const MICRO_Q34: i64 = 70_368_744;
+
+/// a·b, saturating, with the full multiply only when an operand is large.
+#[inline(always)]
+fn mul_sat(a: i64, b: i64) -> i64 {
+    if a.unsigned_abs() < 1 << 31 && b.unsigned_abs() < 1 << 31 {
+        a * b
+    } else {
+        a.saturating_mul(b)
+    }
+}
+
+/// `c` with the inertial torque J θ̈a removed (θ̈a from the second difference over its
+/// neighbours; J/h² once per uniform period).
+fn correct(
+    sc: &SampleConsts,
+    k_uniform: &mut Option<(u32, i64)>,
+    p: RawSample,
+    c: RawSample,
+    n: RawSample,
+) -> RawSample {
+    let (dt1, dt2) = (c.tick.wrapping_sub(p.tick), n.tick.wrapping_sub(c.tick));
+    if dt1 == 0 || dt2 == 0 || dt1 > 1 << 30 || dt2 > 1 << 30 || sc.inertia_q16 == 0 {
+        return c;
+    }
+    let d1 = c.theta_a_urad as i64 - p.theta_a_urad as i64;
+    let d2 = n.theta_a_urad as i64 - c.theta_a_urad as i64;
+    let corr = if dt1 == dt2 {
+        let k = match *k_uniform {
+            Some((h, k)) if h == dt1 => k,
+            _ => {
+                let k = sc.inertia_q16 / (dt1 as i64 * dt1 as i64);
+                *k_uniform = Some((dt1, k));
+                k
+            }
+        };
+        let dd = d2 - d1;
+        if dd.abs() < 1 << 24 && k < 1 << 38 {
+            (k * dd) >> 16
+        } else {
+            ((k as i128 * dd as i128) >> 16) as i64
+        }
+    } else {
+        // J (d2/dt2 − d1/dt1)·2/span.
+        let span = dt1 as i128 + dt2 as i128;
+        let num =
+            (d2 as i128 * dt1 as i128 - d1 as i128 * dt2 as i128) * 2 * sc.inertia_q16 as i128;
+        ((num / (dt1 as i128 * dt2 as i128 * span)) >> 16) as i64
+    };
+    RawSample {
+        torque_unm: clamp32(c.torque_unm as i64 - corr.clamp(i32::MIN as i64, i32::MAX as i64)),
+        ..c
+    }
+}
+
+/// [`super::fit_path`] on the firmware's integer kernel: the same fit (model, cleaning,
+/// priors, Levenberg–Marquardt, radius decision, σ, refusals), fixed point throughout, for
+/// the finger and configuration of `table`.
+///
+/// `theta_a_c_rad` and `approach_torque_nm` as for [`super::fit_path`]; `samples` are the
+/// controller's own (ticks of the period given to [`PathTable::new`], µrad, µN·m), in time
+/// order, traversed backwards once. Cost on a Cortex-M4: see `crates/pts/benches/pathfit`.
+pub fn fit_path_q<I>(
+    table: &PathTable,
+    theta_a_c_rad: Fx32,
+    approach_torque_nm: Option<Fx32>,
+    samples: I,
+) -> Result<PathFit<Fx32>, PathFitError>
+where
+    I: IntoIterator<Item = RawSample>,
+    I::IntoIter: DoubleEndedIterator,
+{
+    if theta_a_c_rad.is_saturated() {
+        return Err(PathFitError::Model(PtsError::OutOfRange));
+    }
+    let c = table.consts;
+    let theta_a_c = theta_a_c_rad - c.lead;
+    let mut k = QKernel::new(table);
+    k.solve_contact(theta_a_c, false)?;
+    let mut w = Work::new(theta_a_c);
+    bin_raw(&mut k, &mut w, theta_a_c_rad, samples.into_iter())?;
+    run_fit(&mut k, &table.model, &c, &mut w, approach_torque_nm)
+}

@@ -1,0 +1,99 @@
+//! The firmware's integer path fit (`pts::pathfit::q`) against the generic fit in f64.
+use pts::fixed::Fx32;
+use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
+use pts::pathfit::{fit_path, PathFitConfig, PathSample};
+use pts::{Finger, Model, Real};
+
+const TICK_S: f64 = 1e-4;
+
+fn read_case(path: &str) -> (f64, f64, Vec<RawSample>) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<f64> = lines
+        .next()
+        .unwrap()
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let samples = lines
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            RawSample {
+                tick: (v[0] / TICK_S).round() as u32,
+                theta_a_urad: (v[1] * 1e6).round() as i32,
+                torque_unm: (v[2] * 1e6).round() as i32,
+            }
+        })
+        .collect();
+    (head[0], head[1], samples)
+}
+
+#[test]
+fn harness_cases_match_f64() {
+    // The four recorded-style requests of the instruction-count harness (realistic plant).
+    // The four recorded-style requests of the instruction-count harness (realistic plant).
+    let table = PathTable::new(&Finger::PAPER, &PathFitConfig::DEFAULT, TICK_S).unwrap();
+    let m = Model::<f64>::paper().unwrap();
+    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/pathfit/cases");
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        let (thc, tac, raw) = read_case(p.to_str().unwrap());
+        let s64: Vec<PathSample<f64>> = raw
+            .iter()
+            .map(|s| PathSample {
+                time_s: s.tick as f64 * TICK_S,
+                theta_a_rad: s.theta_a_urad as f64 * 1e-6,
+                torque_nm: s.torque_unm as f64 * 1e-6,
+            })
+            .collect();
+        let f = fit_path(
+            &m,
+            &PathFitConfig::DEFAULT,
+            thc,
+            Some(tac),
+            s64.iter().copied(),
+        );
+        let q = fit_path_q(
+            &table,
+            Fx32::from_f64(thc),
+            Some(Fx32::from_f64(tac)),
+            raw.iter().copied(),
+        );
+        let (f, q) = (f.unwrap(), q.unwrap());
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        println!(
+            "{name}: k2 f64 {:.6} q {:.6} m, σ {:.6} / {:.6} m, R {:.5} / {:.5} m, evals {} / {}",
+            f.k2_contact_m,
+            q.k2_contact_m.to_f64(),
+            f.sigma_k2_m,
+            q.sigma_k2_m.to_f64(),
+            f.radius_m,
+            q.radius_m.to_f64(),
+            f.path_evals,
+            q.path_evals
+        );
+        let l2 = Finger::PAPER.l2;
+        assert!(
+            (q.k2_contact_m.to_f64() - f.k2_contact_m).abs() < 2e-4 * l2,
+            "{name}"
+        );
+        assert!(
+            (q.sigma_k2_m.to_f64() / f.sigma_k2_m - 1.0).abs() < 0.05,
+            "{name}"
+        );
+        assert_eq!(q.object, f.object, "{name}");
+        assert!(
+            (q.radius_m.to_f64() - f.radius_m).abs() < 1e-3 * l2 + 0.01 * f.radius_m,
+            "{name}"
+        );
+        assert!(
+            (q.theta_a_c_rad.to_f64() - f.theta_a_c_rad).abs() < 1e-5,
+            "{name}"
+        );
+        assert!(
+            (q.k2_final_m.to_f64() - f.k2_final_m).abs() < 2e-4 * l2,
+            "{name}"
+        );
+    }
+}
