@@ -662,7 +662,8 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // curvature fit (its effect goes into σ).
     let decide = |e: &Eval<R>| -> Result<Decision<R>, PathFitError> {
         let s2v = s2_of(e.sse, count(&vset));
-        let (sigma_r_lin, dk_lin, dr_lin) = match invert_spd(&e.a, &cset) {
+        let full = invert_spd(&e.a, &cset);
+        let (sigma_r_lin, dk_lin, dr_lin) = match full {
             Some(c) => {
                 let step = |i: usize| -> R {
                     let mut acc = zero;
@@ -681,14 +682,26 @@ fn run_fit<R: Real, K: Kernel<R>>(
             }
             None => (rmax, zero, zero),
         };
-        let cov_v = invert_spd(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
-        let sigma_kv = (cov_v[K][K] * s2v).max(zero).sqrt() * l2;
-        let mut per_r = zero;
-        for (j, on) in vset.iter().enumerate() {
-            if *on {
-                per_r = per_r - cov_v[K][j] * e.a[j][RAD];
+        // The vertex covariance and the regression of the R column on the vertex parameters
+        // from the same inverse C (the Schur complement: (A_vv)⁻¹ = C_vv − C_vR C_Rv / C_RR,
+        // (A_vv)⁻¹ A_vR = −C_vR / C_RR), else by a second inversion.
+        let (var_kv, per_r) = match full.filter(|c| c[RAD][RAD] > zero) {
+            Some(c) => {
+                let q = c[K][RAD] / c[RAD][RAD];
+                (c[K][K] - q * c[K][RAD], q)
             }
-        }
+            None => {
+                let cov_v = invert_spd(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
+                let mut per_r = zero;
+                for (j, on) in vset.iter().enumerate() {
+                    if *on {
+                        per_r = per_r - cov_v[K][j] * e.a[j][RAD];
+                    }
+                }
+                (cov_v[K][K], per_r)
+            }
+        };
+        let sigma_kv = (var_kv * s2v).max(zero).sqrt() * l2;
         let r_allowed = (sigma_r_lin * R::from_f64(3.0)).min(rmax);
         let bias_pot = (per_r * r_allowed).abs();
         let want = match c.object {
@@ -1379,10 +1392,8 @@ fn lm<R: Real, K: Kernel<R>>(
     Ok(best)
 }
 
-/// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
-/// elsewhere), Jacobi-scaled to a unit diagonal first so that fixed point neither overflows
-/// nor loses the pivots; Gauss–Jordan without pivoting (positive definite).
 /// The active parameters of `set` (their indices and count) and the Jacobi scaling
+/// (to a unit diagonal, so that fixed point neither overflows nor loses the pivots)
 /// d_k = 1/√a_kk of the active submatrix; `None` unless every active pivot is positive.
 #[allow(clippy::needless_range_loop)]
 fn active_scaling<R: Real>(
@@ -1409,59 +1420,20 @@ fn active_scaling<R: Real>(
     Some((idx, n, d))
 }
 
-#[allow(clippy::needless_range_loop)]
-fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; NP]> {
-    let z = R::zero();
-    let (idx, n, d) = active_scaling(a, set)?;
-    // [B | I] with B = D A D.
-    let mut m = [[z; NP]; NP];
-    let mut inv = [[z; NP]; NP];
-    for i in 0..n {
-        for j in 0..n {
-            m[i][j] = if i == j {
-                R::one()
-            } else {
-                a[idx[i]][idx[j]] * d[i] * d[j]
-            };
-        }
-        inv[i][i] = R::one();
-    }
-    for k in 0..n {
-        let piv = m[k][k];
-        if !(piv > R::from_f64(1e-7)) {
-            return None;
-        }
-        let ip = R::one() / piv;
-        for j in 0..n {
-            m[k][j] = m[k][j] * ip;
-            inv[k][j] = inv[k][j] * ip;
-        }
-        for i in 0..n {
-            if i != k {
-                let f = m[i][k];
-                for j in 0..n {
-                    m[i][j] = m[i][j] - f * m[k][j];
-                    inv[i][j] = inv[i][j] - f * inv[k][j];
-                }
-            }
-        }
-    }
-    let mut out = [[z; NP]; NP];
-    for i in 0..n {
-        for j in 0..n {
-            out[idx[i]][idx[j]] = inv[i][j] * d[i] * d[j];
-        }
-    }
-    Some(out)
+/// LDLᵀ of the Jacobi-scaled active submatrix B = D A D (unit diagonal): the active
+/// indices, their count, the scaling D, the unit lower factor L and the pivots.
+struct Ldl<R> {
+    idx: [usize; NP],
+    n: usize,
+    d: [R; NP],
+    l: [[R; NP]; NP],
+    piv: [R; NP],
 }
 
-/// Solves A d = −g on the parameters in `set` (zero elsewhere) by LDLᵀ on the Jacobi-scaled
-/// submatrix (unit diagonal, as [`invert_spd`]): the LM step without the full inverse.
 #[allow(clippy::needless_range_loop)]
-fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
+fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
     let z = R::zero();
     let (idx, n, d) = active_scaling(a, set)?;
-    // L (unit lower, below the diagonal) and the pivots D of B = D A D.
     let mut l = [[z; NP]; NP];
     let mut piv = [z; NP];
     for j in 0..n {
@@ -1482,6 +1454,54 @@ fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Optio
             l[i][j] = v * inv;
         }
     }
+    Some(Ldl { idx, n, d, l, piv })
+}
+
+/// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
+/// elsewhere), from [`ldl`]: B⁻¹ = L⁻ᵀ P⁻¹ L⁻¹ with M = L⁻¹ by forward substitution.
+#[allow(clippy::needless_range_loop)]
+fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; NP]> {
+    let z = R::zero();
+    let f = ldl(a, set)?;
+    let n = f.n;
+    // M = L⁻¹ (unit lower): M[i][j] = −Σ_{k=j}^{i−1} L[i][k] M[k][j].
+    let mut m = [[z; NP]; NP];
+    for i in 0..n {
+        m[i][i] = R::one();
+        for j in 0..i {
+            let mut v = z;
+            for k in j..i {
+                v = v - f.l[i][k] * m[k][j];
+            }
+            m[i][j] = v;
+        }
+    }
+    let mut ip = [z; NP];
+    for k in 0..n {
+        ip[k] = R::one() / f.piv[k];
+    }
+    let mut out = [[z; NP]; NP];
+    for i in 0..n {
+        for j in i..n {
+            let mut v = z;
+            for k in j..n {
+                v = v + m[k][i] * (m[k][j] * ip[k]);
+            }
+            let v = v * f.d[i] * f.d[j];
+            out[f.idx[i]][f.idx[j]] = v;
+            out[f.idx[j]][f.idx[i]] = v;
+        }
+    }
+    Some(out)
+}
+
+/// Solves A d = −g on the parameters in `set` (zero elsewhere) by [`ldl`]: the LM step
+/// without the inverse.
+#[allow(clippy::needless_range_loop)]
+fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
+    let z = R::zero();
+    let f = ldl(a, set)?;
+    let (idx, n, d, l, piv) = (f.idx, f.n, f.d, f.l, f.piv);
     // L y = −D g, then Lᵀ x = y / piv; the step is D x.
     let mut y = [z; NP];
     for i in 0..n {

@@ -99,6 +99,7 @@ struct Recip {
 }
 
 impl Recip {
+    #[inline(always)]
     fn new(d: i32) -> Option<Recip> {
         if d == 0 {
             return None;
@@ -725,10 +726,11 @@ impl<'t> QKernel<'t> {
         let stiffness = narrow((wide(t_phi, tphi) + wide(t_2, t2)) >> QA)?;
         let e1k = -st.sp;
         let e1r = st.cp - ONE;
-        let dphi_k = rdet.div::<K0>(-mul::<QA>(st.a22, e1k))?;
+        // dδ2 = ∂E1/det per parameter, dδφ = −a22·dδ2.
         let d2_k = rdet.div::<K0>(e1k)?;
-        let dphi_r = rdet.div::<K0>(-mul::<QA>(st.a22, e1r))?;
         let d2_r = rdet.div::<K0>(e1r)?;
+        let dphi_k = -mul::<QA>(st.a22, d2_k);
+        let dphi_r = -mul::<QA>(st.a22, d2_r);
         let dta_dk = narrow(((wide(t_phi, dphi_k) + wide(t_2, d2_k)) >> QA) + t_k as i64)?;
         let dta_dr = narrow(((wide(t_phi, dphi_r) + wide(t_2, d2_r)) >> QA) + t_r as i64)?;
         Ok(QPoint {
@@ -767,22 +769,22 @@ impl<'t> QKernel<'t> {
     }
 }
 
-/// Fx32 bits from a sum in Q`q` (q ≥ 32) of N·m-based products, times 10^6 (the fit's
-/// statistics are in (mN·m)²), saturating: value·1e6 in Q32 = sum·15625 / 2^(q − 38).
+/// Fx32 bits from a sum in Q`q` of N·m-based products, times 10^6 (the fit's statistics
+/// are in (mN·m)²), saturating: value·1e6 in Q32 = sum·15625·2^(38 − q).
 #[inline(always)]
 fn stat_bits(sum: i64, q: u32) -> Fx32 {
-    const LIM: i64 = i64::MAX / 15625 / 64;
-    let v = if sum.abs() <= LIM {
-        let p = sum * 15625;
-        if q <= 38 {
-            p << (38 - q)
-        } else {
-            p >> (q - 38)
-        }
-    } else if sum > 0 {
-        i64::MAX
+    const LIM: i64 = i64::MAX / 15625;
+    let v = if q >= 38 {
+        (sum.clamp(-LIM, LIM) * 15625) >> (q - 38)
     } else {
-        -i64::MAX
+        let lim = LIM >> (38 - q);
+        if sum.abs() <= lim {
+            (sum * 15625) << (38 - q)
+        } else if sum > 0 {
+            i64::MAX
+        } else {
+            -i64::MAX
+        }
     };
     Fx32::from_bits(v)
 }
@@ -884,33 +886,62 @@ impl Kernel<Fx32> for QKernel<'_> {
         let tf_data = Fx32::from_bits(sum_r >> (QT + QD - 32));
         let tf = (tf_data + wp * w.prior[TF]) / (Fx32::one() + wp);
         let tf_q = narrow(tf.to_bits() >> (32 - QT))?;
-        let mut sa = [[0i64; NP]; NP];
-        let mut sg = [0i64; NP];
-        let mut ss = 0i64;
-        for i in 0..nb {
-            let r = res[i] - tf_q;
-            let wr = mul::<QD>(self.bins[i].w, r);
+        // The normal equations in integers: columns K, R, θa,c in Q16; the T_f column is 1
+        // for every bin, so its products are sums of the weights.
+        let (mut skk, mut skr, mut skt, mut srr, mut srt, mut stt) =
+            (0i64, 0i64, 0i64, 0i64, 0i64, 0i64);
+        let (mut swk, mut swr, mut swt, mut sw) = (0i64, 0i64, 0i64, 0i64);
+        let (mut sgk, mut sgr, mut sgt, mut sgf, mut ss) = (0i64, 0i64, 0i64, 0i64, 0i64);
+        for (b, (&r, c)) in self.bins.iter().zip(res.iter().zip(cols.iter())).take(nb) {
+            let r = r - tf_q;
+            let wr = mul::<QD>(b.w, r);
             ss += wide(wr, r);
-            let col = cols[i];
-            for j in 0..NP {
-                sg[j] -= wide(wr, col[j]);
-                let wc = mul::<QD>(self.bins[i].w, col[j]);
-                for k in j..NP {
-                    sa[j][k] += wide(wc, col[k]);
-                }
-            }
+            let [ck, cr, _, ct] = *c;
+            sgk += wide(wr, ck);
+            sgr += wide(wr, cr);
+            sgt += wide(wr, ct);
+            sgf += wr as i64;
+            let (wk, wrr, wt) = (mul::<QD>(b.w, ck), mul::<QD>(b.w, cr), mul::<QD>(b.w, ct));
+            skk += wide(wk, ck);
+            skr += wide(wk, cr);
+            skt += wide(wk, ct);
+            srr += wide(wrr, cr);
+            srt += wide(wrr, ct);
+            stt += wide(wt, ct);
+            swk += wk as i64;
+            swr += wrr as i64;
+            swt += wt as i64;
+            sw += b.w as i64;
         }
-        let mut a = [[z; NP]; NP];
-        let mut g = [z; NP];
-        for j in 0..NP {
-            g[j] = stat_bits(sg[j], QT + QD);
-            for k in j..NP {
-                a[j][k] = stat_bits(sa[j][k], 2 * QD);
-                a[k][j] = a[j][k];
-            }
-        }
+        let q2 = 2 * QD;
+        let (ak, ar, at, af) = (
+            [
+                stat_bits(skk, q2),
+                stat_bits(skr, q2),
+                stat_bits(swk, QD),
+                stat_bits(skt, q2),
+            ],
+            stat_bits(srr, q2),
+            [stat_bits(srt, q2), stat_bits(swt, QD), stat_bits(stt, q2)],
+            [stat_bits(swr, QD), stat_bits(sw, QD)],
+        );
+        // Rows (K, RAD, TF, TC), symmetric.
+        let mut a = [
+            ak,
+            [ak[1], ar, af[0], at[0]],
+            [ak[2], af[0], af[1], at[1]],
+            [ak[3], at[0], at[1], at[2]],
+        ];
+        let gq = QT + QD;
+        let mut g = [
+            -stat_bits(sgk, gq),
+            -stat_bits(sgr, gq),
+            -stat_bits(sgf, QT),
+            -stat_bits(sgt, gq),
+        ];
         let dp = (w.prior[TF] - tf) * ks;
         let mut sse = stat_bits(ss, 2 * QT) + wp * dp * dp;
+        let _ = z;
         a[TF][TF] = a[TF][TF] + wp * ks * ks;
         g[TF] = g[TF] - wp * ks * dp;
         let wc = w.prior_w[TC];
