@@ -1016,93 +1016,42 @@ where
     let nbins = sc.nbins as usize;
     // θa,c (measured frame) in µrad, Q16.
     let thc_q16 = ((theta_meas_c.to_bits() as i128 * 1_000_000) >> 16) as i64;
-    // Per bin: count, reference sample (θ µrad, T µN·m), Σdθ, Σdt, Σdθ², Σdt², Σdθ·dt.
-    let mut cnt = [0u32; MAX_BINS];
-    let mut refs = [(0i32, 0i32); MAX_BINS];
-    let mut acc = [[0i64; 5]; MAX_BINS];
-    let mut frame: Option<(i32, u32)> = None; // (lo µrad, span µrad)
-    let mut min_th: Option<i32> = None;
-    let mut last_kept: Option<i32> = None;
-    let mut next: Option<RawSample> = None;
-    let mut cur: Option<RawSample> = None;
     let mut k_uniform: Option<(u32, i64)> = None;
+    let mut acc = Binner {
+        sc,
+        thc_q16,
+        cnt: [0; MAX_BINS],
+        refs: [(0, 0); MAX_BINS],
+        sums: [[0; 5]; MAX_BINS],
+        frame: None,
+        min_th: i32::MAX,
+        last_kept: None,
+    };
+    // Backwards: the latest sample as it is, every inner one corrected with its neighbours
+    // (or dropped on a plateau), the earliest as it is.
     let mut it = samples.rev();
-    loop {
-        // `cur` with its neighbours `prev` (earlier) and `next` (later): the corrected
-        // sample, or `None` when it is a plateau sample.
-        let prev = it.next();
-        let out = match (prev, next, cur) {
-            (None, _, Some(c)) => Some(c), // the earliest sample, uncorrected
-            (None, _, None) => break,
-            (Some(_), None, c) => c, // the latest, uncorrected
-            (Some(p), Some(n), Some(c)) => {
-                if sc.drop_plateaus
-                    && (c.theta_a_urad == p.theta_a_urad || c.theta_a_urad == n.theta_a_urad)
-                {
-                    None
-                } else {
-                    Some(correct(&sc, &mut k_uniform, p, c, n))
+    if let Some(mut n) = it.next() {
+        acc.push(n)?;
+        if let Some(mut c) = it.next() {
+            for p in it.by_ref() {
+                let plateau = sc.drop_plateaus
+                    && (c.theta_a_urad == p.theta_a_urad || c.theta_a_urad == n.theta_a_urad);
+                if !plateau {
+                    acc.push(correct(&sc, &mut k_uniform, p, c, n))?;
                 }
+                n = c;
+                c = p;
             }
-            (Some(_), Some(_), None) => None,
-        };
-        let done = prev.is_none();
-        next = cur;
-        cur = prev;
-        if let Some(s) = out {
-            let th = s.theta_a_urad;
-            // Lower envelope in time; one sample per stiction plateau.
-            let below = min_th.is_none_or(|m| (th as i64) < m as i64 + sc.envelope_urad);
-            let moved = last_kept != Some(th);
-            min_th = Some(min_th.map_or(th, |m| m.min(th)));
-            if below && moved {
-                last_kept = Some(th);
-                let (lo, span) = match frame {
-                    Some(f) => f,
-                    None => {
-                        let hi_q16 = (th as i64) << 16;
-                        let travel = hi_q16 - thc_q16 - sc.dead_urad_q16;
-                        if travel <= sc.min_travel_urad_q16 {
-                            return Err(PathFitError::NoMotion);
-                        }
-                        let lo_q16 = match sc.approach_urad_q16 {
-                            Some(span) => thc_q16 - span,
-                            None => {
-                                thc_q16
-                                    + sc.dead_urad_q16
-                                    + ((travel as i128 * sc.skip_q16 as i128) >> 16) as i64
-                            }
-                        };
-                        let lo = ((lo_q16 + 0xFFFF) >> 16) as i32;
-                        let span = (th as i64 - lo as i64).max(1) as u32;
-                        frame = Some((lo, span));
-                        (lo, span)
-                    }
-                };
-                if th >= lo {
-                    // floor(off·nbins/span) by the 32-bit divider (off within 2^28 µrad).
-                    let off = (th as i64 - lo as i64).min(1 << 28) as u32;
-                    let i = ((off * sc.nbins) / span).min(sc.nbins - 1) as usize;
-                    let t = s.torque_unm;
-                    if cnt[i] == 0 {
-                        refs[i] = (th, t);
-                    }
-                    let dth = (th as i64 - refs[i].0 as i64) as i32;
-                    let dt = (t as i64 - refs[i].1 as i64).clamp(-(1 << 30), 1 << 30) as i32;
-                    let a = &mut acc[i];
-                    a[0] += dth as i64;
-                    a[1] += dt as i64;
-                    a[2] = a[2].saturating_add(wide(dth, dth));
-                    a[3] = a[3].saturating_add(wide(dt, dt));
-                    a[4] = a[4].saturating_add(wide(dth, dt));
-                    cnt[i] = cnt[i].saturating_add(1);
-                }
-            }
-        }
-        if done {
-            break;
+            acc.push(c)?;
         }
     }
+    let Binner {
+        cnt,
+        refs,
+        sums: acc,
+        frame,
+        ..
+    } = acc;
     if frame.is_none() {
         return Err(PathFitError::NoMotion);
     }
@@ -1172,6 +1121,93 @@ where
     w.nb = nb;
     w.n_total = total;
     Ok(())
+}
+
+/// The binning state of the sample pass.
+struct Binner {
+    sc: SampleConsts,
+    /// θa,c (measured frame) in µrad, Q16.
+    thc_q16: i64,
+    /// Per bin: count, reference sample (θ µrad, T µN·m), Σdθ, Σdt, Σdθ², Σdt², Σdθ·dt
+    /// about it.
+    cnt: [u32; MAX_BINS],
+    refs: [(i32, i32); MAX_BINS],
+    sums: [[i64; 5]; MAX_BINS],
+    /// (lo µrad, span µrad) once the latest kept sample fixed it.
+    frame: Option<(i32, u32)>,
+    min_th: i32,
+    last_kept: Option<i32>,
+}
+
+impl Binner {
+    /// Most samples a bin takes (keeps its sums within i64 with the clamps below).
+    const MAX_COUNT: u32 = 1 << 16;
+
+    /// One cleaned sample, latest first: the lower envelope in time (within the
+    /// envelope tolerance of every later sample, one per plateau), then its bin.
+    #[inline(always)]
+    fn push(&mut self, s: RawSample) -> Result<(), PathFitError> {
+        let sc = &self.sc;
+        let th = s.theta_a_urad;
+        let below = (th as i64) < self.min_th as i64 + sc.envelope_urad;
+        let moved = self.last_kept != Some(th);
+        self.min_th = self.min_th.min(th);
+        if !(below && moved) {
+            return Ok(());
+        }
+        self.last_kept = Some(th);
+        let (lo, span) = match self.frame {
+            Some(f) => f,
+            None => {
+                let hi_q16 = (th as i64) << 16;
+                let travel = hi_q16 - self.thc_q16 - sc.dead_urad_q16;
+                if travel <= sc.min_travel_urad_q16 {
+                    return Err(PathFitError::NoMotion);
+                }
+                let lo_q16 = match sc.approach_urad_q16 {
+                    Some(span) => self.thc_q16 - span,
+                    None => {
+                        self.thc_q16
+                            + sc.dead_urad_q16
+                            + ((travel as i128 * sc.skip_q16 as i128) >> 16) as i64
+                    }
+                };
+                let lo = ((lo_q16 + 0xFFFF) >> 16) as i32;
+                let f = (lo, (th as i64 - lo as i64).max(1) as u32);
+                self.frame = Some(f);
+                f
+            }
+        };
+        if th < lo {
+            return Ok(());
+        }
+        // floor(off·nbins/span) by the 32-bit divider (off within 2^28 µrad).
+        let off = (th as i64 - lo as i64).min(1 << 28) as u32;
+        let i = ((off * sc.nbins) / span).min(sc.nbins - 1) as usize;
+        let (Some(c), Some(r), Some(a)) = (
+            self.cnt.get_mut(i),
+            self.refs.get_mut(i),
+            self.sums.get_mut(i),
+        ) else {
+            return Ok(());
+        };
+        if *c >= Self::MAX_COUNT {
+            return Ok(());
+        }
+        if *c == 0 {
+            *r = (th, s.torque_unm);
+        }
+        // Clamped to ±1 rad and ±8 N·m about the bin's first sample.
+        let dth = (th as i64 - r.0 as i64).clamp(-(1 << 20), 1 << 20) as i32;
+        let dt = (s.torque_unm as i64 - r.1 as i64).clamp(-(1 << 23), 1 << 23) as i32;
+        a[0] += dth as i64;
+        a[1] += dt as i64;
+        a[2] += wide(dth, dth);
+        a[3] += wide(dt, dt);
+        a[4] += wide(dth, dt);
+        *c += 1;
+        Ok(())
+    }
 }
 
 /// 4.096e-3 · 2^34: µ-units in Q16 to Q28 (·2^12/10^6) after a quarter, with a shift of 32.
