@@ -418,7 +418,8 @@ struct QBin {
     w: i32,
 }
 
-/// A solved point kept for warm starts (Q28; sensitivities per unit of k2,c/l1 and R/l1).
+/// A solved point kept for warm starts (angles Q28; sensitivities per unit of k2,c/l1 and
+/// R/l1, Q24).
 #[derive(Clone, Copy, Debug)]
 struct QPrev {
     kap: i32,
@@ -443,6 +444,7 @@ struct QPoint {
     dta_dr: i32,
     /// dT_a/dθa along the path (Q16 N·m/rad).
     stiffness: i32,
+    /// dδ/dθa along the path and ∂δ/∂(k2,c/l1), ∂δ/∂(R/l1) (Q24).
     tangent: (i32, i32),
     sens_k: (i32, i32),
     sens_r: (i32, i32),
@@ -542,19 +544,14 @@ impl<'t> QKernel<'t> {
         };
         let tol = to_q(ACCEPT_STEP * 0.01, QA).unwrap_or(1);
         let lim = ONE / 2;
+        let mut done = false;
         for _ in 0..2 * MAX_PATH_NEWTON {
             let c = tb.closure(th2).map_err(|_| oor)?;
             // θ1 = θa − θ2 + φ2 + γ; g = K2(θ2 − θ02) − K1(θ1 − θ01)·x2; g′ = K2 − T dx2 + K1 x2².
             let th1 = (tha as i64 - th2 as i64 + tb.phi2 as i64 + c.gamma as i64) as i32;
             let ta = mul::<QA>(tb.k1, th1.wrapping_sub(tb.theta01));
-            let g = mul::<QA>(tb.k2, th2 - tb.theta02) - mul::<QA>(ta, c.x2);
-            let dg = tb.k2 - mul::<QA>(ta, c.dx2) + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
-            if dg < (1 << 8) {
-                return Err(PtsError::NoConvergence);
-            }
-            let r = Recip::new(dg).ok_or(PtsError::NoConvergence)?;
-            let step = r.div::<{ QA as i32 }>(g).map_err(|_| oor)?.clamp(-lim, lim);
-            if step.abs() <= tol {
+            if done {
+                // Converged (the last step applied): the configuration at this θ2.
                 let k2p = tb.k2 - mul::<QA>(ta, c.dx2);
                 let den = k2p + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
                 let kfree = Recip::new(den)
@@ -582,6 +579,14 @@ impl<'t> QKernel<'t> {
                 self.prev = [None; MAX_BINS];
                 return Ok(());
             }
+            let g = mul::<QA>(tb.k2, th2 - tb.theta02) - mul::<QA>(ta, c.x2);
+            let dg = tb.k2 - mul::<QA>(ta, c.dx2) + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
+            if dg < (1 << 8) {
+                return Err(PtsError::NoConvergence);
+            }
+            let r = Recip::new(dg).ok_or(PtsError::NoConvergence)?;
+            let step = r.div::<{ QA as i32 }>(g).map_err(|_| oor)?.clamp(-lim, lim);
+            done = step.abs() <= tol;
             th2 -= step;
         }
         Err(PtsError::NoConvergence)
@@ -720,10 +725,11 @@ impl<'t> QKernel<'t> {
         }
         // Tangent: J t = (0, 1); sensitivities: J dδ = −(∂E1/∂p, 0), ∂E1/∂κ = −sin δφ,
         // ∂E1/∂ρ = −(1 − cos δφ).
-        const K0: i32 = QA as i32;
+        // Both in Q24 (they pass 8 on stiff paths): Q28/Q28 → Q24.
+        const K0: i32 = QT as i32;
         let tphi = rdet.div::<K0>(-st.c2)?;
         let t2 = rdet.div::<K0>(st.a11)?;
-        let stiffness = narrow((wide(t_phi, tphi) + wide(t_2, t2)) >> QA)?;
+        let stiffness = narrow((wide(t_phi, tphi) + wide(t_2, t2)) >> QT)?;
         let e1k = -st.sp;
         let e1r = st.cp - ONE;
         // dδ2 = ∂E1/det per parameter, dδφ = −a22·dδ2.
@@ -731,8 +737,8 @@ impl<'t> QKernel<'t> {
         let d2_r = rdet.div::<K0>(e1r)?;
         let dphi_k = -mul::<QA>(st.a22, d2_k);
         let dphi_r = -mul::<QA>(st.a22, d2_r);
-        let dta_dk = narrow(((wide(t_phi, dphi_k) + wide(t_2, d2_k)) >> QA) + t_k as i64)?;
-        let dta_dr = narrow(((wide(t_phi, dphi_r) + wide(t_2, d2_r)) >> QA) + t_r as i64)?;
+        let dta_dk = narrow(((wide(t_phi, dphi_k) + wide(t_2, d2_k)) >> QT) + t_k as i64)?;
+        let dta_dr = narrow(((wide(t_phi, dphi_r) + wide(t_2, d2_r)) >> QT) + t_r as i64)?;
         Ok(QPoint {
             dphi: dphi + fin.0,
             d2: d2 + fin.1,
@@ -747,14 +753,14 @@ impl<'t> QKernel<'t> {
         })
     }
 
-    /// The path's tangent dδ/dθa at contact.
+    /// The path's tangent dδ/dθa at contact (Q24).
     fn tangent0(&self, kap: i32, rho: i32) -> Result<(i32, i32), PathFail> {
         let mut st = St::default();
         self.eval(kap, rho, 0, 0, &mut st)?;
         let r = Recip::new(st.det).ok_or(PathFail::OutOfRange)?;
         Ok((
-            r.div::<{ QA as i32 }>(-st.c2)?,
-            r.div::<{ QA as i32 }>(st.a11)?,
+            r.div::<{ QT as i32 }>(-st.c2)?,
+            r.div::<{ QT as i32 }>(st.a11)?,
         ))
     }
 
@@ -837,17 +843,17 @@ impl Kernel<Fx32> for QKernel<'_> {
                     (Some(q), _) => {
                         let (dk, dr) = (kap - q.kap, rho - q.rho);
                         (
-                            q.dphi + mul::<QA>(q.sens_k.0, dk) + mul::<QA>(q.sens_r.0, dr),
-                            q.d2 + mul::<QA>(q.sens_k.1, dk) + mul::<QA>(q.sens_r.1, dr),
+                            q.dphi + mul::<QT>(q.sens_k.0, dk) + mul::<QT>(q.sens_r.0, dr),
+                            q.d2 + mul::<QT>(q.sens_k.1, dk) + mul::<QT>(q.sens_r.1, dr),
                         )
                     }
                     (None, Some((dta0, dphi0, d20, t))) => {
                         let step = dta - dta0;
-                        (dphi0 + mul::<QA>(t.0, step), d20 + mul::<QA>(t.1, step))
+                        (dphi0 + mul::<QT>(t.0, step), d20 + mul::<QT>(t.1, step))
                     }
                     (None, None) => {
                         let t = self.tangent0(kap, rho)?;
-                        (mul::<QA>(t.0, dta), mul::<QA>(t.1, dta))
+                        (mul::<QT>(t.0, dta), mul::<QT>(t.1, dta))
                     }
                 };
                 let pt = self.point(kap, rho, dta, guess)?;
@@ -1293,4 +1299,174 @@ where
     let mut w = Work::new(theta_a_c);
     bin_raw(&mut k, &mut w, theta_a_c_rad, samples.into_iter())?;
     run_fit(&mut k, &table.model, &c, &mut w, approach_torque_nm)
+}
+
+#[cfg(test)]
+mod tests {
+    //! The integer path points against an exact f64 solve of the same contact equations
+    //! (library trigonometry, the model's exact closure, Newton to 1e-13) and its finite
+    //! differences; the generic path model's interpolated points are printed beside it.
+    use super::*;
+    use crate::pathfit::path::PathModel;
+    extern crate std;
+
+    fn q28(v: f64) -> i32 {
+        to_q(v, QA).unwrap()
+    }
+
+    /// (δφ, δ2, k2, T_a) of the path point at Δθa for (k2,c, R) from the contact `c`,
+    /// exactly: E1 = sin(θ2c+δ2) − sin(θ2c+δφ) − (k2c sin δφ + R(1 − cos δφ))/l1,
+    /// E2 = δφ − (γ(θ2c+δ2) − γc) − Δθa, Newton with a central-difference Jacobian.
+    fn exact(
+        m: &Model<f64>,
+        c: &Config<f64>,
+        k2c: f64,
+        r: f64,
+        dta: f64,
+        g: (f64, f64),
+    ) -> [f64; 4] {
+        let f = Finger::PAPER;
+        let gc = m.closure(c.theta2).unwrap().gamma;
+        let e = |x: (f64, f64)| {
+            let (dphi, d2) = x;
+            let gm = m.closure(c.theta2 + d2).unwrap().gamma;
+            let mut dg = gm - gc;
+            dg -= 2.0 * core::f64::consts::PI * libm::round(dg / (2.0 * core::f64::consts::PI));
+            (
+                libm::sin(c.theta2 + d2)
+                    - libm::sin(c.theta2 + dphi)
+                    - (k2c * libm::sin(dphi) + r * (1.0 - libm::cos(dphi))) / f.l1,
+                dphi - dg - dta,
+            )
+        };
+        let mut x = g;
+        for _ in 0..60 {
+            let h = 1e-7;
+            let f0 = e(x);
+            let fa = e((x.0 + h, x.1));
+            let fb = e((x.0, x.1 + h));
+            let j = [
+                [(fa.0 - f0.0) / h, (fb.0 - f0.0) / h],
+                [(fa.1 - f0.1) / h, (fb.1 - f0.1) / h],
+            ];
+            let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+            let s0 = -(j[1][1] * f0.0 - j[0][1] * f0.1) / det;
+            let s1 = -(j[0][0] * f0.1 - j[1][0] * f0.0) / det;
+            x = (x.0 + s0, x.1 + s1);
+            if s0.abs() + s1.abs() < 1e-13 {
+                break;
+            }
+        }
+        let (dphi, d2) = x;
+        let th2 = c.theta2 + d2;
+        let cl = m.closure(th2).unwrap();
+        let k2 = f.l1 * (libm::cos(c.theta2 + dphi) - libm::cos(th2))
+            + k2c * libm::cos(dphi)
+            + r * libm::sin(dphi);
+        let l = f.l1 * libm::cos(th2) + k2;
+        let (d1, dd2) = (c.theta1 - f.theta01 + dphi - d2, th2 - f.theta02);
+        let ta = (f.k1 * d1 * k2 - f.k2 * dd2 * l) / (k2 - cl.x2 * l);
+        [dphi, d2, k2, ta]
+    }
+
+    #[test]
+    fn points_match_an_exact_f64_solve() {
+        let f = Finger::PAPER;
+        let table = PathTable::new(&f, &PathFitConfig::DEFAULT, 1e-4).unwrap();
+        let m64 = Model::<f64>::new(&f).unwrap();
+        let (mut worst, mut worst_generic) = ([0.0f64; 6], [0.0f64; 6]);
+        let mut n = 0;
+        for &tha in &[-0.35, -0.2236, -0.05, 0.2] {
+            let mut pm = PathModel::<f64>::new(&m64, tha).unwrap();
+            let mut k = QKernel::new(&table);
+            k.solve_contact(Fx32::from_f64(tha), false).unwrap();
+            // The contact configuration against the model's own free-motion solve.
+            let c64 = m64.free_from_theta_a(tha).unwrap();
+            assert!(
+                (k.contact.theta2.to_f64() - c64.theta2).abs() < 2e-7,
+                "θ2c at {tha}"
+            );
+            assert!(
+                (k.contact.ta.to_f64() - c64.ta).abs() < 2e-7,
+                "T_a,c at {tha}"
+            );
+            assert!((k.contact.x2.to_f64() - c64.x2).abs() < 2e-7, "x2 at {tha}");
+            for &(kf, r) in &[
+                (0.1, 0.0),
+                (0.4, 0.0),
+                (0.8, 0.0),
+                (0.3, 0.01),
+                (0.5, 0.05),
+                (0.2, 0.0975),
+            ] {
+                let (k2c, radius) = (kf * f.l2, r);
+                for &dta in &[0.002, 0.02, 0.08] {
+                    let t = pm.tangent(&m64, k2c, radius, 0.0, 0.0).unwrap();
+                    let Ok(p) = pm.point(&m64, k2c, radius, dta, (t.0 * dta, t.1 * dta)) else {
+                        continue;
+                    };
+                    // Re-solved from its own answer: the last step (and so the point the
+                    // derivatives are taken at) is then negligible.
+                    let p = pm.point(&m64, k2c, radius, dta, (p.dphi, p.d2)).unwrap();
+                    let (kap, rho) = (q28(k2c / f.l1), q28(radius / f.l1));
+                    let t0 = k.tangent0(kap, rho).unwrap();
+                    let d = q28(dta);
+                    let q = k
+                        .point(kap, rho, d, (mul::<QT>(t0.0, d), mul::<QT>(t0.1, d)))
+                        .unwrap();
+                    let q = k.point(kap, rho, d, (q.dphi, q.d2)).unwrap();
+                    let x = exact(&m64, &c64, k2c, radius, dta, (p.dphi, p.d2));
+                    let hk = 1e-6;
+                    let fd = |dk: f64, dr: f64| {
+                        let a = exact(&m64, &c64, k2c + dk, radius + dr, dta, (x[0], x[1]))[3];
+                        let b = exact(&m64, &c64, k2c - dk, radius - dr, dta, (x[0], x[1]))[3];
+                        (a - b) / (2.0 * (dk + dr))
+                    };
+                    let (dk_ex, dr_ex) = (fd(hk, 0.0), fd(0.0, hk));
+                    let ds = 1e-6;
+                    let st_ex = (exact(&m64, &c64, k2c, radius, dta + ds, (x[0], x[1]))[3]
+                        - exact(&m64, &c64, k2c, radius, dta - ds, (x[0], x[1]))[3])
+                        / (2.0 * ds);
+                    let a = |v: i32| v as f64 / (1u64 << QA) as f64;
+                    let tq = |v: i32| v as f64 / (1u64 << QT) as f64;
+                    let dq = |v: i32| v as f64 / (1u64 << QD) as f64;
+                    let rel = |v: f64, r: f64| (v - r).abs() / r.abs().max(1.0);
+                    let eq = [
+                        (tq(q.ta) - x[3]).abs(),
+                        (a(q.dphi) - x[0]).abs(),
+                        (a(q.k2) * f.l1 - x[2]).abs(),
+                        rel(dq(q.dta_dk) / f.l1, dk_ex),
+                        rel(dq(q.dta_dr) / f.l1, dr_ex),
+                        rel(dq(q.stiffness), st_ex),
+                    ];
+                    let eg = [
+                        (p.ta - x[3]).abs(),
+                        (p.dphi - x[0]).abs(),
+                        (p.k2 - x[2]).abs(),
+                        rel(p.dta_dk2c, dk_ex),
+                        rel(p.dta_dr, dr_ex),
+                        rel(p.stiffness, st_ex),
+                    ];
+                    for i in 0..6 {
+                        worst[i] = worst[i].max(eq[i]);
+                        worst_generic[i] = worst_generic[i].max(eg[i]);
+                    }
+                    n += 1;
+                }
+            }
+        }
+        // T_a (N·m), δφ (rad), k2 (m), then ∂T/∂k2c, ∂T/∂R, dT/dθa (relative).
+        std::println!(
+            "{n} points; integer kernel worst {worst:?}; generic f64 path model {worst_generic:?}"
+        );
+        assert!(n > 50);
+        assert!(
+            worst[0] < 5e-6 && worst[1] < 1e-6 && worst[2] < 1e-7,
+            "{worst:?}"
+        );
+        assert!(
+            worst[3] < 1e-3 && worst[4] < 1e-3 && worst[5] < 1e-3,
+            "{worst:?}"
+        );
+    }
 }

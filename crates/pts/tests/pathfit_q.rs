@@ -35,7 +35,9 @@ fn harness_cases_match_f64() {
     // The four recorded-style requests of the instruction-count harness (realistic plant).
     let table = PathTable::new(&Finger::PAPER, &PathFitConfig::DEFAULT, TICK_S).unwrap();
     let m = Model::<f64>::paper().unwrap();
-    let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/pathfit/cases");
+    // QCASES=dir runs another folder of case files (e.g. the grid dumped by PATHFIT_DUMP).
+    let dir = std::env::var("QCASES")
+        .unwrap_or(concat!(env!("CARGO_MANIFEST_DIR"), "/benches/pathfit/cases").to_string());
     for e in std::fs::read_dir(dir).unwrap() {
         let p = e.unwrap().path();
         let (thc, tac, raw) = read_case(p.to_str().unwrap());
