@@ -139,7 +139,6 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
     let mut hw = PlantHw::new(plant);
     let mut c = Controller::new(config(&scene, dta)).expect("config valid");
     let m = Model::<f64>::paper().unwrap();
-    let mfx = Model::<pts::FirmwareReal>::paper().unwrap();
     // The estimator's measurement model of this scene's drive (ideal: η = 1, no backlash).
     let d = &scene.drive;
     let mut cfg = PathFitConfig::DEFAULT.for_drive(
