@@ -748,6 +748,16 @@ impl Real for Fx32 {
         }
         Self::from_bits(kernel::sqrt_q32(b as u64, 32) as i64)
     }
+    fn inv_sqrt_scale(self) -> Self {
+        // 2^-k with k = ⌈e/2⌉ for 2^e ≤ x < 2^(e+1): x·2^-2k in [½, 2).
+        let b = self.to_bits();
+        if b <= 0 {
+            return Self::MAX;
+        }
+        let e = 31 - b.leading_zeros() as i32;
+        let k = (e + 1).div_euclid(2);
+        Self::from_bits(1i64 << (32 - k).clamp(0, 62))
+    }
     fn sin(self) -> Self {
         Self::from_bits(kernel::sin_cos_q32(self.to_bits()).0)
     }

@@ -1393,8 +1393,9 @@ fn lm<R: Real, K: Kernel<R>>(
 }
 
 /// The active parameters of `set` (their indices and count) and the Jacobi scaling
-/// (to a unit diagonal, so that fixed point neither overflows nor loses the pivots)
-/// d_k = 1/√a_kk of the active submatrix; `None` unless every active pivot is positive.
+/// d_k ≈ 1/√a_kk of the active submatrix ([`Real::inv_sqrt_scale`]: a diagonal near 1, so
+/// that fixed point neither overflows nor loses the pivots); `None` unless every active
+/// pivot is positive.
 #[allow(clippy::needless_range_loop)]
 fn active_scaling<R: Real>(
     a: &[[R; NP]; NP],
@@ -1415,12 +1416,12 @@ fn active_scaling<R: Real>(
         if !(v > z) {
             return None;
         }
-        d[k] = R::one() / v.sqrt();
+        d[k] = v.inv_sqrt_scale();
     }
     Some((idx, n, d))
 }
 
-/// LDLᵀ of the Jacobi-scaled active submatrix B = D A D (unit diagonal): the active
+/// LDLᵀ of the Jacobi-scaled active submatrix B = D A D (diagonal in [½, 2)): the active
 /// indices, their count, the scaling D, the unit lower factor L and the pivots.
 struct Ldl<R> {
     idx: [usize; NP],
@@ -1437,7 +1438,7 @@ fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
     let mut l = [[z; NP]; NP];
     let mut piv = [z; NP];
     for j in 0..n {
-        let mut dj = R::one();
+        let mut dj = a[idx[j]][idx[j]] * d[j] * d[j];
         for k in 0..j {
             dj = dj - l[j][k] * l[j][k] * piv[k];
         }

@@ -395,8 +395,9 @@ impl PathTable {
     }
 }
 
-/// One sample as the controller records it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// One sample as the controller records it (C layout: three 32-bit words).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(C)]
 pub struct RawSample {
     /// Controller tick of the sample (the period given to [`PathTable::new`]).
     pub tick: u32,
@@ -1022,7 +1023,8 @@ where
     let nbins = sc.nbins as usize;
     // θa,c (measured frame) in µrad, Q16.
     let thc_q16 = ((theta_meas_c.to_bits() as i128 * 1_000_000) >> 16) as i64;
-    let mut k_uniform: Option<(u32, i64)> = None;
+    // (period in ticks, J/h²) of the last uniform pair; period 0: none yet.
+    let mut k_uniform = (0u32, 0i32);
     let mut acc = Binner {
         sc,
         thc_q16,
@@ -1188,7 +1190,7 @@ impl Binner {
             return Ok(());
         }
         // floor(off·nbins/span) by the 32-bit divider (off within 2^28 µrad).
-        let off = (th as i64 - lo as i64).min(1 << 28) as u32;
+        let off = th.saturating_sub(lo).min(1 << 28) as u32;
         let i = ((off * sc.nbins) / span).min(sc.nbins - 1) as usize;
         let (Some(c), Some(r), Some(a)) = (
             self.cnt.get_mut(i),
@@ -1204,8 +1206,8 @@ impl Binner {
             *r = (th, s.torque_unm);
         }
         // Clamped to ±1 rad and ±8 N·m about the bin's first sample.
-        let dth = (th as i64 - r.0 as i64).clamp(-(1 << 20), 1 << 20) as i32;
-        let dt = (s.torque_unm as i64 - r.1 as i64).clamp(-(1 << 23), 1 << 23) as i32;
+        let dth = th.saturating_sub(r.0).clamp(-(1 << 20), 1 << 20);
+        let dt = s.torque_unm.saturating_sub(r.1).clamp(-(1 << 23), 1 << 23);
         a[0] += dth as i64;
         a[1] += dt as i64;
         a[2] += wide(dth, dth);
@@ -1233,41 +1235,38 @@ fn mul_sat(a: i64, b: i64) -> i64 {
 /// neighbours; J/h² once per uniform period).
 fn correct(
     sc: &SampleConsts,
-    k_uniform: &mut Option<(u32, i64)>,
+    cache: &mut (u32, i32),
     p: RawSample,
     c: RawSample,
     n: RawSample,
 ) -> RawSample {
     let (dt1, dt2) = (c.tick.wrapping_sub(p.tick), n.tick.wrapping_sub(c.tick));
-    if dt1 == 0 || dt2 == 0 || dt1 > 1 << 30 || dt2 > 1 << 30 || sc.inertia_q16 == 0 {
-        return c;
-    }
     let d1 = c.theta_a_urad as i64 - p.theta_a_urad as i64;
     let d2 = n.theta_a_urad as i64 - c.theta_a_urad as i64;
-    let corr = if dt1 == dt2 {
-        let k = match *k_uniform {
-            Some((h, k)) if h == dt1 => k,
-            _ => {
-                let k = sc.inertia_q16 / (dt1 as i64 * dt1 as i64);
-                *k_uniform = Some((dt1, k));
-                k
-            }
-        };
-        let dd = d2 - d1;
-        if dd.abs() < 1 << 24 && k < 1 << 38 {
-            (k * dd) >> 16
-        } else {
-            ((k as i128 * dd as i128) >> 16) as i64
-        }
+    let corr = if dt1 == dt2 && dt1 == cache.0 {
+        // The controller's uniform period: J/h² cached (Q16 µN·m per µrad, within i32).
+        let dd = (d2 - d1).clamp(-(1 << 30), 1 << 30) as i32;
+        wide(cache.1, dd) >> 16
     } else {
-        // J (d2/dt2 − d1/dt1)·2/span.
-        let span = dt1 as i128 + dt2 as i128;
-        let num =
-            (d2 as i128 * dt1 as i128 - d1 as i128 * dt2 as i128) * 2 * sc.inertia_q16 as i128;
-        ((num / (dt1 as i128 * dt2 as i128 * span)) >> 16) as i64
+        if dt1 == 0 || dt2 == 0 || dt1 > 1 << 30 || dt2 > 1 << 30 || sc.inertia_q16 == 0 {
+            return c;
+        }
+        if dt1 == dt2 {
+            let k = sc.inertia_q16 / (dt1 as i64 * dt1 as i64);
+            if let Ok(k) = i32::try_from(k) {
+                *cache = (dt1, k);
+            }
+            ((k as i128 * (d2 - d1) as i128) >> 16).clamp(-(1 << 62), 1 << 62) as i64
+        } else {
+            // J (d2/dt2 − d1/dt1)·2/span.
+            let span = dt1 as i128 + dt2 as i128;
+            let num =
+                (d2 as i128 * dt1 as i128 - d1 as i128 * dt2 as i128) * 2 * sc.inertia_q16 as i128;
+            ((num / (dt1 as i128 * dt2 as i128 * span)) >> 16).clamp(-(1 << 62), 1 << 62) as i64
+        }
     };
     RawSample {
-        torque_unm: clamp32(c.torque_unm as i64 - corr.clamp(i32::MIN as i64, i32::MAX as i64)),
+        torque_unm: clamp32(c.torque_unm as i64 - corr),
         ..c
     }
 }

@@ -46,6 +46,12 @@ pub trait Real:
     fn abs(self) -> Self;
     /// Square root; negative inputs give zero (callers check the sign first).
     fn sqrt(self) -> Self;
+    /// A scale s ≈ 1/√x for x > 0 with x·s² in [½, 2) (the Jacobi scaling of a normal
+    /// matrix): 1/√x itself by default; a power of two for fixed point, where it needs
+    /// neither a square root nor a division and scales exactly.
+    fn inv_sqrt_scale(self) -> Self {
+        Self::one() / self.sqrt()
+    }
     /// Sine (rad).
     fn sin(self) -> Self;
     /// Cosine (rad).

@@ -19,9 +19,14 @@ pub static mut N: u32 = 0;
 /// The same input as f32 (filled by the harness).
 #[no_mangle]
 pub static mut INPUT_F32: [f32; 2 + 3 * 256] = [0.0; 2 + 3 * 256];
-/// The same samples as the controller's integers: tick (100 µs), θa (µrad), T_a (µN·m).
+/// The same samples as the controller's integers: tick (100 µs), θa (µrad), T_a (µN·m),
+/// in the firmware's buffer layout.
 #[no_mangle]
-pub static mut INPUT_RAW: [i32; 3 * 256] = [0; 3 * 256];
+pub static mut INPUT_RAW: [RawSample; 256] = [RawSample {
+    tick: 0,
+    theta_a_urad: 0,
+    torque_unm: 0,
+}; 256];
 /// The integer fit's table, built by `init_q`.
 static mut TABLE: Option<PathTable> = None;
 /// Outputs: k2 bits, σ bits, status (0 ok, 1 + error index otherwise).
@@ -119,11 +124,7 @@ pub extern "C" fn run_q() -> i32 {
     let Some(table) = (unsafe { &*core::ptr::addr_of!(TABLE) }) else {
         return -1;
     };
-    let samples = raw[..3 * n.min(256)].chunks_exact(3).map(|c| RawSample {
-        tick: c[0] as u32,
-        theta_a_urad: c[1],
-        torque_unm: c[2],
-    });
+    let samples = raw[..n.min(256)].iter().copied();
     let r = fit_path_q(
         table,
         Fx32::from_bits(input[0]),
