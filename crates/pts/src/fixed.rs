@@ -748,15 +748,27 @@ impl Real for Fx32 {
         }
         Self::from_bits(kernel::sqrt_q32(b as u64, 32) as i64)
     }
-    fn inv_sqrt_scale(self) -> Self {
-        // 2^-k with k = ⌈e/2⌉ for 2^e ≤ x < 2^(e+1): x·2^-2k in [½, 2).
+    fn half_log2(self) -> Option<i32> {
+        // 2^e ≤ x < 2^(e+1) with e = 31 − clz(bits); k = ⌈e/2⌉.
         let b = self.to_bits();
-        if b <= 0 {
-            return Self::MAX;
+        if b <= 0 || self.is_saturated() {
+            return None;
         }
-        let e = 31 - b.leading_zeros() as i32;
-        let k = (e + 1).div_euclid(2);
-        Self::from_bits(1i64 << (32 - k).clamp(0, 62))
+        Some((32 - b.leading_zeros() as i32).div_euclid(2))
+    }
+    fn ldexp(self, k: i32) -> Self {
+        let b = self.to_bits();
+        if k <= 0 {
+            Self::from_bits(b >> (-k).min(63))
+        } else if k < 63 && (b.unsigned_abs() >> (62 - k)) == 0 {
+            Self::from_bits(b << k)
+        } else if b == 0 {
+            self
+        } else if b > 0 {
+            Self::MAX
+        } else {
+            Self::MIN
+        }
     }
     fn sin(self) -> Self {
         Self::from_bits(kernel::sin_cos_q32(self.to_bits()).0)

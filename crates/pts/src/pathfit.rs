@@ -1392,15 +1392,20 @@ fn lm<R: Real, K: Kernel<R>>(
     Ok(best)
 }
 
-/// The active parameters of `set` (their indices and count) and the Jacobi scaling
-/// d_k ≈ 1/√a_kk of the active submatrix ([`Real::inv_sqrt_scale`]: a diagonal near 1, so
-/// that fixed point neither overflows nor loses the pivots); `None` unless every active
-/// pivot is positive.
+/// LDLᵀ of the active submatrix of A scaled by powers of two, B = D A D with
+/// D = diag(2^-k_i) ([`Real::half_log2`]: a diagonal in [½, 2), so that fixed point neither
+/// overflows nor loses the pivots, and the scaling is exact): the active indices, their
+/// count, the exponents, the unit lower factor L and the reciprocal pivots 1/P.
+struct Ldl<R> {
+    idx: [usize; NP],
+    n: usize,
+    k: [i32; NP],
+    l: [[R; NP]; NP],
+    ip: [R; NP],
+}
+
 #[allow(clippy::needless_range_loop)]
-fn active_scaling<R: Real>(
-    a: &[[R; NP]; NP],
-    set: &[bool; NP],
-) -> Option<([usize; NP], usize, [R; NP])> {
+fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
     let z = R::zero();
     let mut idx = [0usize; NP];
     let mut n = 0usize;
@@ -1410,52 +1415,32 @@ fn active_scaling<R: Real>(
             n += 1;
         }
     }
-    let mut d = [z; NP];
-    for k in 0..n {
-        let v = a[idx[k]][idx[k]];
-        if !(v > z) {
-            return None;
-        }
-        d[k] = v.inv_sqrt_scale();
+    let mut k = [0i32; NP];
+    for i in 0..n {
+        k[i] = a[idx[i]][idx[i]].half_log2()?;
     }
-    Some((idx, n, d))
-}
-
-/// LDLᵀ of the Jacobi-scaled active submatrix B = D A D (diagonal in [½, 2)): the active
-/// indices, their count, the scaling D, the unit lower factor L and the pivots.
-struct Ldl<R> {
-    idx: [usize; NP],
-    n: usize,
-    d: [R; NP],
-    l: [[R; NP]; NP],
-    piv: [R; NP],
-}
-
-#[allow(clippy::needless_range_loop)]
-fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
-    let z = R::zero();
-    let (idx, n, d) = active_scaling(a, set)?;
     let mut l = [[z; NP]; NP];
     let mut piv = [z; NP];
+    let mut ip = [z; NP];
     for j in 0..n {
-        let mut dj = a[idx[j]][idx[j]] * d[j] * d[j];
-        for k in 0..j {
-            dj = dj - l[j][k] * l[j][k] * piv[k];
+        let mut dj = a[idx[j]][idx[j]].ldexp(-2 * k[j]);
+        for m in 0..j {
+            dj = dj - l[j][m] * l[j][m] * piv[m];
         }
         if !(dj > R::from_f64(1e-7)) {
             return None;
         }
         piv[j] = dj;
-        let inv = R::one() / dj;
+        ip[j] = R::one() / dj;
         for i in j + 1..n {
-            let mut v = a[idx[i]][idx[j]] * d[i] * d[j];
-            for k in 0..j {
-                v = v - l[i][k] * l[j][k] * piv[k];
+            let mut v = a[idx[i]][idx[j]].ldexp(-k[i] - k[j]);
+            for m in 0..j {
+                v = v - l[i][m] * l[j][m] * piv[m];
             }
-            l[i][j] = v * inv;
+            l[i][j] = v * ip[j];
         }
     }
-    Some(Ldl { idx, n, d, l, piv })
+    Some(Ldl { idx, n, k, l, ip })
 }
 
 /// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
@@ -1465,30 +1450,26 @@ fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; 
     let z = R::zero();
     let f = ldl(a, set)?;
     let n = f.n;
-    // M = L⁻¹ (unit lower): M[i][j] = −Σ_{k=j}^{i−1} L[i][k] M[k][j].
+    // M = L⁻¹ (unit lower): M[i][j] = −Σ_{m=j}^{i−1} L[i][m] M[m][j].
     let mut m = [[z; NP]; NP];
     for i in 0..n {
         m[i][i] = R::one();
         for j in 0..i {
             let mut v = z;
-            for k in j..i {
-                v = v - f.l[i][k] * m[k][j];
+            for q in j..i {
+                v = v - f.l[i][q] * m[q][j];
             }
             m[i][j] = v;
         }
-    }
-    let mut ip = [z; NP];
-    for k in 0..n {
-        ip[k] = R::one() / f.piv[k];
     }
     let mut out = [[z; NP]; NP];
     for i in 0..n {
         for j in i..n {
             let mut v = z;
-            for k in j..n {
-                v = v + m[k][i] * (m[k][j] * ip[k]);
+            for q in j..n {
+                v = v + m[q][i] * (m[q][j] * f.ip[q]);
             }
-            let v = v * f.d[i] * f.d[j];
+            let v = v.ldexp(-f.k[i] - f.k[j]);
             out[f.idx[i]][f.idx[j]] = v;
             out[f.idx[j]][f.idx[i]] = v;
         }
@@ -1502,27 +1483,27 @@ fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; 
 fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
     let z = R::zero();
     let f = ldl(a, set)?;
-    let (idx, n, d, l, piv) = (f.idx, f.n, f.d, f.l, f.piv);
+    let (idx, n, k, l) = (f.idx, f.n, f.k, f.l);
     // L y = −D g, then Lᵀ x = y / piv; the step is D x.
     let mut y = [z; NP];
     for i in 0..n {
-        let mut v = -(g[idx[i]] * d[i]);
-        for k in 0..i {
-            v = v - l[i][k] * y[k];
+        let mut v = -g[idx[i]].ldexp(-k[i]);
+        for m in 0..i {
+            v = v - l[i][m] * y[m];
         }
         y[i] = v;
     }
     let mut x = [z; NP];
     for i in (0..n).rev() {
-        let mut v = y[i] / piv[i];
-        for k in i + 1..n {
-            v = v - l[k][i] * x[k];
+        let mut v = y[i] * f.ip[i];
+        for m in i + 1..n {
+            v = v - l[m][i] * x[m];
         }
         x[i] = v;
     }
     let mut out = [z; NP];
     for i in 0..n {
-        out[idx[i]] = x[i] * d[i];
+        out[idx[i]] = x[i].ldexp(-k[i]);
     }
     Some(out)
 }

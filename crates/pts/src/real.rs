@@ -46,11 +46,20 @@ pub trait Real:
     fn abs(self) -> Self;
     /// Square root; negative inputs give zero (callers check the sign first).
     fn sqrt(self) -> Self;
-    /// A scale s ≈ 1/√x for x > 0 with x·s² in [½, 2) (the Jacobi scaling of a normal
-    /// matrix): 1/√x itself by default; a power of two for fixed point, where it needs
-    /// neither a square root nor a division and scales exactly.
-    fn inv_sqrt_scale(self) -> Self {
-        Self::one() / self.sqrt()
+    /// For finite x > 0 the exponent k with x·2^-2k in [½, 2): the power-of-two Jacobi
+    /// scaling of a normal matrix (exact in every back end, no square root or division);
+    /// `None` for x ≤ 0 or non-finite x.
+    fn half_log2(self) -> Option<i32> {
+        let x = self.to_f64();
+        if !(x > 0.0 && x.is_finite()) {
+            return None;
+        }
+        // x = m·2^e with m in [½, 1): ⌊log2 x⌋ = e − 1, k = ⌈(e − 1)/2⌉.
+        Some(libm::frexp(x).1.div_euclid(2))
+    }
+    /// x·2^k (exact while representable; fixed point saturates).
+    fn ldexp(self, k: i32) -> Self {
+        self * Self::from_f64(libm::ldexp(1.0, k))
     }
     /// Sine (rad).
     fn sin(self) -> Self;
@@ -103,6 +112,12 @@ impl Real for f64 {
             0.0
         }
     }
+    fn half_log2(self) -> Option<i32> {
+        (self > 0.0 && self.is_finite()).then(|| libm::frexp(self).1.div_euclid(2))
+    }
+    fn ldexp(self, k: i32) -> Self {
+        libm::ldexp(self, k)
+    }
     fn sin(self) -> Self {
         libm::sin(self)
     }
@@ -142,6 +157,12 @@ impl Real for f32 {
         } else {
             0.0
         }
+    }
+    fn half_log2(self) -> Option<i32> {
+        (self > 0.0 && self.is_finite()).then(|| libm::frexpf(self).1.div_euclid(2))
+    }
+    fn ldexp(self, k: i32) -> Self {
+        libm::ldexpf(self, k)
     }
     fn sin(self) -> Self {
         libm::sinf(self)
