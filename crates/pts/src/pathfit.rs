@@ -663,7 +663,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let decide = |e: &Eval<R>| -> Result<Decision<R>, PathFitError> {
         let s2v = s2_of(e.sse, count(&vset));
         let full = invert_spd(&e.a, &cset);
-        let (sigma_r_lin, dk_lin, dr_lin) = match full {
+        let (sigma_r_lin, dk_lin, dr_lin, dtc_lin) = match full {
             Some(c) => {
                 let step = |i: usize| -> R {
                     let mut acc = zero;
@@ -672,15 +672,16 @@ fn run_fit<R: Real, K: Kernel<R>>(
                             acc = acc - c[i][j] * e.g[j];
                         }
                     }
-                    acc * l2
+                    acc
                 };
                 (
                     (c[RAD][RAD] * s2v).max(zero).sqrt() * l2,
-                    step(K),
-                    step(RAD),
+                    step(K) * l2,
+                    step(RAD) * l2,
+                    if cset[TC] { step(TC) } else { zero },
                 )
             }
-            None => (rmax, zero, zero),
+            None => (rmax, zero, zero, zero),
         };
         // The vertex covariance and the regression of the R column on the vertex parameters
         // from the same inverse C (the Schur complement: (A_vv)⁻¹ = C_vv − C_vR C_Rv / C_RR,
@@ -717,21 +718,34 @@ fn run_fit<R: Real, K: Kernel<R>>(
             sigma_r_lin,
             dk_lin,
             dr_lin,
+            dtc_lin,
         })
     };
 
-    // The first evaluation decides already when the radius clearly matters (its Gauss–Newton
-    // step with R free starts the cylinder fit: the vertex fit's iterations would be spent
-    // on a model that is then dropped); otherwise the vertex fit runs to convergence and
-    // decides again there.
-    let first = lm(pm, w, &mut p, &vset, &bounds, 0, None)?;
-    let p_first = p;
-    let early = decide(&first)?;
-    let mut vertex_done = !early.want;
-    let (mut vertex, mut dec) = (first, early);
-    if vertex_done {
-        vertex = lm(pm, w, &mut p, &vset, &bounds, 8, Some(first))?;
-        dec = decide(&vertex)?;
+    // The radius is decided at the first evaluation and after every accepted step of the
+    // vertex fit: as soon as it clearly matters, its Gauss–Newton step with R free starts
+    // the cylinder fit (the vertex fit's remaining iterations would be spent on a model that
+    // is then dropped); otherwise the vertex fit runs to convergence and decides there.
+    let first = lm(pm, w, &mut p, &vset, &bounds, 0, None, |_| false)?;
+    let mut dec = decide(&first)?;
+    let mut vertex = first;
+    let mut vertex_converged = false;
+    if !dec.want {
+        let mut last = None;
+        let mut hook = |e: &Eval<R>| match decide(e) {
+            Ok(d) => {
+                last = Some(d);
+                d.want
+            }
+            Err(_) => false,
+        };
+        vertex = lm(pm, w, &mut p, &vset, &bounds, 8, Some(first), &mut hook)?;
+        // The decision at the returned (last accepted) hypothesis.
+        dec = match last {
+            Some(d) => d,
+            None => dec,
+        };
+        vertex_converged = !dec.want;
     }
     let p_vertex = p;
     let mut fit = vertex;
@@ -739,18 +753,22 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let mut object = FittedObject::Vertex;
     let mut set = vset;
     let mut bias_k = dec.bias_pot;
+    let mut cylinder = false;
     if dec.want {
         let mut pc = p_vertex;
         pc[K] = (pc[K] + dec.dk_lin).max(bounds.k_lo).min(l2);
         pc[RAD] = dec.dr_lin.max(zero).min(rmax);
-        match lm(pm, w, &mut pc, &cset, &bounds, 10, None) {
+        if fit_contact {
+            pc[TC] = (pc[TC] + dec.dtc_lin).max(bounds.tc_lo).min(bounds.tc_hi);
+        }
+        match lm(pm, w, &mut pc, &cset, &bounds, 10, None, |_| false) {
             Ok(e) if e.sse <= vertex.sse => {
                 fit = e;
                 pfit = pc;
                 object = FittedObject::Cylinder;
                 set = cset;
                 bias_k = zero;
-                vertex_done = true;
+                cylinder = true;
             }
             // The cylinder fit failed or is no better: keep the vertex, with the bias.
             _ => {
@@ -760,10 +778,10 @@ fn run_fit<R: Real, K: Kernel<R>>(
             }
         }
     }
-    if !vertex_done {
-        // The early cylinder fit was refused: the vertex fit after all.
-        let mut pv = p_first;
-        vertex = lm(pm, w, &mut pv, &vset, &bounds, 8, Some(first))?;
+    if !cylinder && !vertex_converged {
+        // The cylinder fit was refused: the vertex fit to convergence after all.
+        let mut pv = p_vertex;
+        vertex = lm(pm, w, &mut pv, &vset, &bounds, 8, Some(vertex), |_| false)?;
         dec = decide(&vertex)?;
         fit = vertex;
         pfit = pv;
@@ -1304,9 +1322,10 @@ struct Decision<R> {
     bias_pot: R,
     /// Marginal σ(R) of the linearised fit (m).
     sigma_r_lin: R,
-    /// Gauss–Newton step of k2c and R with R free (m).
+    /// Gauss–Newton step of k2c and R with R free (m), and of θa,c (rad).
     dk_lin: R,
     dr_lin: R,
+    dtc_lin: R,
 }
 
 /// Parameter bounds of the fit.
@@ -1320,9 +1339,9 @@ struct Bounds<R> {
 
 /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
 /// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
-/// the global [`MAX_EVALS`].
+/// the global [`MAX_EVALS`]; `stop` sees every accepted evaluation and may end the fit.
 #[allow(clippy::too_many_arguments)]
-fn lm<R: Real, K: Kernel<R>>(
+fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
     pm: &mut K,
     w: &mut Work<R>,
     p: &mut [R; NP],
@@ -1330,6 +1349,7 @@ fn lm<R: Real, K: Kernel<R>>(
     b: &Bounds<R>,
     iters: usize,
     start: Option<Eval<R>>,
+    mut stop: F,
 ) -> Result<Eval<R>, PathFitError> {
     let z = R::zero();
     // First evaluation (unless given: `start` is the evaluation at `p`); a hypothesis whose
@@ -1365,18 +1385,24 @@ fn lm<R: Real, K: Kernel<R>>(
         let Some(d) = solve_spd(&a, set, &best.g) else {
             break;
         };
-        if d[K].abs() < step_tol && d[RAD].abs() < step_tol && d[TC].abs() < tc_tol {
-            break;
-        }
         let mut trial = *p;
         trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
         trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
         trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
+        // Converged when the step that would be taken (projected on the bounds: a radius
+        // pushed against its bound does not move) is below the tolerances.
+        let moved = |i: usize, tol: R| (trial[i] - p[i]).abs() >= tol;
+        if !moved(K, step_tol * b.l2) && !moved(RAD, step_tol * b.l2) && !moved(TC, tc_tol) {
+            break;
+        }
         match pm.evaluate(w, &trial) {
             Ok(e) if e.sse <= best.sse => {
                 *p = trial;
                 best = e;
                 mu = (mu * R::from_f64(0.3)).max(R::from_f64(1e-6));
+                if stop(&best) {
+                    break;
+                }
             }
             Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
             _ => {
