@@ -641,6 +641,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
         rmax,
         tc_lo: theta_a_c_rad - sc * R::from_f64(3.0),
         tc_hi: theta_a_c_rad + sc * R::from_f64(3.0),
+        s2: s2_bins,
     };
 
     // Vertex model on (k2c, T_f[, θa,c]) first.
@@ -1335,7 +1336,14 @@ struct Bounds<R> {
     rmax: R,
     tc_lo: R,
     tc_hi: R,
+    /// Noise variance of the bin means ((mN·m)²): the scale of χ² for the stop test.
+    s2: R,
 }
+
+/// LM ends when the step would lower χ² by less than this: the parameters would move by
+/// less than a tenth of their σ (a poorly determined radius is not iterated to the
+/// absolute tolerance).
+const CHI2_TOL: f64 = 0.01;
 
 /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
 /// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
@@ -1393,6 +1401,16 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
         // pushed against its bound does not move) is below the tolerances.
         let moved = |i: usize, tol: R| (trial[i] - p[i]).abs() >= tol;
         if !moved(K, step_tol * b.l2) && !moved(RAD, step_tol * b.l2) && !moved(TC, tc_tol) {
+            break;
+        }
+        // The Gauss–Newton model's decrease of the objective, −gᵀd, against χ²'s scale.
+        let mut pred = z;
+        for (i, on) in set.iter().enumerate() {
+            if *on {
+                pred = pred - best.g[i] * d[i];
+            }
+        }
+        if pred < b.s2 * R::from_f64(CHI2_TOL) {
             break;
         }
         match pm.evaluate(w, &trial) {
