@@ -1344,6 +1344,8 @@ struct Bounds<R> {
 /// less than a tenth of their σ (a poorly determined radius is not iterated to the
 /// absolute tolerance).
 const CHI2_TOL: f64 = 0.01;
+/// LM ends after an accepted step that lowered χ² by less than this.
+const CHI2_GAIN_TOL: f64 = 0.05;
 
 /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
 /// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
@@ -1416,9 +1418,15 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
         match pm.evaluate(w, &trial) {
             Ok(e) if e.sse <= best.sse => {
                 *p = trial;
+                let gain = best.sse - e.sse;
                 best = e;
                 mu = (mu * R::from_f64(0.3)).max(R::from_f64(1e-6));
                 if stop(&best) {
+                    break;
+                }
+                // A step that lowered χ² by less than the tolerance: the valley is flat
+                // (the Gauss–Newton model over-promises there), more steps buy nothing.
+                if gain < b.s2 * R::from_f64(CHI2_GAIN_TOL) {
                     break;
                 }
             }
