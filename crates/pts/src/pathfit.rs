@@ -92,7 +92,7 @@ const STEP_TOL: f64 = 1e-3;
 
 /// Budget of path evaluations (each: ≤ [`MAX_BINS`] path points) over the whole fit: it
 /// bounds the run time. On the plant grid a fit needs 2–5 (realistic) or up to 8 (a few
-/// ideal-plant cylinder fits in a flat χ² valley, which stop at the budget within 0.43 σ of
+/// ideal-plant cylinder fits in a flat χ² valley, which stop at the budget within 0.45 σ of
 /// the unbounded fit).
 pub const MAX_EVALS: usize = 8;
 
@@ -666,44 +666,38 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // curvature fit (its effect goes into σ).
     let decide = |e: &Eval<R>| -> Result<Decision<R>, PathFitError> {
         let s2v = s2_of(e.sse, count(&vset));
-        let full = invert_spd(&e.a, &cset);
-        let (sigma_r_lin, dk_lin, dr_lin, dtc_lin) = match full {
-            Some(c) => {
-                let step = |i: usize| -> R {
-                    let mut acc = zero;
-                    for (j, on) in cset.iter().enumerate() {
-                        if *on {
-                            acc = acc - c[i][j] * e.g[j];
-                        }
-                    }
-                    acc
-                };
+        // One factorisation with R eliminated last: the Gauss–Newton step with R free, the
+        // marginal variance of R (its reciprocal last pivot), and, by the Schur complement,
+        // the vertex variance of k2c (the reciprocal pivot of K just before) and the
+        // regression of the R column on the vertex parameters (−L_RK).
+        let full = ldl(&e.a, &cset);
+        let (sigma_r_lin, dk_lin, dr_lin, dtc_lin) = match &full {
+            Some(f) => {
+                let d = f.solve(&e.g);
+                let (_, _, c_rr) = f.last_two();
                 (
-                    (c[RAD][RAD] * s2v).max(zero).sqrt() * l2,
-                    step(K) * l2,
-                    step(RAD) * l2,
-                    if cset[TC] { step(TC) } else { zero },
+                    (c_rr * s2v).max(zero).sqrt() * l2,
+                    d[K] * l2,
+                    d[RAD] * l2,
+                    d[TC],
                 )
             }
             None => (rmax, zero, zero, zero),
         };
-        // The vertex covariance and the regression of the R column on the vertex parameters
-        // from the same inverse C (the Schur complement: (A_vv)⁻¹ = C_vv − C_vR C_Rv / C_RR,
-        // (A_vv)⁻¹ A_vR = −C_vR / C_RR), else by a second inversion.
-        let (var_kv, per_r) = match full.filter(|c| c[RAD][RAD] > zero) {
-            Some(c) => {
-                let q = c[K][RAD] / c[RAD][RAD];
-                (c[K][K] - q * c[K][RAD], q)
+        let (var_kv, per_r) = match &full {
+            Some(f) => {
+                let (var_kv, per_r, _) = f.last_two();
+                (var_kv, per_r)
             }
             None => {
-                let cov_v = invert_spd(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
-                let mut per_r = zero;
+                let f = ldl(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
+                let mut col = [zero; NP];
                 for (j, on) in vset.iter().enumerate() {
                     if *on {
-                        per_r = per_r - cov_v[K][j] * e.a[j][RAD];
+                        col[j] = e.a[j][RAD];
                     }
                 }
-                (cov_v[K][K], per_r)
+                (f.last_var(), f.solve(&col)[K])
             }
         };
         let sigma_kv = (var_kv * s2v).max(zero).sqrt() * l2;
@@ -1459,13 +1453,17 @@ struct Ldl<R> {
     ip: [R; NP],
 }
 
+/// The elimination order: R last and k2c just before it, so that their marginal
+/// (co)variances come from the last two pivots ([`Ldl::last_two`]).
+const ORDER: [usize; NP] = [TF, TC, K, RAD];
+
 #[allow(clippy::needless_range_loop)]
 fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
     let z = R::zero();
     let mut idx = [0usize; NP];
     let mut n = 0usize;
-    for (i, on) in set.iter().enumerate() {
-        if *on {
+    for &i in ORDER.iter() {
+        if set[i] {
             idx[n] = i;
             n += 1;
         }
@@ -1496,6 +1494,54 @@ fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
         }
     }
     Some(Ldl { idx, n, k, l, ip })
+}
+
+impl<R: Real> Ldl<R> {
+    /// −A⁻¹ g on the active parameters (zero elsewhere): L y = −D g, Lᵀ x = y / P, D x.
+    #[allow(clippy::needless_range_loop)]
+    fn solve(&self, g: &[R; NP]) -> [R; NP] {
+        let z = R::zero();
+        let (idx, n, k, l) = (&self.idx, self.n, &self.k, &self.l);
+        let mut y = [z; NP];
+        for i in 0..n {
+            let mut v = -g[idx[i]].ldexp(-k[i]);
+            for m in 0..i {
+                v = v - l[i][m] * y[m];
+            }
+            y[i] = v;
+        }
+        let mut x = [z; NP];
+        for i in (0..n).rev() {
+            let mut v = y[i] * self.ip[i];
+            for m in i + 1..n {
+                v = v - l[m][i] * x[m];
+            }
+            x[i] = v;
+        }
+        let mut out = [z; NP];
+        for i in 0..n {
+            out[idx[i]] = x[i].ldexp(-k[i]);
+        }
+        out
+    }
+
+    /// (A⁻¹)_ii of the last parameter eliminated (its reciprocal pivot, unscaled).
+    fn last_var(&self) -> R {
+        let j = self.n.saturating_sub(1);
+        self.ip[j].ldexp(-2 * self.k[j])
+    }
+
+    /// For the last two parameters eliminated, a then b: (the variance of a with b held,
+    /// the regression of b's column on a, the marginal variance of b) =
+    /// (1/P_a, −L_ba, (A⁻¹)_bb), unscaled.
+    fn last_two(&self) -> (R, R, R) {
+        let (a, b) = (self.n.saturating_sub(2), self.n.saturating_sub(1));
+        (
+            self.ip[a].ldexp(-2 * self.k[a]),
+            -self.l[b][a].ldexp(self.k[b] - self.k[a]),
+            self.ip[b].ldexp(-2 * self.k[b]),
+        )
+    }
 }
 
 /// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
@@ -1534,31 +1580,6 @@ fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; 
 
 /// Solves A d = −g on the parameters in `set` (zero elsewhere) by [`ldl`]: the LM step
 /// without the inverse.
-#[allow(clippy::needless_range_loop)]
 fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
-    let z = R::zero();
-    let f = ldl(a, set)?;
-    let (idx, n, k, l) = (f.idx, f.n, f.k, f.l);
-    // L y = −D g, then Lᵀ x = y / piv; the step is D x.
-    let mut y = [z; NP];
-    for i in 0..n {
-        let mut v = -g[idx[i]].ldexp(-k[i]);
-        for m in 0..i {
-            v = v - l[i][m] * y[m];
-        }
-        y[i] = v;
-    }
-    let mut x = [z; NP];
-    for i in (0..n).rev() {
-        let mut v = y[i] * f.ip[i];
-        for m in i + 1..n {
-            v = v - l[m][i] * x[m];
-        }
-        x[i] = v;
-    }
-    let mut out = [z; NP];
-    for i in 0..n {
-        out[idx[i]] = x[i].ldexp(-k[i]);
-    }
-    Some(out)
+    Some(ldl(a, set)?.solve(g))
 }

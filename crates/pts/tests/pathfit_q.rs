@@ -75,27 +75,35 @@ fn harness_cases_match_f64() {
             f.path_evals,
             q.path_evals
         );
-        let l2 = Finger::PAPER.l2;
+        // The same fit: LM stops within a tenth of σ in χ² terms, so the two back ends agree
+        // to a fraction of σ (not to rounding); σ itself to a few per cent.
+        let sig = f.sigma_k2_m;
+        let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol;
         assert!(
-            (q.k2_contact_m.to_f64() - f.k2_contact_m).abs() < 2e-4 * l2,
-            "{name}"
+            close(q.k2_contact_m.to_f64(), f.k2_contact_m, 0.1 * sig),
+            "{name}: k2"
         );
         assert!(
-            (q.sigma_k2_m.to_f64() / f.sigma_k2_m - 1.0).abs() < 0.05,
-            "{name}"
+            close(q.k2_final_m.to_f64(), f.k2_final_m, 0.2 * sig),
+            "{name}: k2 final"
         );
+        assert!(close(q.sigma_k2_m.to_f64() / sig, 1.0, 0.05), "{name}: σ");
         assert_eq!(q.object, f.object, "{name}");
         assert!(
-            (q.radius_m.to_f64() - f.radius_m).abs() < 1e-3 * l2 + 0.01 * f.radius_m,
-            "{name}"
+            close(
+                q.radius_m.to_f64(),
+                f.radius_m,
+                0.2 * f.sigma_radius_m + 1e-6
+            ),
+            "{name}: R"
         );
         assert!(
-            (q.theta_a_c_rad.to_f64() - f.theta_a_c_rad).abs() < 1e-5,
-            "{name}"
-        );
-        assert!(
-            (q.k2_final_m.to_f64() - f.k2_final_m).abs() < 2e-4 * l2,
-            "{name}"
+            close(
+                q.theta_a_c_rad.to_f64(),
+                f.theta_a_c_rad,
+                0.2 * f.sigma_theta_a_c_rad
+            ),
+            "{name}: θa,c"
         );
     }
 }
