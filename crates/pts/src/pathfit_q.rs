@@ -1039,18 +1039,22 @@ where
     // (or dropped on a plateau), the earliest as it is.
     let mut it = samples.rev();
     if let Some(mut n) = it.next() {
-        acc.push(n)?;
+        if acc.keep(n.theta_a_urad) {
+            acc.push(n)?;
+        }
         if let Some(mut c) = it.next() {
             for p in it.by_ref() {
-                let plateau = sc.drop_plateaus
-                    && (c.theta_a_urad == p.theta_a_urad || c.theta_a_urad == n.theta_a_urad);
-                if !plateau {
+                let th = c.theta_a_urad;
+                let plateau = sc.drop_plateaus && (th == p.theta_a_urad || th == n.theta_a_urad);
+                if !plateau && acc.keep(th) {
                     acc.push(correct(&sc, &mut k_uniform, p, c, n))?;
                 }
                 n = c;
                 c = p;
             }
-            acc.push(c)?;
+            if acc.keep(c.theta_a_urad) {
+                acc.push(c)?;
+            }
         }
     }
     let Binner {
@@ -1119,9 +1123,12 @@ where
             .saturating_add(mul_sat(sl, mul_sat(sl, m[0]) >> 16) >> 16);
         ss = ss.saturating_add(v.max(0));
     }
-    let dof = total.saturating_sub(nb as u32).max(1) as i128;
+    let dof = total.saturating_sub(nb as u32).max(1) as i64;
     // µN·m² per sample → (mN·m)² in Q32: · 2^32 / 10^6.
-    w.var_sample = Fx32::from_bits(((ss as i128) * 4_294_967_296 / (1_000_000 * dof)) as i64);
+    // Per sample, µN·m² → (mN·m)² in Q32: · 2^32 / 10^6 = · (4295 − 0.032704), the second
+    // term as 34292 / 2^20 (to 1e-9 relative); ss ≥ 0.
+    let per = (ss / dof).min(1 << 50);
+    w.var_sample = Fx32::from_bits(per * 4295 - ((per * 34_292) >> 20));
     w.inv_n = Fx32::one() / Fx32::from_bits((total as i64) << 32);
     for b in k.bins.iter_mut().take(nb) {
         b.w = (((b.n as u64) << QD) / total.max(1) as u64) as i32;
@@ -1151,19 +1158,25 @@ impl Binner {
     /// Most samples a bin takes (keeps its sums within i64 with the clamps below).
     const MAX_COUNT: u32 = 1 << 16;
 
-    /// One cleaned sample, latest first: the lower envelope in time (within the
-    /// envelope tolerance of every later sample, one per plateau), then its bin.
+    /// The lower envelope in time, latest sample first: θa within the envelope tolerance
+    /// of every later sample and not the θa kept last (one sample per plateau). It needs
+    /// θa only, so the inertial correction is computed for the kept samples alone.
+    #[inline(always)]
+    fn keep(&mut self, th: i32) -> bool {
+        let below = (th as i64) < self.min_th as i64 + self.sc.envelope_urad;
+        let moved = self.last_kept != Some(th);
+        self.min_th = self.min_th.min(th);
+        if below && moved {
+            self.last_kept = Some(th);
+        }
+        below && moved
+    }
+
+    /// A kept sample into its bin (the first one fixes the bins' frame).
     #[inline(always)]
     fn push(&mut self, s: RawSample) -> Result<(), PathFitError> {
         let sc = &self.sc;
         let th = s.theta_a_urad;
-        let below = (th as i64) < self.min_th as i64 + sc.envelope_urad;
-        let moved = self.last_kept != Some(th);
-        self.min_th = self.min_th.min(th);
-        if !(below && moved) {
-            return Ok(());
-        }
-        self.last_kept = Some(th);
         let (lo, span) = match self.frame {
             Some(f) => f,
             None => {
