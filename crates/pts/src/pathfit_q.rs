@@ -132,6 +132,38 @@ impl Recip {
     }
 }
 
+impl Recip {
+    /// x / d scaled by 2^K for an i64 x (see [`Recip::div`]); `None` beyond ±2^62.
+    #[inline(always)]
+    fn div64<const K: i32>(self, x: i64) -> Option<i64> {
+        let s = self.sh - K;
+        if !(1..=62).contains(&s) {
+            return None;
+        }
+        let p = mul_shr(x, self.y, s as u32)?;
+        Some(if self.neg { -p } else { p })
+    }
+}
+
+/// x·m / 2^s (floor) for x in i64, m in i32, 1 ≤ s ≤ 62, from two 32×32 products:
+/// `None` when the result leaves ±2^62.
+#[inline(always)]
+fn mul_shr(x: i64, m: i32, s: u32) -> Option<i64> {
+    let hi = wide((x >> 32) as i32, m); // the top word of an i64 fits i32
+    let lo = (x as u32 as i64) * m as i64; // below 2^63 in magnitude
+    let hi_part = if s <= 32 {
+        let sh = 32 - s;
+        if hi.unsigned_abs() >> (62 - sh) != 0 {
+            return None;
+        }
+        hi << sh
+    } else {
+        hi >> (s - 32)
+    };
+    let v = hi_part.checked_add(lo >> s)?;
+    (v.unsigned_abs() < 1 << 62).then_some(v)
+}
+
 /// sin and cos in Q28 of x (Q28 rad), |x| ≤ 1.25 (the Taylor polynomials of
 /// [`super::path::sin_cos_small`], error < 3e-7 at 1.25 rad, < 6e-9 below 0.5 rad).
 #[inline(always)]
@@ -1078,9 +1110,16 @@ where
             continue;
         }
         let a = acc[i];
-        let n = c as i64;
-        let mth_q16 = (a[0] << 16) / n;
-        let mt_q16 = (a[1] << 16) / n;
+        // Means (Q16) by the reciprocal of the count: one hardware division.
+        let (mth_q16, mt_q16) = if c == 1 {
+            (a[0] << 16, a[1] << 16)
+        } else {
+            let inv = (u32::MAX / c) as i32; // ≈ 2^32/c, c ≥ 2
+            (
+                mul_shr(a[0], inv, 16).unwrap_or(0),
+                mul_shr(a[1], inv, 16).unwrap_or(0),
+            )
+        };
         mean[nb] = (
             ((refs[i].0 as i64) << 16) + mth_q16,
             ((refs[i].1 as i64) << 16) + mt_q16,
@@ -1112,10 +1151,10 @@ where
         let (a, b) = (mean[i.saturating_sub(1)], mean[(i + 1).min(nb - 1)]);
         let dth = b.0 - a.0;
         // Slope in µN·m per µrad (= N·m/rad), Q16.
-        let sl = if dth > (1 << 16) / 10 {
-            ((b.1 - a.1).clamp(-(1 << 46), 1 << 46) << 16) / dth
-        } else {
-            0
+        // Δt (µN·m, Q16) / Δθ (µrad, Q8): Q16 − 16 + 8 → K = 8.
+        let sl = match Recip::new(clamp32(dth >> 8)) {
+            Some(r) if dth > (1 << 16) / 10 => r.div64::<8>(b.1 - a.1).unwrap_or(0),
+            _ => 0,
         };
         let m = mom[i];
         let v = m[1]
@@ -1124,14 +1163,14 @@ where
         ss = ss.saturating_add(v.max(0));
     }
     let dof = total.saturating_sub(nb as u32).max(1) as i64;
-    // µN·m² per sample → (mN·m)² in Q32: · 2^32 / 10^6.
     // Per sample, µN·m² → (mN·m)² in Q32: · 2^32 / 10^6 = · (4295 − 0.032704), the second
     // term as 34292 / 2^20 (to 1e-9 relative); ss ≥ 0.
     let per = (ss / dof).min(1 << 50);
     w.var_sample = Fx32::from_bits(per * 4295 - ((per * 34_292) >> 20));
     w.inv_n = Fx32::one() / Fx32::from_bits((total as i64) << 32);
     for b in k.bins.iter_mut().take(nb) {
-        b.w = (((b.n as u64) << QD) / total.max(1) as u64) as i32;
+        // n ≤ 2^15 per bin: n·2^16 within u32.
+        b.w = ((b.n << QD) / total.max(1)) as i32;
     }
     w.nb = nb;
     w.n_total = total;
@@ -1155,8 +1194,9 @@ struct Binner {
 }
 
 impl Binner {
-    /// Most samples a bin takes (keeps its sums within i64 with the clamps below).
-    const MAX_COUNT: u32 = 1 << 16;
+    /// Most samples a bin takes (keeps its sums within i64 with the clamps below, and
+    /// its weight's numerator n·2^16 within u32).
+    const MAX_COUNT: u32 = 1 << 15;
 
     /// The lower envelope in time, latest sample first: θa within the envelope tolerance
     /// of every later sample and not the θa kept last (one sample per plateau). It needs
