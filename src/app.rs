@@ -53,10 +53,12 @@ mod app {
         tel_tx: Sender<'static, Msg, QUEUE>,
         sup_tx: Sender<'static, Msg, QUEUE>,
         est_tx: Sender<'static, Msg, QUEUE>,
+        /// The path fit's table (built in `init`; `None` in a two-point build).
+        table: Option<&'static ctl::PathTable>,
         decimation: u32,
     }
 
-    #[init]
+    #[init(local = [table_store: ctl::TableSlot = ctl::TableSlot::Empty])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
         #[cfg(feature = "qemu")]
@@ -88,6 +90,10 @@ mod app {
                 platform::halt(4)
             }
         };
+        if let Some(t) = ctl::estimator_table(cfg.drive.dt_s) {
+            *cx.local.table_store = ctl::TableSlot::Built(t);
+        }
+        let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
         telemetry::spawn(tel_rx).ok();
         (
@@ -97,6 +103,7 @@ mod app {
                 board,
                 sup_tx: tel_tx.clone(),
                 est_tx: tel_tx.clone(),
+                table,
                 tel_tx,
                 decimation,
             },
@@ -224,7 +231,7 @@ mod app {
 
     /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample` and
     /// `supervise`.
-    #[task(priority = 2, shared = [sup, link], local = [est_tx])]
+    #[task(priority = 2, shared = [sup, link], local = [est_tx, table])]
     async fn estimate(cx: estimate::Context) {
         let mut sup = cx.shared.sup;
         let mut link = cx.shared.link;
@@ -233,7 +240,7 @@ mod app {
         let Some(req) = sup.lock(|s| s.take_request()) else {
             return;
         };
-        let result = ctl::run_estimate(&req);
+        let result = ctl::run_estimate(&req, *cx.local.table);
         let work = platform::stamp()
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));

@@ -10,6 +10,8 @@
 
 pub use grasp::{ControllerConfig, DriveConfig, State};
 use grasp::{EstimateError, EstimateRequest, EstimateResult, Estimator};
+pub use pts::pathfit::q::PathTable;
+use pts::pathfit::PathFitError;
 
 /// The estimator of this build, fixed at build time (`FINGER_FW_ESTIMATOR=two-point|path-fit`,
 /// default: the controller's default). `grasp::run_estimate` picks it at run time from the
@@ -29,15 +31,58 @@ pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
     None => 0.8,
 };
 
+/// Where `init` keeps the path fit's table: a C-like enum whose empty state is all zero
+/// bits, so the 3.6 KB slot lands in .bss (an `Option` would use a niche and go to .data,
+/// costing the same again in flash).
+#[repr(u8)]
+#[cfg_attr(not(target_os = "none"), allow(dead_code))]
+#[allow(clippy::large_enum_variant)] // a static slot: no allocator, the size is the point
+pub enum TableSlot {
+    /// No table (a two-point build, or not built yet).
+    Empty = 0,
+    /// The table.
+    Built(PathTable),
+}
+
+#[cfg_attr(not(target_os = "none"), allow(dead_code))]
+impl TableSlot {
+    /// The table, if built.
+    pub fn get(&self) -> Option<&PathTable> {
+        match self {
+            TableSlot::Built(t) => Some(t),
+            TableSlot::Empty => None,
+        }
+    }
+}
+
+/// The path fit's table for a control period `dt_s` (s), built at init when this build's
+/// estimator is the path fit (f64 arithmetic, once); `None` otherwise, or when the finger
+/// is outside the kernel's formats (the estimate then reports that error).
+pub fn estimator_table(dt_s: f64) -> Option<PathTable> {
+    match ESTIMATOR {
+        Estimator::PathFit => grasp::path_table(&grasp::estimate::FINGER, (dt_s * 1e9) as u32).ok(),
+        Estimator::TwoPoint => None,
+    }
+}
+
 /// The estimate for a settled step with the build's estimator (same numbers as
-/// `grasp::run_estimate` for a request that names it).
-pub fn run_estimate(req: &EstimateRequest) -> Result<EstimateResult, EstimateError> {
+/// `grasp::run_estimate_fw` for a request that names it): the two-point method, or the
+/// path fit on the integer kernel with the table from [`estimator_table`].
+pub fn run_estimate(
+    req: &EstimateRequest,
+    table: Option<&PathTable>,
+) -> Result<EstimateResult, EstimateError> {
     match ESTIMATOR {
         Estimator::TwoPoint => {
             let model = pts::Model::<grasp::EstReal>::new(&grasp::estimate::FINGER)?;
             grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
         }
-        Estimator::PathFit => grasp::run_estimate(req),
+        Estimator::PathFit => match table {
+            Some(t) => grasp::estimate::path_fit_q(t, req).map_err(EstimateError::PathFit),
+            None => Err(EstimateError::PathFit(PathFitError::Model(
+                pts::PtsError::OutOfRange,
+            ))),
+        },
     }
 }
 

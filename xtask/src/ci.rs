@@ -97,6 +97,18 @@ fn expect_end(frames: &[Frame]) -> Res<&Frame> {
 }
 
 /// Runs one scene in QEMU and on the host and checks the log.
+/// Runs `f` with an environment variable set for the cargo builds it starts.
+fn with_env(key: &str, value: &str, f: impl FnOnce() -> Res) -> Res {
+    let old = std::env::var_os(key);
+    std::env::set_var(key, value);
+    let r = f();
+    match old {
+        Some(v) => std::env::set_var(key, v),
+        None => std::env::remove_var(key),
+    }
+    r
+}
+
 fn scene_check(
     scene: &str,
     expect_fault: bool,
@@ -327,6 +339,21 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run(
         &format!("QEMU fault scene {FAULT_SCENE}: ends in the safe state"),
         || scene_check(FAULT_SCENE, true, &mut work),
+    );
+    // The path-fit build (issue 7: the firmware's integer kernel) on the Table 2 scene: the
+    // same checks, QEMU against the host build of the same estimator.
+    st.run(
+        "QEMU scene table2, FINGER_FW_ESTIMATOR=path-fit: estimate = host within 1e-4·l2",
+        || {
+            with_env("FINGER_FW_ESTIMATOR", "path-fit", || {
+                let mut w = Vec::new();
+                let r = scene_check("table2", false, &mut w);
+                for (s, _, _, est, _) in &w {
+                    println!("{s} (path fit): estimate task worst case {est:.0} instructions");
+                }
+                r
+            })
+        },
     );
     // The numerics owner's benchmark gate (xtask/src/bench.rs), run as its own command so
     // the two modules stay independent.

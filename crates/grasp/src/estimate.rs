@@ -12,7 +12,8 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use heapless::Vec;
-use pts::pathfit::{fit_path, PathFitConfig, PathFitError, PathSample};
+use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
+use pts::pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
 use pts::{Finger, Model, Phalanx, PtsError, Real};
 
 use crate::config::{Estimator, HISTORY};
@@ -184,7 +185,41 @@ pub fn run_estimate_with<R: Real>(
     }
 }
 
-/// The whole-path estimate (`pts::pathfit`) from the samples after the detection.
+/// The table the firmware's path fit runs on for a finger and the control period (ns): the
+/// default path-fit configuration (the prototype drive). Built once, at init on the board
+/// (f64 arithmetic; see [`pts::pathfit::q::PathTable`]).
+pub fn path_table(finger: &Finger, dt_ns: u32) -> Result<PathTable, PtsError> {
+    PathTable::new(finger, &PathFitConfig::DEFAULT, f64::from(dt_ns) * 1e-9)
+}
+
+/// The estimate the firmware computes for a request, for any finger (host tools): the
+/// two-point method on `model`, the path fit on the integer kernel with a table built for
+/// this request's control period ([`path_fit_q`]).
+pub fn run_estimate_fw(
+    finger: &Finger,
+    model: &Model<EstReal>,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, EstimateError> {
+    match req.estimator {
+        Estimator::TwoPoint => two_point(model, req).map_err(EstimateError::Model),
+        Estimator::PathFit => {
+            let table = path_table(finger, req.dt_ns)?;
+            path_fit_q(&table, req).map_err(EstimateError::PathFit)
+        }
+    }
+}
+
+/// The samples of a request that the path fit takes: from the detection to the settle.
+fn path_samples(req: &EstimateRequest) -> impl DoubleEndedIterator<Item = &Sample> + Clone {
+    let kt = req.contact.tick;
+    req.pre
+        .iter()
+        .filter(move |s| s.tick > kt)
+        .chain(req.path.iter())
+}
+
+/// The whole-path estimate (`pts::pathfit`, generic back end) from the samples after the
+/// detection.
 pub fn path_fit<R: Real>(
     model: &Model<R>,
     req: &EstimateRequest,
@@ -192,17 +227,50 @@ pub fn path_fit<R: Real>(
     let (theta_c, ta_c) = contact_point_model(model, req).unwrap_or_else(|| contact_point(req));
     let conv = |v: f64| R::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
     let dt_s = f64::from(req.dt_ns) * 1e-9;
-    let kt = req.contact.tick;
-    let samples = req
-        .pre
-        .iter()
-        .filter(move |s| s.tick > kt)
-        .chain(req.path.iter())
-        .map(move |s| PathSample {
-            time_s: R::from_f64(f64::from(s.tick) * dt_s),
-            theta_a_rad: R::from_f64(f64::from(s.theta_a_urad) * 1e-6),
-            torque_nm: R::from_f64(f64::from(s.torque_unm) * 1e-6),
-        });
+    let samples = path_samples(req).map(move |s| PathSample {
+        time_s: R::from_f64(f64::from(s.tick) * dt_s),
+        theta_a_rad: R::from_f64(f64::from(s.theta_a_urad) * 1e-6),
+        torque_nm: R::from_f64(f64::from(s.torque_unm) * 1e-6),
+    });
+    let fit = fit_path(
+        model,
+        &PathFitConfig::DEFAULT,
+        conv(theta_c)?,
+        Some(conv(ta_c)?),
+        samples,
+    );
+    path_fit_result(req, theta_c, ta_c, fit)
+}
+
+/// The whole-path estimate on the firmware's integer kernel (`pts::pathfit::q`): the
+/// controller's samples as they are (ticks, µrad, µN·m). `table` must be built for the
+/// request's control period ([`path_table`]).
+pub fn path_fit_q(
+    table: &PathTable,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, PathFitError> {
+    if (table.tick_s() - f64::from(req.dt_ns) * 1e-9).abs() > 1e-12 {
+        return Err(PathFitError::Model(PtsError::OutOfRange));
+    }
+    let (theta_c, ta_c) =
+        contact_point_model(table.model(), req).unwrap_or_else(|| contact_point(req));
+    let conv = |v: f64| EstReal::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
+    let samples = path_samples(req).map(|s| RawSample {
+        tick: s.tick,
+        theta_a_urad: s.theta_a_urad,
+        torque_unm: s.torque_unm,
+    });
+    let fit = fit_path_q(table, conv(theta_c)?, Some(conv(ta_c)?), samples);
+    path_fit_result(req, theta_c, ta_c, fit)
+}
+
+/// The request's result from a path fit (either back end).
+fn path_fit_result<R: Real>(
+    req: &EstimateRequest,
+    theta_c: f64,
+    ta_c: f64,
+    fit: Result<PathFit<R>, PathFitError>,
+) -> Result<EstimateResult, PathFitError> {
     let dta = f64::from(req.end.torque_unm) * 1e-6 - ta_c;
     let dth = f64::from(req.end.theta_a_urad) * 1e-6 - theta_c;
     let base = EstimateResult {
@@ -217,13 +285,7 @@ pub fn path_fit<R: Real>(
         ta_c_unm: to_micro(ta_c),
         quality: Quality::Good,
     };
-    let fit = match fit_path(
-        model,
-        &PathFitConfig::DEFAULT,
-        conv(theta_c)?,
-        Some(conv(ta_c)?),
-        samples,
-    ) {
+    let fit = match fit {
         Ok(f) => f,
         Err(PathFitError::ProximalContact) => {
             return Ok(EstimateResult {

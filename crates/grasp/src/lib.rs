@@ -68,8 +68,8 @@ pub use control_loop::{
 };
 pub use controller::{Controller, Event, FaultReason, State, Supervisor, TickOutput};
 pub use estimate::{
-    run_estimate, run_estimate_with, EstReal, EstimateError, EstimateRequest, EstimateResult,
-    Located, Quality, Sample, PATH_CAPACITY,
+    path_table, run_estimate, run_estimate_fw, run_estimate_with, EstReal, EstimateError,
+    EstimateRequest, EstimateResult, Located, Quality, Sample, PATH_CAPACITY,
 };
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),

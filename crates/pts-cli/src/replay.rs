@@ -288,7 +288,7 @@ pub fn replay(
         let out = ctl.tick(&mut hw);
         if out.estimate_ready {
             if let Some(req) = ctl.take_request() {
-                let r = grasp::run_estimate_with(&model, &req);
+                let r = grasp::run_estimate_fw(&finger.finger, &model, &req);
                 rep.estimate = Some(r.map_err(|e| crate::sim::EstError::new(e.kind(), &e)));
                 ctl.deliver(&mut hw, r);
             }
@@ -392,7 +392,7 @@ pub fn segment(
         finger.rad_per_count(),
         |r| match r {
             Ok(seg) => {
-                let est = grasp::run_estimate_with(&mfw, &seg.request)
+                let est = grasp::run_estimate_fw(&finger.finger, &mfw, &seg.request)
                     .map_err(|e| crate::sim::EstError::new(e.kind(), &e));
                 out.contacts.push(SegmentedContact {
                     t_s: seg.contact_t_s,

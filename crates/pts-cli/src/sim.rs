@@ -288,7 +288,7 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         if out.estimate_ready {
             rep.k_at_settle_m = Some(truth.k_m);
             if let Some(req) = ctl.take_request() {
-                let r = grasp::run_estimate_with(&est_model, &req);
+                let r = grasp::run_estimate_fw(&finger, &est_model, &req);
                 rep.estimate = Some(r.map_err(|e| EstError::new(e.kind(), &e)));
                 ctl.deliver(&mut hw, r);
             }

@@ -48,8 +48,9 @@ const ONE: i32 = 1 << QA;
 const SEG_SHIFT: u32 = 4;
 /// Spacing of the closure table in θ2 (rad): 1/16 (cubic Hermite error of sin θ2 < 4e-8).
 pub const SEG_STEP: f64 = 1.0 / (1u32 << SEG_SHIFT) as f64;
-/// Most table segments (4 rad of θ2).
-pub const MAX_SEGMENTS: usize = 64;
+/// Most table segments (3 rad of θ2; the paper finger needs 43; a wider range is cut at the
+/// top, far above any contact).
+pub const MAX_SEGMENTS: usize = 48;
 /// θ2 covered below the free motion at [`TABLE_TA_MIN_NM`] and above it at
 /// [`TABLE_TA_MAX_NM`] (rad): the path's excursions.
 const BELOW: f64 = 0.25;
@@ -252,6 +253,8 @@ pub struct PathTable {
     inv_l1: i32,
     /// The sample pass, in the controller's units.
     samples: SampleConsts,
+    /// The controller's tick period the table was built for (s).
+    tick_s: f64,
 }
 
 /// [`PathFitConfig`]'s sample-pass settings in integers (µrad, µN·m, ticks).
@@ -392,12 +395,18 @@ impl PathTable {
             l1: to_q(f.l1, QA).ok_or(oor)?,
             inv_l1: to_q(1.0 / f.l1, QT).ok_or(oor)?,
             samples,
+            tick_s,
         })
     }
 
     /// The model the fit inverts its initial guess with.
     pub fn model(&self) -> &Model<Fx32> {
         &self.model
+    }
+
+    /// The controller tick period (s) the sample times are in.
+    pub fn tick_s(&self) -> f64 {
+        self.tick_s
     }
 
     /// The closure at θ2 (Q28 rad) from the table.
