@@ -252,8 +252,8 @@ pub fn path_fit_q(
     if (table.tick_s() - f64::from(req.dt_ns) * 1e-9).abs() > 1e-12 {
         return Err(PathFitError::Model(PtsError::OutOfRange));
     }
-    let (theta_c, ta_c) =
-        contact_point_model(table.model(), req).unwrap_or_else(|| contact_point(req));
+    let t_free = |th: f64| Some(table.free_torque(EstReal::try_from_f64(th)?).ok()?.to_f64());
+    let (theta_c, ta_c) = contact_point_with(req, t_free).unwrap_or_else(|| contact_point(req));
     let conv = |v: f64| EstReal::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
     let samples = path_samples(req).map(|s| RawSample {
         tick: s.tick,
@@ -421,10 +421,19 @@ fn path_parabola(req: &EstimateRequest) -> Option<impl Fn(f64) -> f64> {
 /// the parabola through the three static points, meets that shifted free-motion curve.
 /// `None` when a solve fails (the caller falls back to [`contact_point`]).
 pub fn contact_point_model<R: Real>(model: &Model<R>, req: &EstimateRequest) -> Option<(f64, f64)> {
-    let t_free = |th: f64| -> Option<f64> {
+    contact_point_with(req, |th: f64| -> Option<f64> {
         let c = model.free_from_theta_a(R::try_from_f64(th)?).ok()?;
         Some(c.ta.to_f64())
-    };
+    })
+}
+
+/// [`contact_point_model`] with the free-motion torque T_free(θa) (θa rad → N·m) given:
+/// the model's Newton solve, or the path fit's table (`PathTable::free_torque`, no
+/// trigonometry).
+pub fn contact_point_with(
+    req: &EstimateRequest,
+    t_free: impl Fn(f64) -> Option<f64>,
+) -> Option<(f64, f64)> {
     let guard = u64::from(req.sample_ticks.max(1));
     let kt = u64::from(req.contact.tick);
     let before = req

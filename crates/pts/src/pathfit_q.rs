@@ -217,6 +217,15 @@ fn sin_cos_wide(x: i32) -> (i32, i32) {
 /// (4 coefficients each, Q28).
 const FIELDS: usize = 16;
 
+/// A free-motion equilibrium (Q28 angles, Q24 torque) with its closure.
+#[derive(Clone, Copy, Debug)]
+struct FreeState {
+    theta1: i32,
+    theta2: i32,
+    ta: i32,
+    closure: Closure,
+}
+
 /// The closure at one θ2 from the table.
 #[derive(Clone, Copy, Debug)]
 struct Closure {
@@ -409,6 +418,62 @@ impl PathTable {
         self.tick_s
     }
 
+    /// T_a (N·m) of the free-motion equilibrium at θa (rad, the finger's frame): the
+    /// table's Newton solve (no trigonometry), for the estimator's contact-point search.
+    pub fn free_torque(&self, theta_a: Fx32) -> Result<Fx32, PtsError> {
+        let tha = i32::try_from(fx_to_q28(theta_a)).map_err(|_| PtsError::OutOfRange)?;
+        let f = self.free_motion(tha, None)?;
+        Ok(Fx32::from_bits((f.ta as i64) << (32 - QT)))
+    }
+
+    /// Free motion at θa (Q28): K2(θ2 − θ02) = K1(θ1 − θ01)·x2 with θ1 = θa − θ2 + φ2 + γ,
+    /// Newton on θ2 from `start` or from the node table, the last step applied.
+    fn free_motion(&self, tha: i32, start: Option<i32>) -> Result<FreeState, PtsError> {
+        let oor = PtsError::OutOfRange;
+        let mut th2 = match start {
+            Some(t) => t,
+            None => {
+                // The node interval holding θa, then linear interpolation in it.
+                let free = self.theta_a_free.get(..=self.segs).ok_or(oor)?;
+                let i = free.iter().position(|&v| v > tha).ok_or(oor)?;
+                if i == 0 {
+                    return Err(oor);
+                }
+                let (a, b) = (free[i - 1], free[i]);
+                let frac = ((tha - a) as i64 * ONE as i64) / ((b - a) as i64).max(1);
+                let x0 = self.theta2_0 as i64 + (((i - 1) as i64) << (QA - SEG_SHIFT));
+                narrow(x0 + (frac >> SEG_SHIFT)).map_err(|_| oor)?
+            }
+        };
+        let tol = to_q(ACCEPT_STEP * 0.01, QA).unwrap_or(1);
+        let lim = ONE / 2;
+        let mut done = false;
+        for _ in 0..2 * MAX_PATH_NEWTON {
+            let c = self.closure(th2).map_err(|_| oor)?;
+            // θ1 = θa − θ2 + φ2 + γ; g = K2(θ2 − θ02) − K1(θ1 − θ01)·x2; g′ = K2 − T dx2 + K1 x2².
+            let th1 = (tha as i64 - th2 as i64 + self.phi2 as i64 + c.gamma as i64) as i32;
+            let ta = mul::<QA>(self.k1, th1.wrapping_sub(self.theta01));
+            if done {
+                return Ok(FreeState {
+                    theta1: th1,
+                    theta2: th2,
+                    ta,
+                    closure: c,
+                });
+            }
+            let g = mul::<QA>(self.k2, th2 - self.theta02) - mul::<QA>(ta, c.x2);
+            let dg = self.k2 - mul::<QA>(ta, c.dx2) + mul::<QA>(self.k1, mul::<QA>(c.x2, c.x2));
+            if dg < (1 << 8) {
+                return Err(PtsError::NoConvergence);
+            }
+            let r = Recip::new(dg).ok_or(PtsError::NoConvergence)?;
+            let step = r.div::<{ QA as i32 }>(g).map_err(|_| oor)?.clamp(-lim, lim);
+            done = step.abs() <= tol;
+            th2 -= step;
+        }
+        Err(PtsError::NoConvergence)
+    }
+
     /// The closure at θ2 (Q28 rad) from the table.
     #[inline(always)]
     fn closure(&self, theta2: i32) -> Result<Closure, PathFail> {
@@ -563,75 +628,39 @@ impl<'t> QKernel<'t> {
         }
     }
 
-    /// The free-motion configuration at θa,c (Newton on θ2 from the node table, or from the
-    /// current contact when there is one).
+    /// The free-motion configuration at θa,c (see [`PathTable::free_motion`]; warm-started
+    /// from the current contact when there is one).
     fn solve_contact(&mut self, theta_a_c: Fx32, warm: bool) -> Result<(), PtsError> {
         let tb = self.tb;
-        let oor = PtsError::OutOfRange;
-        let tha = fx_to_q28(theta_a_c);
-        let tha = i32::try_from(tha).map_err(|_| oor)?;
-        let mut th2 = if warm {
-            self.theta2c
-        } else {
-            // The node interval holding θa, then linear interpolation in it.
-            let free = tb.theta_a_free.get(..=tb.segs).ok_or(oor)?;
-            let i = free.iter().position(|&v| v > tha).ok_or(oor)?;
-            if i == 0 {
-                return Err(oor);
-            }
-            let (a, b) = (free[i - 1], free[i]);
-            let frac = ((tha - a) as i64 * ONE as i64) / ((b - a) as i64).max(1);
-            let x0 = tb.theta2_0 as i64 + (((i - 1) as i64) << (QA - SEG_SHIFT));
-            narrow(x0 + (frac >> SEG_SHIFT)).map_err(|_| oor)?
+        let tha = i32::try_from(fx_to_q28(theta_a_c)).map_err(|_| PtsError::OutOfRange)?;
+        let f = tb.free_motion(tha, warm.then_some(self.theta2c))?;
+        let c = f.closure;
+        let k2p = tb.k2 - mul::<QA>(f.ta, c.dx2);
+        let den = k2p + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
+        let kfree = Recip::new(den)
+            .ok_or(PtsError::NoConvergence)?
+            .div::<{ QD as i32 }>(mul::<QT>(tb.k1, k2p))
+            .map_err(|_| PtsError::OutOfRange)?;
+        let fx = |v: i32, q: u32| Fx32::from_bits((v as i64) << (32 - q));
+        self.contact = Config {
+            theta1: fx(f.theta1, QA),
+            theta2: fx(f.theta2, QA),
+            theta_a: theta_a_c,
+            ta: fx(f.ta, QT),
+            x2: fx(c.x2, QA),
+            dx2: fx(c.dx2, QA),
         };
-        let tol = to_q(ACCEPT_STEP * 0.01, QA).unwrap_or(1);
-        let lim = ONE / 2;
-        let mut done = false;
-        for _ in 0..2 * MAX_PATH_NEWTON {
-            let c = tb.closure(th2).map_err(|_| oor)?;
-            // θ1 = θa − θ2 + φ2 + γ; g = K2(θ2 − θ02) − K1(θ1 − θ01)·x2; g′ = K2 − T dx2 + K1 x2².
-            let th1 = (tha as i64 - th2 as i64 + tb.phi2 as i64 + c.gamma as i64) as i32;
-            let ta = mul::<QA>(tb.k1, th1.wrapping_sub(tb.theta01));
-            if done {
-                // Converged (the last step applied): the configuration at this θ2.
-                let k2p = tb.k2 - mul::<QA>(ta, c.dx2);
-                let den = k2p + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
-                let kfree = Recip::new(den)
-                    .ok_or(PtsError::NoConvergence)?
-                    .div::<{ QD as i32 }>(mul::<QT>(tb.k1, k2p))
-                    .map_err(|_| oor)?;
-                let fx = |v: i32, q: u32| Fx32::from_bits((v as i64) << (32 - q));
-                self.contact = Config {
-                    theta1: fx(th1, QA),
-                    theta2: fx(th2, QA),
-                    theta_a: theta_a_c,
-                    ta: fx(ta, QT),
-                    x2: fx(c.x2, QA),
-                    dx2: fx(c.dx2, QA),
-                };
-                self.theta_a_c = theta_a_c;
-                self.theta2c = th2;
-                self.s2c = c.s2;
-                self.c2c = c.c2;
-                self.gamma_c = c.gamma;
-                self.d1c = th1.wrapping_sub(tb.theta01);
-                self.d2c = th2 - tb.theta02;
-                self.tac = ta;
-                self.kfree = kfree;
-                self.prev = [None; MAX_BINS];
-                return Ok(());
-            }
-            let g = mul::<QA>(tb.k2, th2 - tb.theta02) - mul::<QA>(ta, c.x2);
-            let dg = tb.k2 - mul::<QA>(ta, c.dx2) + mul::<QA>(tb.k1, mul::<QA>(c.x2, c.x2));
-            if dg < (1 << 8) {
-                return Err(PtsError::NoConvergence);
-            }
-            let r = Recip::new(dg).ok_or(PtsError::NoConvergence)?;
-            let step = r.div::<{ QA as i32 }>(g).map_err(|_| oor)?.clamp(-lim, lim);
-            done = step.abs() <= tol;
-            th2 -= step;
-        }
-        Err(PtsError::NoConvergence)
+        self.theta_a_c = theta_a_c;
+        self.theta2c = f.theta2;
+        self.s2c = c.s2;
+        self.c2c = c.c2;
+        self.gamma_c = c.gamma;
+        self.d1c = f.theta1.wrapping_sub(tb.theta01);
+        self.d2c = f.theta2 - tb.theta02;
+        self.tac = f.ta;
+        self.kfree = kfree;
+        self.prev = [None; MAX_BINS];
+        Ok(())
     }
 
     /// One Newton state at (δφ, δ2) for k2,c/l1 = `kap`, R/l1 = `rho`.
@@ -1428,6 +1457,30 @@ mod tests {
         let (d1, dd2) = (c.theta1 - f.theta01 + dphi - d2, th2 - f.theta02);
         let ta = (f.k1 * d1 * k2 - f.k2 * dd2 * l) / (k2 - cl.x2 * l);
         [dphi, d2, k2, ta]
+    }
+
+    #[test]
+    fn free_torque_matches_the_model() {
+        let f = Finger::PAPER;
+        let table = PathTable::new(&f, &PathFitConfig::DEFAULT, 1e-4).unwrap();
+        let m64 = Model::<f64>::new(&f).unwrap();
+        let mut worst = 0.0f64;
+        for i in 0..=60 {
+            // θa over the table's free-motion range (T_a ≈ −0.3 … 1.6 N·m).
+            let tha = -1.3 + 0.05 * i as f64;
+            let Ok(c) = m64.free_from_theta_a(tha) else {
+                continue;
+            };
+            if !(-0.3..=1.6).contains(&c.ta) {
+                continue;
+            }
+            let t = table.free_torque(Fx32::from_f64(tha)).unwrap().to_f64();
+            worst = worst.max((t - c.ta).abs());
+        }
+        assert!(worst < 2e-7, "free-motion torque off by {worst} N·m");
+        // Outside the table: a typed error, no panic.
+        assert!(table.free_torque(Fx32::from_f64(7.9)).is_err());
+        assert!(table.free_torque(Fx32::from_f64(-7.9)).is_err());
     }
 
     #[test]
