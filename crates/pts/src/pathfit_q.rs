@@ -278,7 +278,7 @@ struct SampleConsts {
     approach_urad_q16: Option<i64>,
     /// J/dt² (µN·m per µrad of second difference per tick², Q16): the inertial correction.
     inertia_q16: i64,
-    envelope_urad: i64,
+    envelope_urad: i32,
     drop_plateaus: bool,
 }
 
@@ -385,7 +385,7 @@ impl PathTable {
                 None
             },
             inertia_q16: q16(cfg.inertia_kgm2 / (tick_s * tick_s))?,
-            envelope_urad: libm::round(cfg.envelope_tol_rad * 1e6).min(1e9) as i64,
+            envelope_urad: libm::round(cfg.envelope_tol_rad * 1e6).min(1e9) as i32,
             drop_plateaus: cfg.drop_plateaus,
         };
         Ok(PathTable {
@@ -1241,7 +1241,7 @@ impl Binner {
     /// θa only, so the inertial correction is computed for the kept samples alone.
     #[inline(always)]
     fn keep(&mut self, th: i32) -> bool {
-        let below = (th as i64) < self.min_th as i64 + self.sc.envelope_urad;
+        let below = th < self.min_th.saturating_add(self.sc.envelope_urad);
         let moved = self.last_kept != Some(th);
         self.min_th = self.min_th.min(th);
         if below && moved {
@@ -1349,11 +1349,15 @@ fn correct(
             }
             ((k as i128 * (d2 - d1) as i128) >> 16).clamp(-(1 << 62), 1 << 62) as i64
         } else {
-            // J (d2/dt2 − d1/dt1)·2/span.
-            let span = dt1 as i128 + dt2 as i128;
-            let num =
-                (d2 as i128 * dt1 as i128 - d1 as i128 * dt2 as i128) * 2 * sc.inertia_q16 as i128;
-            ((num / (dt1 as i128 * dt2 as i128 * span)) >> 16).clamp(-(1 << 62), 1 << 62) as i64
+            // θ̈ = 2(d2/dt2 − d1/dt1)/span in µrad/tick² (Q16), then J/τ² θ̈. Gaps above 2^12
+            // ticks or steps above 2^24 µrad are not a continuous record: left uncorrected.
+            if dt1 > 1 << 12 || dt2 > 1 << 12 || d1.abs() > 1 << 24 || d2.abs() > 1 << 24 {
+                return c;
+            }
+            let (t1, t2) = (dt1 as i64, dt2 as i64);
+            let num = 2 * (d2 * t1 - d1 * t2);
+            let acc_q16 = (num << 16) / (t1 * t2 * (t1 + t2));
+            ((sc.inertia_q16 as i128 * acc_q16 as i128) >> 32).clamp(-(1 << 62), 1 << 62) as i64
         }
     };
     RawSample {
