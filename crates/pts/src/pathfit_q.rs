@@ -531,8 +531,11 @@ struct QBin {
 struct QPrev {
     kap: i32,
     rho: i32,
+    /// Δθa of the point (Q28): a new contact angle shifts every bin's Δθa.
+    dta: i32,
     dphi: i32,
     d2: i32,
+    tangent: (i32, i32),
     sens_k: (i32, i32),
     sens_r: (i32, i32),
 }
@@ -659,7 +662,8 @@ impl<'t> QKernel<'t> {
         self.d2c = f.theta2 - tb.theta02;
         self.tac = f.ta;
         self.kfree = kfree;
-        self.prev = [None; MAX_BINS];
+        // The warm starts stay: a moved contact angle shifts each bin's Δθa, which the
+        // guess follows along the path's tangent (the contact configuration moves by mrad).
         Ok(())
     }
 
@@ -912,10 +916,15 @@ impl Kernel<Fx32> for QKernel<'_> {
             } else {
                 let guess = match (self.prev[i], prev_pt) {
                     (Some(q), _) => {
-                        let (dk, dr) = (kap - q.kap, rho - q.rho);
+                        let (dk, dr, ds) = (kap - q.kap, rho - q.rho, dta - q.dta);
                         (
-                            q.dphi + mul::<QT>(q.sens_k.0, dk) + mul::<QT>(q.sens_r.0, dr),
-                            q.d2 + mul::<QT>(q.sens_k.1, dk) + mul::<QT>(q.sens_r.1, dr),
+                            q.dphi
+                                + mul::<QT>(q.sens_k.0, dk)
+                                + mul::<QT>(q.sens_r.0, dr)
+                                + mul::<QT>(q.tangent.0, ds),
+                            q.d2 + mul::<QT>(q.sens_k.1, dk)
+                                + mul::<QT>(q.sens_r.1, dr)
+                                + mul::<QT>(q.tangent.1, ds),
                         )
                     }
                     (None, Some((dta0, dphi0, d20, t))) => {
@@ -932,8 +941,10 @@ impl Kernel<Fx32> for QKernel<'_> {
                 self.prev[i] = Some(QPrev {
                     kap,
                     rho,
+                    dta,
                     dphi: pt.dphi,
                     d2: pt.d2,
+                    tangent: pt.tangent,
                     sens_k: pt.sens_k,
                     sens_r: pt.sens_r,
                 });
