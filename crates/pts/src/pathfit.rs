@@ -671,23 +671,10 @@ fn run_fit<R: Real, K: Kernel<R>>(
         // the vertex variance of k2c (the reciprocal pivot of K just before) and the
         // regression of the R column on the vertex parameters (−L_RK).
         let full = ldl(&e.a, &cset);
-        let (sigma_r_lin, dk_lin, dr_lin, dtc_lin) = match &full {
+        let (sigma_r_lin, var_kv, per_r) = match &full {
             Some(f) => {
-                let d = f.solve(&e.g);
-                let (_, _, c_rr) = f.last_two();
-                (
-                    (c_rr * s2v).max(zero).sqrt() * l2,
-                    d[K] * l2,
-                    d[RAD] * l2,
-                    d[TC],
-                )
-            }
-            None => (rmax, zero, zero, zero),
-        };
-        let (var_kv, per_r) = match &full {
-            Some(f) => {
-                let (var_kv, per_r, _) = f.last_two();
-                (var_kv, per_r)
+                let (var_kv, per_r, c_rr) = f.last_two();
+                ((c_rr * s2v).max(zero).sqrt() * l2, var_kv, per_r)
             }
             None => {
                 let f = ldl(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
@@ -697,18 +684,29 @@ fn run_fit<R: Real, K: Kernel<R>>(
                         col[j] = e.a[j][RAD];
                     }
                 }
-                (f.last_var(), f.solve(&col)[K])
+                (rmax, f.last_var(), f.solve(&col)[K])
             }
         };
         let sigma_kv = (var_kv * s2v).max(zero).sqrt() * l2;
         let r_allowed = (sigma_r_lin * R::from_f64(3.0)).min(rmax);
         let bias_pot = (per_r * r_allowed).abs();
-        let want = match c.object {
+        // The Gauss–Newton step with R free only when the radius could matter (a vertex
+        // hypothesis far from the threshold pays for no substitution).
+        let matters = match c.object {
             ObjectModel::Vertex => false,
             ObjectModel::Cylinder => true,
-            ObjectModel::Auto => {
-                bias_pot > sigma_kv * R::from_f64(0.5) && dr_lin > sigma_r_lin && dr_lin > zero
+            ObjectModel::Auto => bias_pot > sigma_kv * R::from_f64(0.5),
+        };
+        let (dk_lin, dr_lin, dtc_lin) = match (&full, matters) {
+            (Some(f), true) => {
+                let d = f.solve(&e.g);
+                (d[K] * l2, d[RAD] * l2, d[TC])
             }
+            _ => (zero, zero, zero),
+        };
+        let want = match c.object {
+            ObjectModel::Auto => matters && dr_lin > sigma_r_lin && dr_lin > zero,
+            _ => matters,
         };
         Ok(Decision {
             want,

@@ -531,11 +531,8 @@ struct QBin {
 struct QPrev {
     kap: i32,
     rho: i32,
-    /// Δθa of the point (Q28): a new contact angle shifts every bin's Δθa.
-    dta: i32,
     dphi: i32,
     d2: i32,
-    tangent: (i32, i32),
     sens_k: (i32, i32),
     sens_r: (i32, i32),
 }
@@ -662,8 +659,7 @@ impl<'t> QKernel<'t> {
         self.d2c = f.theta2 - tb.theta02;
         self.tac = f.ta;
         self.kfree = kfree;
-        // The warm starts stay: a moved contact angle shifts each bin's Δθa, which the
-        // guess follows along the path's tangent (the contact configuration moves by mrad).
+        self.prev = [None; MAX_BINS];
         Ok(())
     }
 
@@ -916,15 +912,10 @@ impl Kernel<Fx32> for QKernel<'_> {
             } else {
                 let guess = match (self.prev[i], prev_pt) {
                     (Some(q), _) => {
-                        let (dk, dr, ds) = (kap - q.kap, rho - q.rho, dta - q.dta);
+                        let (dk, dr) = (kap - q.kap, rho - q.rho);
                         (
-                            q.dphi
-                                + mul::<QT>(q.sens_k.0, dk)
-                                + mul::<QT>(q.sens_r.0, dr)
-                                + mul::<QT>(q.tangent.0, ds),
-                            q.d2 + mul::<QT>(q.sens_k.1, dk)
-                                + mul::<QT>(q.sens_r.1, dr)
-                                + mul::<QT>(q.tangent.1, ds),
+                            q.dphi + mul::<QT>(q.sens_k.0, dk) + mul::<QT>(q.sens_r.0, dr),
+                            q.d2 + mul::<QT>(q.sens_k.1, dk) + mul::<QT>(q.sens_r.1, dr),
                         )
                     }
                     (None, Some((dta0, dphi0, d20, t))) => {
@@ -941,10 +932,8 @@ impl Kernel<Fx32> for QKernel<'_> {
                 self.prev[i] = Some(QPrev {
                     kap,
                     rho,
-                    dta,
                     dphi: pt.dphi,
                     d2: pt.d2,
-                    tangent: pt.tangent,
                     sens_k: pt.sens_k,
                     sens_r: pt.sens_r,
                 });
