@@ -700,7 +700,7 @@ fn pathfit_grid_on_the_plant() {
             "{label}: path fit vs two-point"
         );
         // The integer kernel is the same fit: where both chose the same object model they
-        // agree to the fit's own convergence, which stops LM within a tenth of σ in χ² terms
+        // agree to the fit's own convergence, which stops LM within about a quarter of σ in χ² terms
         // or at the evaluation budget on a flat cylinder valley (measured ≤ 0.56 % of l2,
         // ≤ 0.45 σ); the radius decision is a threshold, so a few borderline fits may go the
         // other way.

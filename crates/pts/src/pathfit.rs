@@ -1336,9 +1336,11 @@ struct Bounds<R> {
 }
 
 /// LM ends when the step would lower χ² by less than this: the parameters would move by
-/// less than a tenth of their σ (a poorly determined radius is not iterated to the
-/// absolute tolerance).
-const CHI2_TOL: f64 = 0.01;
+/// less than a quarter of their σ (√0.05 ≈ 0.22), and a poorly determined radius is not
+/// iterated to the absolute tolerance. On the grid 0.05 against 0.01 moved the realistic
+/// mean/max error from 0.51/1.84 to 0.52/1.79 % of l2 and took 32 of 160 fits from 4 path
+/// evaluations to 3.
+const CHI2_TOL: f64 = 0.05;
 /// LM ends after an accepted step that lowered χ² by less than this.
 const CHI2_GAIN_TOL: f64 = 0.05;
 
