@@ -1095,59 +1095,60 @@ where
     let thc_q16 = ((theta_meas_c.to_bits() as i128 * 1_000_000) >> 16) as i64;
     // (period in ticks, J/h²) of the last uniform pair; period 0: none yet.
     let mut k_uniform = (0u32, 0i32);
+    // Backwards: the latest sample as it is, every inner one corrected with its neighbours
+    // (or dropped on a plateau), the earliest as it is. The latest is always kept by the
+    // envelope and fixes the bins: from θa,c (+ dead band + skip, or − the approach span)
+    // to its θa.
+    let mut it = samples.rev();
+    let Some(mut n) = it.next() else {
+        return Err(PathFitError::NoMotion);
+    };
+    let hi = n.theta_a_urad;
+    let travel = ((hi as i64) << 16) - thc_q16 - sc.dead_urad_q16;
+    if travel <= sc.min_travel_urad_q16 {
+        return Err(PathFitError::NoMotion);
+    }
+    let lo_q16 = match sc.approach_urad_q16 {
+        Some(span) => thc_q16 - span,
+        None => thc_q16 + sc.dead_urad_q16 + ((travel as i128 * sc.skip_q16 as i128) >> 16) as i64,
+    };
+    let lo = ((lo_q16 + 0xFFFF) >> 16).clamp(i32::MIN as i64, hi as i64 - 1) as i32;
     let mut acc = Binner {
-        sc,
-        thc_q16,
-        cnt: [0; MAX_BINS],
-        refs: [(0, 0); MAX_BINS],
-        sums: [[0; 5]; MAX_BINS],
-        frame: None,
+        lo,
+        span: (hi as i64 - lo as i64).clamp(1, u32::MAX as i64) as u32,
+        nbins: sc.nbins,
+        envelope: sc.envelope_urad,
         min_th: i32::MAX,
         last_kept: None,
+        bins: [BinAcc::default(); MAX_BINS],
     };
-    // Backwards: the latest sample as it is, every inner one corrected with its neighbours
-    // (or dropped on a plateau), the earliest as it is.
-    let mut it = samples.rev();
-    if let Some(mut n) = it.next() {
-        if acc.keep(n.theta_a_urad) {
-            acc.push(n)?;
-        }
-        if let Some(mut c) = it.next() {
-            for p in it.by_ref() {
-                let th = c.theta_a_urad;
-                let plateau = sc.drop_plateaus && (th == p.theta_a_urad || th == n.theta_a_urad);
-                if !plateau && acc.keep(th) {
-                    acc.push(correct(&sc, &mut k_uniform, p, c, n))?;
-                }
-                n = c;
-                c = p;
+    acc.keep(hi);
+    acc.push(hi, n.torque_unm);
+    if let Some(mut c) = it.next() {
+        for p in it.by_ref() {
+            let th = c.theta_a_urad;
+            let plateau = sc.drop_plateaus && (th == p.theta_a_urad || th == n.theta_a_urad);
+            if !plateau && acc.keep(th) {
+                acc.push(th, correct(&sc, &mut k_uniform, p, c, n).torque_unm);
             }
-            if acc.keep(c.theta_a_urad) {
-                acc.push(c)?;
-            }
+            n = c;
+            c = p;
         }
-    }
-    let Binner {
-        cnt,
-        refs,
-        sums: acc,
-        frame,
-        ..
-    } = acc;
-    if frame.is_none() {
-        return Err(PathFitError::NoMotion);
+        if acc.keep(c.theta_a_urad) {
+            acc.push(c.theta_a_urad, c.torque_unm);
+        }
     }
     let mut nb = 0usize;
     let mut total = 0u32;
     // Centred moments of each used bin (µrad², µN·m², µrad·µN·m) and the means in µ units Q16.
     let mut mom = [[0i64; 3]; MAX_BINS];
     let mut mean = [(0i64, 0i64); MAX_BINS];
-    for i in 0..nbins {
-        let c = cnt[i];
+    for bin in acc.bins.iter().take(nbins) {
+        let c = bin.n;
         if c == 0 {
             continue;
         }
-        let a = acc[i];
+        let a = bin.s;
         // Means (Q16) by the reciprocal of the count: one hardware division.
         let (mth_q16, mt_q16) = if c == 1 {
             (a[0] << 16, a[1] << 16)
@@ -1159,8 +1160,8 @@ where
             )
         };
         mean[nb] = (
-            ((refs[i].0 as i64) << 16) + mth_q16,
-            ((refs[i].1 as i64) << 16) + mt_q16,
+            ((bin.th0 as i64) << 16) + mth_q16,
+            ((bin.t0 as i64) << 16) + mt_q16,
         );
         mom[nb] = [
             a[2].saturating_sub(mul_sat(a[0], mth_q16) >> 16),
@@ -1215,20 +1216,27 @@ where
     Ok(())
 }
 
+/// One θa bin of the sample pass: count, the first sample (θ µrad, T µN·m) and the sums
+/// Σdθ, Σdt, Σdθ², Σdt², Σdθ·dt about it.
+#[derive(Clone, Copy, Debug, Default)]
+struct BinAcc {
+    n: u32,
+    th0: i32,
+    t0: i32,
+    s: [i64; 5],
+}
+
 /// The binning state of the sample pass.
 struct Binner {
-    sc: SampleConsts,
-    /// θa,c (measured frame) in µrad, Q16.
-    thc_q16: i64,
-    /// Per bin: count, reference sample (θ µrad, T µN·m), Σdθ, Σdt, Σdθ², Σdt², Σdθ·dt
-    /// about it.
-    cnt: [u32; MAX_BINS],
-    refs: [(i32, i32); MAX_BINS],
-    sums: [[i64; 5]; MAX_BINS],
-    /// (lo µrad, span µrad) once the latest kept sample fixed it.
-    frame: Option<(i32, u32)>,
+    /// Bins from `lo` over `span` (µrad) in `nbins` equal parts.
+    lo: i32,
+    span: u32,
+    nbins: u32,
+    envelope: i32,
     min_th: i32,
+    /// θ of the sample kept last (`None` before the first).
     last_kept: Option<i32>,
+    bins: [BinAcc; MAX_BINS],
 }
 
 impl Binner {
@@ -1241,7 +1249,7 @@ impl Binner {
     /// θa only, so the inertial correction is computed for the kept samples alone.
     #[inline(always)]
     fn keep(&mut self, th: i32) -> bool {
-        let below = th < self.min_th.saturating_add(self.sc.envelope_urad);
+        let below = th < self.min_th.saturating_add(self.envelope);
         let moved = self.last_kept != Some(th);
         self.min_th = self.min_th.min(th);
         if below && moved {
@@ -1250,62 +1258,33 @@ impl Binner {
         below && moved
     }
 
-    /// A kept sample into its bin (the first one fixes the bins' frame).
+    /// A kept sample into its bin.
     #[inline(always)]
-    fn push(&mut self, s: RawSample) -> Result<(), PathFitError> {
-        let sc = &self.sc;
-        let th = s.theta_a_urad;
-        let (lo, span) = match self.frame {
-            Some(f) => f,
-            None => {
-                let hi_q16 = (th as i64) << 16;
-                let travel = hi_q16 - self.thc_q16 - sc.dead_urad_q16;
-                if travel <= sc.min_travel_urad_q16 {
-                    return Err(PathFitError::NoMotion);
-                }
-                let lo_q16 = match sc.approach_urad_q16 {
-                    Some(span) => self.thc_q16 - span,
-                    None => {
-                        self.thc_q16
-                            + sc.dead_urad_q16
-                            + ((travel as i128 * sc.skip_q16 as i128) >> 16) as i64
-                    }
-                };
-                let lo = ((lo_q16 + 0xFFFF) >> 16) as i32;
-                let f = (lo, (th as i64 - lo as i64).max(1) as u32);
-                self.frame = Some(f);
-                f
-            }
-        };
-        if th < lo {
-            return Ok(());
+    fn push(&mut self, th: i32, t: i32) {
+        if th < self.lo {
+            return;
         }
         // floor(off·nbins/span) by the 32-bit divider (off within 2^28 µrad).
-        let off = th.saturating_sub(lo).min(1 << 28) as u32;
-        let i = ((off * sc.nbins) / span).min(sc.nbins - 1) as usize;
-        let (Some(c), Some(r), Some(a)) = (
-            self.cnt.get_mut(i),
-            self.refs.get_mut(i),
-            self.sums.get_mut(i),
-        ) else {
-            return Ok(());
+        let off = th.saturating_sub(self.lo).min(1 << 28) as u32;
+        let i = ((off * self.nbins) / self.span).min(self.nbins - 1) as usize;
+        let Some(b) = self.bins.get_mut(i) else {
+            return;
         };
-        if *c >= Self::MAX_COUNT {
-            return Ok(());
+        if b.n >= Self::MAX_COUNT {
+            return;
         }
-        if *c == 0 {
-            *r = (th, s.torque_unm);
+        if b.n == 0 {
+            (b.th0, b.t0) = (th, t);
         }
         // Clamped to ±1 rad and ±8 N·m about the bin's first sample.
-        let dth = th.saturating_sub(r.0).clamp(-(1 << 20), 1 << 20);
-        let dt = s.torque_unm.saturating_sub(r.1).clamp(-(1 << 23), 1 << 23);
-        a[0] += dth as i64;
-        a[1] += dt as i64;
-        a[2] += wide(dth, dth);
-        a[3] += wide(dt, dt);
-        a[4] += wide(dth, dt);
-        *c += 1;
-        Ok(())
+        let dth = th.saturating_sub(b.th0).clamp(-(1 << 20), 1 << 20);
+        let dt = t.saturating_sub(b.t0).clamp(-(1 << 23), 1 << 23);
+        b.s[0] += dth as i64;
+        b.s[1] += dt as i64;
+        b.s[2] += wide(dth, dth);
+        b.s[3] += wide(dt, dt);
+        b.s[4] += wide(dth, dt);
+        b.n += 1;
     }
 }
 
@@ -1332,13 +1311,22 @@ fn correct(
     n: RawSample,
 ) -> RawSample {
     let (dt1, dt2) = (c.tick.wrapping_sub(p.tick), n.tick.wrapping_sub(c.tick));
+    if dt1 == dt2 && dt1 == cache.0 {
+        // The controller's uniform period: J/h² cached (Q16 µN·m per µrad, within i32);
+        // the second difference in saturating 32-bit arithmetic (QSUB).
+        let dd = n
+            .theta_a_urad
+            .saturating_sub(c.theta_a_urad)
+            .saturating_sub(c.theta_a_urad.saturating_sub(p.theta_a_urad));
+        let corr = clamp32(wide(cache.1, dd) >> 16);
+        return RawSample {
+            torque_unm: c.torque_unm.saturating_sub(corr),
+            ..c
+        };
+    }
     let d1 = c.theta_a_urad as i64 - p.theta_a_urad as i64;
     let d2 = n.theta_a_urad as i64 - c.theta_a_urad as i64;
-    let corr = if dt1 == dt2 && dt1 == cache.0 {
-        // The controller's uniform period: J/h² cached (Q16 µN·m per µrad, within i32).
-        let dd = (d2 - d1).clamp(-(1 << 30), 1 << 30) as i32;
-        wide(cache.1, dd) >> 16
-    } else {
+    let corr = {
         if dt1 == 0 || dt2 == 0 || dt1 > 1 << 30 || dt2 > 1 << 30 || sc.inertia_q16 == 0 {
             return c;
         }
