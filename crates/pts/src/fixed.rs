@@ -748,6 +748,7 @@ impl Real for Fx32 {
         }
         Self::from_bits(kernel::sqrt_q32(b as u64, 32) as i64)
     }
+    #[inline]
     fn half_log2(self) -> Option<i32> {
         // 2^e ≤ x < 2^(e+1) with e = 31 − clz(bits); k = ⌈e/2⌉.
         let b = self.to_bits();
@@ -756,6 +757,7 @@ impl Real for Fx32 {
         }
         Some((32 - b.leading_zeros() as i32).div_euclid(2))
     }
+    #[inline]
     fn ldexp(self, k: i32) -> Self {
         let b = self.to_bits();
         if k <= 0 {
