@@ -167,9 +167,14 @@ fn inject_consts(src: &mut String) {
 /// `FINGER_FW_ESTIMATOR=two-point|path-fit`: the estimator linked into the firmware (default:
 /// the controller's default).
 fn estimator_consts(src: &mut String) {
+    // `fw_path_fit`: the path fit's table slot exists only in that build (3.6 KB of RAM).
+    println!("cargo::rustc-check-cfg=cfg(fw_path_fit)");
     let e = match env::var("FINGER_FW_ESTIMATOR").as_deref() {
         Ok("two-point") => "Some(grasp::Estimator::TwoPoint)",
-        Ok("path-fit") => "Some(grasp::Estimator::PathFit)",
+        Ok("path-fit") => {
+            println!("cargo:rustc-cfg=fw_path_fit");
+            "Some(grasp::Estimator::PathFit)"
+        }
         Ok("") | Err(_) => "None",
         Ok(other) => panic!("FINGER_FW_ESTIMATOR={other}: two-point or path-fit"),
     };

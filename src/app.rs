@@ -90,9 +90,9 @@ mod app {
                 platform::halt(4)
             }
         };
-        if let Some(t) = ctl::estimator_table(cfg.drive.dt_s) {
-            *cx.local.table_store = ctl::TableSlot::Built(t);
-        }
+        cx.local
+            .table_store
+            .fill(ctl::estimator_table(cfg.drive.dt_s));
         let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
         telemetry::spawn(tel_rx).ok();

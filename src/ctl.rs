@@ -31,29 +31,53 @@ pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
     None => 0.8,
 };
 
-/// Where `init` keeps the path fit's table: a C-like enum whose empty state is all zero
-/// bits, so the 3.6 KB slot lands in .bss (an `Option` would use a niche and go to .data,
-/// costing the same again in flash).
+/// Where `init` keeps the path fit's table (a path-fit build, `cfg(fw_path_fit)`): a C-like
+/// enum whose empty state is all zero bits, so the 3.6 KB slot lands in .bss (an `Option`
+/// would use a niche and go to .data, costing the same again in flash). In a two-point build
+/// the slot is empty and takes no memory.
+#[cfg(fw_path_fit)]
 #[repr(u8)]
 #[cfg_attr(not(target_os = "none"), allow(dead_code))]
 #[allow(clippy::large_enum_variant)] // a static slot: no allocator, the size is the point
 pub enum TableSlot {
-    /// No table (a two-point build, or not built yet).
+    /// No table (not built yet, or the finger is outside the kernel's formats).
     Empty = 0,
     /// The table.
     Built(PathTable),
 }
 
+/// The two-point build's slot: nothing to keep.
+#[cfg(not(fw_path_fit))]
+#[cfg_attr(not(target_os = "none"), allow(dead_code))]
+pub enum TableSlot {
+    /// Always empty.
+    Empty,
+}
+
 #[cfg_attr(not(target_os = "none"), allow(dead_code))]
 impl TableSlot {
+    /// Keeps the table built at init (a two-point build has none).
+    pub fn fill(&mut self, table: Option<PathTable>) {
+        #[cfg(fw_path_fit)]
+        if let Some(t) = table {
+            *self = TableSlot::Built(t);
+        }
+        #[cfg(not(fw_path_fit))]
+        let _ = table;
+    }
+
     /// The table, if built.
     pub fn get(&self) -> Option<&PathTable> {
         match self {
+            #[cfg(fw_path_fit)]
             TableSlot::Built(t) => Some(t),
             TableSlot::Empty => None,
         }
     }
 }
+
+// The slot and the estimator agree: a path-fit build has a slot for its table.
+const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFit));
 
 /// The path fit's table for a control period `dt_s` (s), built at init when this build's
 /// estimator is the path fit (f64 arithmetic, once); `None` otherwise, or when the finger
