@@ -125,5 +125,45 @@ pub fn main(args: &[String]) -> Result<i32, String> {
         cmd.arg("--quick");
     }
     let st = cmd.status().map_err(|e| format!("{script:?}: {e}"))?;
+    let path_fit = pathfit_check(&root)?;
+    Ok(match st.code() {
+        Some(0) => path_fit,
+        other => other.unwrap_or(1),
+    })
+}
+
+/// Issue 7's gate: the firmware's integer path fit on the committed cases within its
+/// instruction budget on thumbv7em and within σ/2 of the FPU fit (`benches/pathfit/check.py`).
+fn pathfit_check(root: &Path) -> Result<i32, String> {
+    let dir = root.join("crates/pts/benches/pathfit");
+    status(
+        Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+            .args([
+                "build",
+                "--quiet",
+                "--release",
+                "--target",
+                "thumbv7em-none-eabihf",
+            ])
+            .arg("--manifest-path")
+            .arg(dir.join("Cargo.toml"))
+            .env("CARGO_TARGET_DIR", root.join("target/bench-pathfit"))
+            .env("RUSTFLAGS", "")
+            .current_dir(root),
+    )?;
+    let elf = root.join("target/bench-pathfit/thumbv7em-none-eabihf/release/pathfit-icount");
+    let mut cases: Vec<PathBuf> = std::fs::read_dir(dir.join("cases"))
+        .map_err(|e| format!("{:?}: {e}", dir.join("cases")))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "txt"))
+        .collect();
+    cases.sort();
+    let st = Command::new("python3")
+        .arg(dir.join("check.py"))
+        .arg(&elf)
+        .args(&cases)
+        .current_dir(&dir)
+        .status()
+        .map_err(|e| format!("check.py: {e}"))?;
     Ok(st.code().unwrap_or(1))
 }
