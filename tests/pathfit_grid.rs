@@ -700,13 +700,12 @@ fn pathfit_grid_on_the_plant() {
             "{label}: path fit vs two-point"
         );
         // The integer kernel is the same fit: where both chose the same object model they
-        // agree to the fit's own convergence, which stops LM within about a quarter of σ in χ² terms
-        // or at the evaluation budget on a flat cylinder valley (measured ≤ 0.60 % of l2,
-        // ≤ 0.69 σ); the radius decision is a threshold, so a few borderline fits may go the
-        // other way.
-        for s in [&si, &sr] {
+        // agree to the fit's own convergence (LM stops within about a quarter of σ in χ²
+        // terms; measured ≤ 0.17 % of l2, ≤ 0.12 σ, and no radius decision differs); the
+        // decision is a threshold, so a rare borderline fit may go the other way.
+        for s in [si, sr] {
             assert!(
-                s.fx_max_sigmas <= 1.0,
+                s.fx_max_sigmas <= 0.5,
                 "{label}: integer vs f64 {:.5} l2, {:.2} σ",
                 s.fx_max_diff,
                 s.fx_max_sigmas

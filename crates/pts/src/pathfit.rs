@@ -34,20 +34,25 @@
 //!    does not determine k2), χ² far above the noise (the model does not explain the path),
 //!    a fitted path that ends at the tip or an object that cuts the proximal phalanx.
 //!
+//! 6. Levenberg–Marquardt ends on the step projected on the bounds (below 0.1 % of l2 and
+//!    1e-5 rad), on a Gauss–Newton step that would lower χ² by less than 0.05, or after an
+//!    accepted step that lowered it by less than 0.05: the parameters are then within about
+//!    a quarter of their σ (a poorly determined radius is not iterated further).
+//!
 //! No allocation, no panics, bounded iterations ([`MAX_EVALS`] path evaluations of at most
 //! [`MAX_BINS`] points, each a warm-started Newton solve of ≤ [`path::MAX_PATH_NEWTON`] steps;
-//! each point is warm-started from the previous hypothesis through its sensitivities, so a
-//! point costs ~1.5 Newton steps). Generic over [`Real`]: f64 on the host, f32 or fixed
-//! point on the target. Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh
-//! --summary`, the 160 realistic plant requests of the grid): f32 on the FPU min 55 k /
-//! median 75 k / max 122 k instructions (150 of 160 within the 100 k budget; the rest need
-//! 6–10 path evaluations), 4.2 KB peak stack; `Fx32` min 232 k / median 358 k / max 579 k,
-//! 8.8 KB peak stack. No library trigonometry runs (libm's sinf/cosf go through soft double
-//! on a Cortex-M4F); the count is the sample pass (f32 ≈ 17 k, Fx32 ≈ 49 k for ~100
-//! samples), the path evaluations (f32 ≈ 10 k, Fx32 ≈ 60 k each: 8 bins × ~1.5 Newton
-//! steps) and the 4×4 solves. It runs once per contact in the low-priority task. The
-//! firmware's back end (`pts::FirmwareReal`) is `Fx32`, still 2.3–5.8× over the 100 k
-//! budget (every add saturates and every product takes 3–4 long multiplies in I32F32).
+//! each point is warm-started from the previous hypothesis through its sensitivities).
+//! The fit is written once (priors, LM, the radius decision, σ, refusals) against a
+//! `Kernel`: the path model and the binned samples. [`fit_path`] runs the generic kernel
+//! ([`path`], any [`Real`]: f64 on the host is the reference); [`q::fit_path_q`] runs the
+//! firmware's 32-bit integer kernel on the controller's own integer samples. Cost on
+//! thumbv7em for the 160 realistic plant requests of the grid (unicorn,
+//! `crates/pts/benches/pathfit/count.sh --summary`): the integer kernel min 57 k / median
+//! 78 k / max 99 k instructions (every fit within the 100 k budget; refusals ≤ 108 k), 5.5 KB
+//! peak stack; this generic fit on the Cortex-M4F FPU 48 k / 61 k / 79 k; on `Fx32` 204 k /
+//! 259 k / 355 k (every I32F32 add saturates and every product takes three to four long
+//! multiplies). No library trigonometry runs in either. It runs once per contact in the
+//! low-priority task.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};

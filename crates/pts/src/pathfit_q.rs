@@ -4,7 +4,7 @@
 //!
 //! Why a kernel of its own: in Q32.32 every add saturates and every product takes three to
 //! four long multiplies, which put the generic fit ([`super::fit_path`] on [`Fx32`]) at
-//! 0.23–0.58 M instructions on a Cortex-M4, where the budget is 0.1 M. Here a product is one
+//! 0.2–0.36 M instructions on a Cortex-M4, where the budget is 0.1 M. Here a product is one
 //! `SMULL` and a shift, sums of products accumulate in 64 bits (`SMLAL`), a quotient is a
 //! reciprocal seeded by the hardware divider, and the samples never leave the integers the
 //! controller measured (µrad, µN·m, ticks). The formats (value = raw · 2^-Q):
@@ -12,19 +12,28 @@
 //! | quantity | Q | range | resolution |
 //! |---|---|---|---|
 //! | angles (rad), sin/cos, x2, dx2/dθ2, lengths in units of l1 | 28 | ±8 | 3.7e-9 |
-//! | torques (N·m), K1, K2 (N·m/rad) | 24 | ±128 | 6.0e-8 |
+//! | torques (N·m), K1, K2 (N·m/rad); tangents and sensitivities of δφ, δ2 | 24 | ±128 | 6.0e-8 |
 //! | torque derivatives (N·m/rad, N·m per l1 or l2) | 16 | ±32768 | 1.5e-5 |
 //!
 //! The closure γ(θ2), x2(θ2) and sin θ2, cos θ2 come from a table of cubic Hermite
 //! segments [`SEG_STEP`] apart in θ2, built once from the f64 model ([`PathTable::new`]),
-//! so a fit runs no closure, no trigonometry and no library call. Bounds: the angles the
-//! Newton solves reach are limited to ±[`MAX_DELTA`] about the contact and to the table, the
-//! hypothesis (k2,c, R) by the fit's bounds, and the finger by [`PathTable::new`] (lengths,
-//! stiffnesses and transmission within the formats): every product and sum is then in
-//! range, and every quotient is checked ([`PathFail::OutOfRange`] otherwise).
+//! so a fit runs no closure, no trigonometry and no library call; the same table solves free
+//! motion ([`PathTable::free_torque`]). Bounds: the angles the Newton solves reach are
+//! limited to ±[`MAX_DELTA`] about the contact and to the table, the hypothesis (k2,c, R) by
+//! the fit's bounds, and the finger by [`PathTable::new`] (lengths, stiffnesses and
+//! transmission within the formats): every product and sum is then in range, and every
+//! quotient and narrowing is checked ([`PathFail::OutOfRange`] otherwise).
 //!
-//! Tested against the generic kernel in f64 (`tests/pathfit_q.rs`: path points, the fit on
-//! synthesized paths and arbitrary samples; `tests/pathfit_grid.rs`: the plant grid).
+//! Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh --summary` over the 160
+//! realistic plant requests of the grid): min 57 k / median 78 k / max 99 k instructions per
+//! fit, within the 100 k budget every time (refused requests ≤ 108 k); peak stack 5.5 KB
+//! (harness included). Memory: the table is 3.6 KB (RAM, built at init), a fit allocates
+//! nothing. `cargo xtask bench` gates the committed cases at 100 k.
+//!
+//! Tested against an exact f64 solve of the contact equations (path points, unit tests
+//! below), the f64 model (free motion), the generic fit in f64 (`tests/pathfit_q.rs`:
+//! recorded-style requests, synthesized paths, arbitrary samples without a panic) and the
+//! plant (`tests/pathfit_grid.rs`).
 
 use super::path::{PathFail, ACCEPT_STEP, FREE_TOL, MAX_DELTA, MAX_PATH_NEWTON};
 use super::{
@@ -41,6 +50,9 @@ const QA: u32 = 28;
 const QT: u32 = 24;
 /// Binary point of torque derivatives.
 const QD: u32 = 16;
+/// Binary point of the torque's derivative in the radius (N·m per l1 or l2), small near the
+/// contact.
+const QR: u32 = 24;
 /// 1.0 in Q28.
 const ONE: i32 = 1 << QA;
 
@@ -546,7 +558,7 @@ struct QPoint {
     k2: i32,
     /// T_a (Q24 N·m).
     ta: i32,
-    /// ∂T_a/∂(k2,c/l1), ∂T_a/∂(R/l1) (Q16 N·m).
+    /// ∂T_a/∂(k2,c/l1) (Q16 N·m), ∂T_a/∂(R/l1) (Q24 N·m).
     dta_dk: i32,
     dta_dr: i32,
     /// dT_a/dθa along the path (Q16 N·m/rad).
@@ -786,7 +798,7 @@ impl<'t> QKernel<'t> {
         // ∂k2 = ∂L = cos δφ per k2,c and sin δφ per R.
         let qn = narrow(k1d1 as i64 - k2dd2 as i64 - (wide(ta, ONE - st.x2) >> QA))?;
         let q = rden.div::<KD>(qn)?;
-        let (t_k, t_r) = (mul::<QA>(q, st.cp), mul::<QA>(q, st.sp));
+        let t_k = mul::<QA>(q, st.cp);
         // Corrections by the last step: Q16 · Q28 → Q24.
         let ta_fin =
             narrow(ta as i64 + ((wide(t_phi, fin.0) + wide(t_2, fin.1)) >> (QD + QA - QT)))?;
@@ -809,7 +821,12 @@ impl<'t> QKernel<'t> {
         let dphi_k = -mul::<QA>(st.a22, d2_k);
         let dphi_r = -mul::<QA>(st.a22, d2_r);
         let dta_dk = narrow(((wide(t_phi, dphi_k) + wide(t_2, d2_k)) >> QT) + t_k as i64)?;
-        let dta_dr = narrow(((wide(t_phi, dphi_r) + wide(t_2, d2_r)) >> QT) + t_r as i64)?;
+        // ∂T/∂R in Q24: near the contact it grows from zero (with δφ²), where Q16 would leave
+        // the radius column of the first bins a per cent off.
+        let dta_dr = narrow(
+            ((wide(t_phi, dphi_r) + wide(t_2, d2_r)) >> (QD + QT - QR))
+                + (wide(q, st.sp) >> (QD + QA - QR)),
+        )?;
         Ok(QPoint {
             dphi: dphi + fin.0,
             d2: d2 + fin.1,
@@ -940,7 +957,7 @@ impl Kernel<Fx32> for QKernel<'_> {
                 k_first.get_or_insert(pt.stiffness);
                 k2_last = pt.k2;
                 last = (pt.dphi, pt.d2);
-                // ∂T/∂p per (l2, l2, N·m, rad), Q16.
+                // ∂T/∂p per (l2, l2, N·m, rad): Q16, the radius Q24.
                 let col = [
                     mul::<QA>(pt.dta_dk, tb.l2_l1),
                     mul::<QA>(pt.dta_dr, tb.l2_l1),
@@ -950,19 +967,24 @@ impl Kernel<Fx32> for QKernel<'_> {
                 (narrow(b.t as i64 - pt.ta as i64)?, col)
             };
             if col.iter().any(|c| c.unsigned_abs() > COL_MAX as u32) || r.unsigned_abs() > 1 << 29 {
+                // (|∂T/∂R| within 2^28 in Q24 too: 16 N·m per l2.)
                 return Err(PathFail::OutOfRange);
             }
             sum_r += wide(b.w, r);
             res[i] = r;
             cols[i] = col;
         }
-        // Optimal offset with the approach prior: (Σ w r + w_p T_f,prior)/(1 + w_p).
+        // Optimal offset with the approach prior: (Σ w r + w_p T_f,prior)/(Σ w + w_p), with
+        // the weights' own sum (n/N in Q16 sums to a little below 1): the T_f gradient is
+        // then zero to the rounding of T_f, as it is for the exact weights. A residual of
+        // that sum would leak, through T_f's strong coupling, into the other steps.
         let z = Fx32::zero();
         let ks = w.ks;
         let wp = w.prior_w[TF];
+        let sw: i64 = self.bins.iter().take(nb).map(|b| b.w as i64).sum();
         let tf_data = Fx32::from_bits(sum_r >> (QT + QD - 32));
-        let tf = (tf_data + wp * w.prior[TF]) / (Fx32::one() + wp);
-        let tf_q = narrow(tf.to_bits() >> (32 - QT))?;
+        let tf = (tf_data + wp * w.prior[TF]) / (Fx32::from_bits(sw << (32 - QD)) + wp);
+        let tf_q = narrow((tf.to_bits() + (1 << (31 - QT))) >> (32 - QT))?;
         // The normal equations in integers: columns K, R, θa,c in Q16; the T_f column is 1
         // for every bin, so its products are sums of the weights.
         let (mut skk, mut skr, mut skt, mut srr, mut srt, mut stt) =
@@ -971,13 +993,16 @@ impl Kernel<Fx32> for QKernel<'_> {
         let (mut sgk, mut sgr, mut sgt, mut sgf, mut ss) = (0i64, 0i64, 0i64, 0i64, 0i64);
         for (b, (&r, c)) in self.bins.iter().zip(res.iter().zip(cols.iter())).take(nb) {
             let r = r - tf_q;
-            let wr = mul::<QD>(b.w, r);
+            // w·r rounded (not floored: a floor's bias adds up over the bins), and exact for
+            // the T_f gradient, which the optimal T_f makes zero.
+            let wr_full = wide(b.w, r);
+            let wr = ((wr_full + (1 << (QD - 1))) >> QD) as i32;
             ss += wide(wr, r);
             let [ck, cr, _, ct] = *c;
             sgk += wide(wr, ck);
             sgr += wide(wr, cr);
             sgt += wide(wr, ct);
-            sgf += wr as i64;
+            sgf += wr_full;
             let (wk, wrr, wt) = (mul::<QD>(b.w, ck), mul::<QD>(b.w, cr), mul::<QD>(b.w, ct));
             skk += wide(wk, ck);
             skr += wide(wk, cr);
@@ -994,13 +1019,17 @@ impl Kernel<Fx32> for QKernel<'_> {
         let (ak, ar, at, af) = (
             [
                 stat_bits(skk, q2),
-                stat_bits(skr, q2),
+                stat_bits(skr, QD + QR),
                 stat_bits(swk, QD),
                 stat_bits(skt, q2),
             ],
-            stat_bits(srr, q2),
-            [stat_bits(srt, q2), stat_bits(swt, QD), stat_bits(stt, q2)],
-            [stat_bits(swr, QD), stat_bits(sw, QD)],
+            stat_bits(srr, 2 * QR),
+            [
+                stat_bits(srt, QR + QD),
+                stat_bits(swt, QD),
+                stat_bits(stt, q2),
+            ],
+            [stat_bits(swr, QR), stat_bits(sw, QD)],
         );
         // Rows (K, RAD, TF, TC), symmetric.
         let mut a = [
@@ -1012,8 +1041,8 @@ impl Kernel<Fx32> for QKernel<'_> {
         let gq = QT + QD;
         let mut g = [
             -stat_bits(sgk, gq),
-            -stat_bits(sgr, gq),
-            -stat_bits(sgf, QT),
+            -stat_bits(sgr, QT + QR),
+            -stat_bits(sgf, QT + QD),
             -stat_bits(sgt, gq),
         ];
         let dp = (w.prior[TF] - tf) * ks;
@@ -1542,7 +1571,7 @@ mod tests {
                         (a(q.dphi) - x[0]).abs(),
                         (a(q.k2) * f.l1 - x[2]).abs(),
                         rel(dq(q.dta_dk) / f.l1, dk_ex),
-                        rel(dq(q.dta_dr) / f.l1, dr_ex),
+                        rel(tq(q.dta_dr) / f.l1, dr_ex),
                         rel(dq(q.stiffness), st_ex),
                     ];
                     let eg = [
