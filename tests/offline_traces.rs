@@ -12,7 +12,7 @@ mod common;
 
 use common::L2;
 use grasp::offline::{find_contact, make_blocks, Block, OfflineConfig, OfflineError, TraceSample};
-use grasp::{run_estimate_with, EstimateResult, Estimator};
+use grasp::{run_estimate_fw, EstimateResult, Estimator};
 use plant::drive::Input;
 use plant::kin::Phalanx as PPhalanx;
 use plant::path::ContactSpec;
@@ -216,7 +216,7 @@ fn estimate(
     let (nb, bs) = make_blocks(&m, &cfg, rows, &mut scratch)?;
     let seg = find_contact(&m, &cfg, &scratch[..nb], bs, QUANTUM, 0)?;
     let mfx = Model::<grasp::EstReal>::paper().unwrap();
-    let r = run_estimate_with(&mfx, &seg.request);
+    let r = run_estimate_fw(&pts::Finger::PAPER, &mfx, &seg.request);
     Ok((seg, r))
 }
 
