@@ -8,7 +8,7 @@
 
 use pts::fixed::Fx32;
 use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
-use pts::pathfit::{fit_path, PathFitConfig, PathSample};
+use pts::pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
 use pts::{Finger, Model};
 
 /// Filled by the harness: Fx32 bits of θa,c, T_a,c and N samples (θa, T_a).
@@ -49,7 +49,11 @@ pub extern "C" fn run() -> i32 {
         theta_a_rad: Fx32::from_bits(c[1]),
         torque_nm: Fx32::from_bits(c[2]),
     });
-    let r = fit_path(&model, &CFG, th_c, Some(ta_c), samples);
+    report(fit_path(&model, &CFG, th_c, Some(ta_c), samples))
+}
+
+/// Writes a fixed-point fit's k2, σ, status and evaluations to OUT; returns the status.
+fn report(r: Result<PathFit<Fx32>, PathFitError>) -> i32 {
     let out = unsafe { &mut *core::ptr::addr_of_mut!(OUT) };
     match r {
         Ok(f) => {
@@ -125,26 +129,12 @@ pub extern "C" fn run_q() -> i32 {
         return -1;
     };
     let samples = raw[..n.min(256)].iter().copied();
-    let r = fit_path_q(
+    report(fit_path_q(
         table,
         Fx32::from_bits(input[0]),
         Some(Fx32::from_bits(input[1])),
         samples,
-    );
-    let out = unsafe { &mut *core::ptr::addr_of_mut!(OUT) };
-    match r {
-        Ok(f) => {
-            out[0] = f.k2_contact_m.to_bits();
-            out[1] = f.sigma_k2_m.to_bits();
-            out[2] = 0;
-            out[3] = f.path_evals as i64;
-            0
-        }
-        Err(_) => {
-            out[2] = 1;
-            1
-        }
-    }
+    ))
 }
 
 const CFG: PathFitConfig = PathFitConfig::DEFAULT;
