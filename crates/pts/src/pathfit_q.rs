@@ -1226,14 +1226,15 @@ where
         };
         let m = mom[i];
         let v = m[1]
-            .saturating_sub(mul_sat(2 * sl, m[2]) >> 16)
+            .saturating_sub(mul_sat(sl.saturating_mul(2), m[2]) >> 16)
             .saturating_add(mul_sat(sl, mul_sat(sl, m[0]) >> 16) >> 16);
         ss = ss.saturating_add(v.max(0));
     }
     let dof = total.saturating_sub(nb as u32).max(1) as i64;
     // Per sample, µN·m² → (mN·m)² in Q32: · 2^32 / 10^6 = · (4295 − 0.032704), the second
-    // term as 34292 / 2^20 (to 1e-9 relative); ss ≥ 0.
-    let per = (ss / dof).min(1 << 50);
+    // term as 34292 / 2^20 (to 1e-9 relative); ss ≥ 0, and below 2^47 (the torque deviations
+    // are clamped to 8 N·m) so that both products stay in i64.
+    let per = (ss / dof).min(1 << 47);
     w.var_sample = Fx32::from_bits(per * 4295 - ((per * 34_292) >> 20));
     w.inv_n = Fx32::one() / Fx32::from_bits((total as i64) << 32);
     for b in k.bins.iter_mut().take(nb) {

@@ -107,3 +107,83 @@ fn harness_cases_match_f64() {
         );
     }
 }
+
+mod arbitrary {
+    //! The integer kernel on inputs no controller produces: it must answer Ok with a located
+    //! contact on the phalanx or a typed error, never panic (the test profile checks overflow).
+    use super::*;
+    use proptest::prelude::*;
+
+    fn table() -> PathTable {
+        PathTable::new(&Finger::PAPER, &PathFitConfig::DEFAULT, TICK_S).unwrap()
+    }
+
+    fn check(r: Result<pts::pathfit::PathFit<Fx32>, pts::pathfit::PathFitError>) {
+        if let Ok(f) = r {
+            let k2 = f.k2_contact_m.to_f64();
+            assert!(k2 > 0.0 && k2 <= Finger::PAPER.l2, "k2 {k2}");
+            assert!(f.sigma_k2_m.to_f64() > 0.0, "σ {:?}", f.sigma_k2_m);
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        #[test]
+        fn arbitrary_words(
+            thc in any::<i64>(),
+            tac in any::<i64>(),
+            raw in proptest::collection::vec((any::<u32>(), any::<i32>(), any::<i32>()), 0..64),
+        ) {
+            let s = raw.iter().map(|&(t, th, tq)| RawSample { tick: t, theta_a_urad: th, torque_unm: tq });
+            check(fit_path_q(&table(), Fx32::from_bits(thc), Some(Fx32::from_bits(tac)), s));
+        }
+
+        /// Samples in the working range (contact angle, θa above it, torques, increasing
+        /// ticks with repeats) but otherwise random: the fit runs on them.
+        #[test]
+        fn random_paths_in_range(
+            thc in -1.3f64..1.9,
+            tac in -0.5f64..2.0,
+            raw in proptest::collection::vec((0u32..60, 0i32..300_000, -2_000_000i32..3_000_000), 0..120),
+        ) {
+            let base = (thc * 1e6) as i32;
+            let mut tick = 0u32;
+            let s: Vec<RawSample> = raw.iter().map(|&(dt, dth, tq)| {
+                tick += dt;
+                RawSample { tick, theta_a_urad: base + dth, torque_unm: tq }
+            }).collect();
+            check(fit_path_q(&table(), Fx32::from_f64(thc), Some(Fx32::from_f64(tac)), s.iter().copied()));
+        }
+
+        /// A recorded request with noise, spikes, repeated and reordered ticks, a truncated
+        /// end and a shifted contact angle: deep into the fit, never a panic.
+        #[test]
+        fn perturbed_request(
+            seed in any::<u64>(),
+            noise_urad in 0i32..2000,
+            noise_unm in 0i32..200_000,
+            spike in any::<(usize, i32)>(),
+            keep in 5usize..140,
+            dth_c in -0.05f64..0.05,
+            tick_jitter in 0u32..3,
+        ) {
+            let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/pathfit/cases");
+            let (thc, tac, raw) = read_case(&format!("{dir}/table2_realistic.txt"));
+            let mut x = seed | 1;
+            let mut rnd = move |m: i32| {
+                x ^= x << 13; x ^= x >> 7; x ^= x << 17;
+                if m == 0 { 0 } else { (x % (2 * m as u64 + 1)) as i32 - m }
+            };
+            let mut s: Vec<RawSample> = raw.iter().take(keep).map(|r| RawSample {
+                tick: r.tick.wrapping_add(rnd(tick_jitter as i32) as u32),
+                theta_a_urad: r.theta_a_urad.saturating_add(rnd(noise_urad)),
+                torque_unm: r.torque_unm.saturating_add(rnd(noise_unm)),
+            }).collect();
+            if let Some(v) = s.get_mut(spike.0 % keep.max(1)) {
+                v.torque_unm = spike.1;
+            }
+            check(fit_path_q(&table(), Fx32::from_f64(thc + dth_c), Some(Fx32::from_f64(tac)), s.iter().copied()));
+        }
+    }
+}
