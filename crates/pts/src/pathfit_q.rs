@@ -25,7 +25,7 @@
 //! quotient and narrowing is checked ([`PathFail::OutOfRange`] otherwise).
 //!
 //! Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh --summary` over the 160
-//! realistic plant requests of the grid): min 57 k / median 78 k / max 99 k instructions per
+//! realistic plant requests of the grid): min 58 k / median 78 k / max 99 k instructions per
 //! fit, within the 100 k budget every time (refused requests ≤ 108 k); peak stack 5.5 KB
 //! (harness included). Memory: the table is 3.6 KB (RAM, built at init), a fit allocates
 //! nothing. `cargo xtask bench` gates the committed cases at 100 k.
