@@ -34,10 +34,14 @@
 //!    does not determine k2), χ² far above the noise (the model does not explain the path),
 //!    a fitted path that ends at the tip or an object that cuts the proximal phalanx.
 //!
-//! 6. Levenberg–Marquardt ends on the step projected on the bounds (below 0.1 % of l2 and
-//!    1e-5 rad), on a Gauss–Newton step that would lower χ² by less than 0.05, or after an
-//!    accepted step that lowered it by less than 0.05: the parameters are then within about
-//!    a quarter of their σ (a poorly determined radius is not iterated further).
+//! 6. Levenberg–Marquardt takes Gauss–Newton steps from one LDLᵀ per accepted hypothesis
+//!    (shared with the radius decision and the final covariance), damped only after a step
+//!    failed; a radius on its bound that the step pushes further out is held there (the
+//!    other parameters take the step optimal with it held). It ends on the step projected
+//!    on the bounds (below 0.1 % of l2 and 1e-5 rad), on a Gauss–Newton step that would
+//!    lower χ² by less than 0.05, or after an accepted step that lowered it by less than
+//!    0.05: the parameters are then within about a quarter of their σ (a poorly determined
+//!    radius is not iterated further).
 //!
 //! No allocation, no panics, bounded iterations ([`MAX_EVALS`] path evaluations of at most
 //! [`MAX_BINS`] points, each a warm-started Newton solve of ≤ [`path::MAX_PATH_NEWTON`] steps;
@@ -96,10 +100,10 @@ const TSCALE: f64 = 1000.0;
 const STEP_TOL: f64 = 1e-3;
 
 /// Budget of path evaluations (each: ≤ [`MAX_BINS`] path points) over the whole fit: it
-/// bounds the run time. On the plant grid a fit needs 2–4 (realistic) or up to 6 (a few
-/// ideal-plant cylinder fits in a flat χ² valley, which stop at the budget within 0.7 σ of
-/// the f64 fit); 6 against 8 changed no grid figure.
-pub const MAX_EVALS: usize = 6;
+/// bounds the run time. On the plant grid (both plants, four noise seeds) a fit needs 2–4;
+/// only refusals (a path leaving the tip) reach the budget, and 5 against 6 changed no
+/// grid figure.
+pub const MAX_EVALS: usize = 5;
 
 /// One measurement: actuator angle and torque at the same instant.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -669,14 +673,14 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // such a radius would move k2c by more than half its σ and the data point to a positive
     // radius: a vertex, or a radius that cannot be seen or does not matter, costs no
     // curvature fit (its effect goes into σ).
-    let decide = |e: &Eval<R>| -> Result<Decision<R>, PathFitError> {
+    let decide = |e: &Eval<R>, full: &Option<Ldl<R>>| -> Result<Decision<R>, PathFitError> {
         let s2v = s2_of(e.sse, count(&vset));
-        // One factorisation with R eliminated last: the Gauss–Newton step with R free, the
-        // marginal variance of R (its reciprocal last pivot), and, by the Schur complement,
-        // the vertex variance of k2c (the reciprocal pivot of K just before) and the
-        // regression of the R column on the vertex parameters (−L_RK).
-        let full = ldl(&e.a, &cset);
-        let (sigma_r_lin, var_kv, per_r) = match &full {
+        // One factorisation with R eliminated last (the one LM keeps for its next step): the
+        // Gauss–Newton step with R free, the marginal variance of R (its reciprocal last
+        // pivot), and, by the Schur complement, the vertex variance of k2c (the reciprocal
+        // pivot of K just before) and the regression of the R column on the vertex
+        // parameters (−L_RK).
+        let (sigma_r_lin, var_kv, per_r) = match full {
             Some(f) => {
                 let (var_kv, per_r, c_rr) = f.last_two();
                 ((c_rr * s2v).max(zero).sqrt() * l2, var_kv, per_r)
@@ -702,10 +706,21 @@ fn run_fit<R: Real, K: Kernel<R>>(
             ObjectModel::Cylinder => true,
             ObjectModel::Auto => bias_pot > sigma_kv * R::from_f64(0.5),
         };
-        let (dk_lin, dr_lin, dtc_lin) = match (&full, matters) {
+        let (dk_lin, dr_lin, dtc_lin) = match (full, matters) {
             (Some(f), true) => {
                 let d = f.solve(&e.g);
-                (d[K] * l2, d[RAD] * l2, d[TC])
+                // The cylinder fit starts from this step; past the largest radius, from the
+                // step with R there and the others optimal for it (R is eliminated last:
+                // the leading block is the factorisation without it).
+                let (dk, dtc) = if d[RAD] * l2 > rmax && f.n > 0 {
+                    let mut lead = *f;
+                    lead.n -= 1;
+                    let dh = lead.solve_r_fixed(&e.a, &e.g, rmax / l2);
+                    (dh[K], dh[TC])
+                } else {
+                    (d[K], d[TC])
+                };
+                (dk * l2, d[RAD] * l2, dtc)
             }
             _ => (zero, zero, zero),
         };
@@ -727,20 +742,30 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // vertex fit: as soon as it clearly matters, its Gauss–Newton step with R free starts
     // the cylinder fit (the vertex fit's remaining iterations would be spent on a model that
     // is then dropped); otherwise the vertex fit runs to convergence and decides there.
-    let first = lm(pm, w, &mut p, &vset, &bounds, 0, None, |_| false)?;
-    let mut dec = decide(&first)?;
+    let first = lm(pm, w, &mut p, &vset, &cset, &bounds, 0, None, |_, _| false)?;
+    let mut dec = decide(&first.0, &first.1)?;
     let mut vertex = first;
     let mut vertex_converged = false;
     if !dec.want {
         let mut last = None;
-        let mut hook = |e: &Eval<R>| match decide(e) {
+        let mut hook = |e: &Eval<R>, f: &Option<Ldl<R>>| match decide(e, f) {
             Ok(d) => {
                 last = Some(d);
                 d.want
             }
             Err(_) => false,
         };
-        vertex = lm(pm, w, &mut p, &vset, &bounds, 8, Some(first), &mut hook)?;
+        vertex = lm(
+            pm,
+            w,
+            &mut p,
+            &vset,
+            &cset,
+            &bounds,
+            8,
+            Some(first),
+            &mut hook,
+        )?;
         // The decision at the returned (last accepted) hypothesis.
         dec = match last {
             Some(d) => d,
@@ -762,8 +787,10 @@ fn run_fit<R: Real, K: Kernel<R>>(
         if fit_contact {
             pc[TC] = (pc[TC] + dec.dtc_lin).max(bounds.tc_lo).min(bounds.tc_hi);
         }
-        match lm(pm, w, &mut pc, &cset, &bounds, 10, None, |_| false) {
-            Ok(e) if e.sse <= vertex.sse => {
+        match lm(pm, w, &mut pc, &cset, &cset, &bounds, 10, None, |_, _| {
+            false
+        }) {
+            Ok(e) if e.0.sse <= vertex.0.sse => {
                 fit = e;
                 pfit = pc;
                 object = FittedObject::Cylinder;
@@ -782,8 +809,18 @@ fn run_fit<R: Real, K: Kernel<R>>(
     if !cylinder && !vertex_converged {
         // The cylinder fit was refused: the vertex fit to convergence after all.
         let mut pv = p_vertex;
-        vertex = lm(pm, w, &mut pv, &vset, &bounds, 8, Some(vertex), |_| false)?;
-        dec = decide(&vertex)?;
+        vertex = lm(
+            pm,
+            w,
+            &mut pv,
+            &vset,
+            &cset,
+            &bounds,
+            8,
+            Some(vertex),
+            |_, _| false,
+        )?;
+        dec = decide(&vertex.0, &vertex.1)?;
         fit = vertex;
         pfit = pv;
         bias_k = dec.bias_pot;
@@ -793,11 +830,28 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let radius = pfit[RAD];
 
     let npar = count(&set);
-    let s2 = s2_of(fit.sse, npar);
+    let s2 = s2_of(fit.0.sse, npar);
+    let chi2_raw = {
+        let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
+        fit.0.sse / dof / s2_bins
+    };
+    // Refusals that need no covariance first (a refused path pays for no inversion).
+    if !(k2c > l2 * R::from_f64(0.02)) {
+        return Err(PathFitError::ProximalContact);
+    }
+    if k2c > l2 || fit.0.k2_last > l2 * (R::one() - c.tip_margin) {
+        return Err(PathFitError::PastTip);
+    }
+    if chi2_raw > c.max_chi2 {
+        return Err(PathFitError::BadFit);
+    }
     // The covariance also carries θa,c's uncertainty (its prior) when it was not fitted.
     let mut cset_final = set;
     cset_final[TC] = has_tc;
-    let cov = invert_spd(&fit.a, &cset_final).ok_or(PathFitError::NotDetermined)?;
+    let cov = factor_for(&fit.0.a, &cset_final, &cset, fit.1.as_ref())
+        .map(|f| f.inverse())
+        .ok_or(PathFitError::NotDetermined)?;
+    let fit = fit.0;
     let var_k = cov[K][K] * s2;
     let var_r = if object == FittedObject::Cylinder {
         cov[RAD][RAD] * s2
@@ -813,26 +867,8 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let sigma_k2 = (sig_stat * sig_stat + sig_bias * sig_bias + floor * floor).sqrt();
     let sigma_r = var_r.max(zero).sqrt() * l2;
     let chi2 = s2_of(fit.sse, npar) / s2_bins;
-    let chi2_raw = {
-        let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
-        fit.sse / dof / s2_bins
-    };
-
-    // Refusals.
-    if !(k2c > l2 * R::from_f64(0.02)) {
-        return Err(PathFitError::ProximalContact);
-    }
-    if k2c > l2 {
-        return Err(PathFitError::PastTip);
-    }
-    if chi2_raw > c.max_chi2 {
-        return Err(PathFitError::BadFit);
-    }
     if sigma_k2 > l2 * c.max_sigma_frac {
         return Err(PathFitError::NotDetermined);
-    }
-    if fit.k2_last > l2 * (R::one() - c.tip_margin) {
-        return Err(PathFitError::PastTip);
     }
     let zero_c = pm.proximal_clearance(k2c, radius, zero, zero);
     let end_c = pm.proximal_clearance(k2c, radius, fit.last.0, fit.last.1);
@@ -1349,30 +1385,39 @@ const CHI2_TOL: f64 = 0.05;
 /// LM ends after an accepted step that lowered χ² by less than this.
 const CHI2_GAIN_TOL: f64 = 0.05;
 
+/// A hypothesis LM accepted: its evaluation and the factorisation of its normal matrix on
+/// the full parameter set (`None` where that is singular). The factorisation serves the
+/// next Gauss–Newton step (on a subset that leaves out R, its leading block), the radius
+/// decision and the final covariance: one LDLᵀ per accepted evaluation.
+type Factored<R> = (Eval<R>, Option<Ldl<R>>);
+
 /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
-/// [`evaluate`] but kept in the normal matrix for its coupling). Bounded: `iters` steps and
-/// the global [`MAX_EVALS`]; `stop` sees every accepted evaluation and may end the fit.
+/// [`evaluate`] but kept in the normal matrix for its coupling), `full` the set the kept
+/// factorisation covers. Undamped (Gauss–Newton, from the kept factorisation) until a step
+/// fails; damped from then on until steps succeed again. Bounded: `iters` steps and the
+/// global [`MAX_EVALS`]; `stop` sees every accepted evaluation and may end the fit.
 #[allow(clippy::too_many_arguments)]
-fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
+fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool>(
     pm: &mut K,
     w: &mut Work<R>,
     p: &mut [R; NP],
     set: &[bool; NP],
+    full: &[bool; NP],
     b: &Bounds<R>,
     iters: usize,
-    start: Option<Eval<R>>,
+    start: Option<Factored<R>>,
     mut stop: F,
-) -> Result<Eval<R>, PathFitError> {
+) -> Result<Factored<R>, PathFitError> {
     let z = R::zero();
     // First evaluation (unless given: `start` is the evaluation at `p`); a hypothesis whose
     // path leaves the phalanx moves k2c inward.
     let mut tries = 0;
-    let mut best = loop {
-        if let Some(e) = start {
-            break e;
+    let (mut best, mut fact) = loop {
+        if let Some(s) = start {
+            break s;
         }
         match pm.evaluate(w, p) {
-            Ok(e) => break e,
+            Ok(e) => break (e, ldl(&e.a, full)),
             Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
             Err(PathFail::PastTip) => p[K] = (p[K] + b.k_lo) * R::from_f64(0.5),
             Err(_) => p[K] = (p[K] + b.l2) * R::from_f64(0.5),
@@ -1384,19 +1429,50 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
     };
     let step_tol = R::from_f64(STEP_TOL);
     let tc_tol = R::from_f64(1e-5);
-    let mut mu = R::from_f64(1e-3);
+    // Damping: 0 (Gauss–Newton) until a step fails, then 1e-2, ×10 per failure and ×0.3
+    // per success, back to 0 below 1e-3 (where it changes the step by < 0.1 %).
+    let mut mu = z;
+    let mu_off = R::from_f64(1e-3);
     let mut iter = 0usize;
     while iter < iters && w.evals < MAX_EVALS {
         iter += 1;
-        let mut a = best.a;
-        for (i, row) in a.iter_mut().enumerate() {
-            if let Some(d) = row.get_mut(i) {
-                *d = *d * (R::one() + mu);
+        let factor = |set: &[bool; NP]| {
+            if mu == z {
+                factor_for(&best.a, set, full, fact.as_ref())
+            } else {
+                let mut a = best.a;
+                for (i, row) in a.iter_mut().enumerate() {
+                    if let Some(d) = row.get_mut(i) {
+                        *d = *d * (R::one() + mu);
+                    }
+                }
+                ldl(&a, set)
             }
-        }
-        let Some(d) = solve_spd(&a, set, &best.g) else {
+        };
+        let Some(mut d) = factor(set).map(|f| f.solve(&best.g)) else {
             break;
         };
+        // A step that takes the radius past a bound stops it there, and the other parameters
+        // take the step that is optimal with R's step so fixed (the active set), not the one
+        // that assumed it goes on (that projected step can raise χ²: a wasted path).
+        if set[RAD] {
+            let r = p[RAD] + d[RAD] * b.l2;
+            let r_to = if r > b.rmax {
+                Some(b.rmax)
+            } else if r < z {
+                Some(z)
+            } else {
+                None
+            };
+            if let Some(r_to) = r_to {
+                let mut held = *set;
+                held[RAD] = false;
+                match factor(&held) {
+                    Some(f) => d = f.solve_r_fixed(&best.a, &best.g, (r_to - p[RAD]) / b.l2),
+                    None => break,
+                }
+            }
+        }
         let mut trial = *p;
         trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
         trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
@@ -1422,8 +1498,12 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
                 *p = trial;
                 let gain = best.sse - e.sse;
                 best = e;
-                mu = (mu * R::from_f64(0.3)).max(R::from_f64(1e-6));
-                if stop(&best) {
+                fact = ldl(&best.a, full);
+                mu = mu * R::from_f64(0.3);
+                if mu < mu_off {
+                    mu = z;
+                }
+                if stop(&best, &fact) {
                     break;
                 }
                 // A step that lowered χ² by less than the tolerance: the valley is flat
@@ -1434,7 +1514,11 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
             }
             Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
             _ => {
-                mu = mu * R::from_f64(10.0);
+                mu = if mu == z {
+                    R::from_f64(1e-1)
+                } else {
+                    mu * R::from_f64(10.0)
+                };
                 if mu > R::from_f64(1e4) {
                     break;
                 }
@@ -1443,13 +1527,35 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>) -> bool>(
     }
     // Leave the path model at the accepted contact (a rejected trial may have moved it).
     pm.set_contact(p[TC])?;
-    Ok(best)
+    Ok((best, fact))
+}
+
+/// The factorisation of `a` on `set`: `f` (of `a` on `full`) itself when the sets agree,
+/// its leading block when `set` is `full` without R (eliminated last, see [`ORDER`]),
+/// else a new one.
+fn factor_for<R: Real>(
+    a: &[[R; NP]; NP],
+    set: &[bool; NP],
+    full: &[bool; NP],
+    f: Option<&Ldl<R>>,
+) -> Option<Ldl<R>> {
+    let same_but_r = (0..NP).all(|i| i == RAD || set[i] == full[i]);
+    match f {
+        Some(f) if same_but_r && set[RAD] == full[RAD] => Some(*f),
+        Some(f) if same_but_r && full[RAD] && !set[RAD] && f.n > 0 => {
+            let mut lead = *f;
+            lead.n -= 1;
+            Some(lead)
+        }
+        _ => ldl(a, set),
+    }
 }
 
 /// LDLᵀ of the active submatrix of A scaled by powers of two, B = D A D with
 /// D = diag(2^-k_i) ([`Real::half_log2`]: a diagonal in [½, 2), so that fixed point neither
 /// overflows nor loses the pivots, and the scaling is exact): the active indices, their
 /// count, the exponents, the unit lower factor L and the reciprocal pivots 1/P.
+#[derive(Clone, Copy)]
 struct Ldl<R> {
     idx: [usize; NP],
     n: usize,
@@ -1478,23 +1584,25 @@ fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
         k[i] = a[idx[i]][idx[i]].half_log2()?;
     }
     let mut l = [[z; NP]; NP];
-    let mut piv = [z; NP];
+    // U = L P below the diagonal (the eliminated entries before their division by the
+    // pivot): every inner product then costs one multiplication per term.
+    let mut u = [[z; NP]; NP];
     let mut ip = [z; NP];
     for j in 0..n {
         let mut dj = a[idx[j]][idx[j]].ldexp(-2 * k[j]);
         for m in 0..j {
-            dj = dj - l[j][m] * l[j][m] * piv[m];
+            dj = dj - l[j][m] * u[j][m];
         }
         if !(dj > R::from_f64(1e-7)) {
             return None;
         }
-        piv[j] = dj;
         ip[j] = R::one() / dj;
         for i in j + 1..n {
             let mut v = a[idx[i]][idx[j]].ldexp(-k[i] - k[j]);
             for m in 0..j {
-                v = v - l[i][m] * l[j][m] * piv[m];
+                v = v - l[i][m] * u[j][m];
             }
+            u[i][j] = v;
             l[i][j] = v * ip[j];
         }
     }
@@ -1530,6 +1638,20 @@ impl<R: Real> Ldl<R> {
         out
     }
 
+    /// The Gauss–Newton step with R's step fixed at `dr` (units of l2), for a factorisation
+    /// on a set without R: the others' optimum given it, −A_oo⁻¹ (g_o + A_oR dr).
+    fn solve_r_fixed(&self, a: &[[R; NP]; NP], g: &[R; NP], dr: R) -> [R; NP] {
+        let mut gr = *g;
+        for (i, v) in gr.iter_mut().enumerate() {
+            if i != RAD {
+                *v = *v + a[i][RAD] * dr;
+            }
+        }
+        let mut d = self.solve(&gr);
+        d[RAD] = dr;
+        d
+    }
+
     /// (A⁻¹)_ii of the last parameter eliminated (its reciprocal pivot, unscaled).
     fn last_var(&self) -> R {
         let j = self.n.saturating_sub(1);
@@ -1549,42 +1671,37 @@ impl<R: Real> Ldl<R> {
     }
 }
 
-/// Inverse of the symmetric positive submatrix of `a` on the parameters in `set` (zero
-/// elsewhere), from [`ldl`]: B⁻¹ = L⁻ᵀ P⁻¹ L⁻¹ with M = L⁻¹ by forward substitution.
-#[allow(clippy::needless_range_loop)]
-fn invert_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<[[R; NP]; NP]> {
-    let z = R::zero();
-    let f = ldl(a, set)?;
-    let n = f.n;
-    // M = L⁻¹ (unit lower): M[i][j] = −Σ_{m=j}^{i−1} L[i][m] M[m][j].
-    let mut m = [[z; NP]; NP];
-    for i in 0..n {
-        m[i][i] = R::one();
-        for j in 0..i {
-            let mut v = z;
-            for q in j..i {
-                v = v - f.l[i][q] * m[q][j];
+impl<R: Real> Ldl<R> {
+    /// Inverse of the factored matrix on its parameters (zero elsewhere):
+    /// B⁻¹ = L⁻ᵀ P⁻¹ L⁻¹ with M = L⁻¹ by forward substitution, unscaled.
+    #[allow(clippy::needless_range_loop)]
+    fn inverse(&self) -> [[R; NP]; NP] {
+        let z = R::zero();
+        let (n, l) = (self.n, &self.l);
+        // M = L⁻¹ (unit lower): M[i][j] = −Σ_{m=j}^{i−1} L[i][m] M[m][j].
+        let mut m = [[z; NP]; NP];
+        for i in 0..n {
+            m[i][i] = R::one();
+            for j in 0..i {
+                let mut v = z;
+                for q in j..i {
+                    v = v - l[i][q] * m[q][j];
+                }
+                m[i][j] = v;
             }
-            m[i][j] = v;
         }
-    }
-    let mut out = [[z; NP]; NP];
-    for i in 0..n {
-        for j in i..n {
-            let mut v = z;
-            for q in j..n {
-                v = v + m[q][i] * (m[q][j] * f.ip[q]);
+        let mut out = [[z; NP]; NP];
+        for i in 0..n {
+            for j in i..n {
+                let mut v = z;
+                for q in j..n {
+                    v = v + m[q][i] * (m[q][j] * self.ip[q]);
+                }
+                let v = v.ldexp(-self.k[i] - self.k[j]);
+                out[self.idx[i]][self.idx[j]] = v;
+                out[self.idx[j]][self.idx[i]] = v;
             }
-            let v = v.ldexp(-f.k[i] - f.k[j]);
-            out[f.idx[i]][f.idx[j]] = v;
-            out[f.idx[j]][f.idx[i]] = v;
         }
+        out
     }
-    Some(out)
-}
-
-/// Solves A d = −g on the parameters in `set` (zero elsewhere) by [`ldl`]: the LM step
-/// without the inverse.
-fn solve_spd<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], g: &[R; NP]) -> Option<[R; NP]> {
-    Some(ldl(a, set)?.solve(g))
 }

@@ -29,7 +29,7 @@ pub static mut INPUT_RAW: [RawSample; 256] = [RawSample {
 }; 256];
 /// The integer fit's table, built by `init_q`.
 static mut TABLE: Option<PathTable> = None;
-/// Outputs: k2 bits, σ bits, status (0 ok, 1 + error index otherwise).
+/// Outputs: k2 bits, σ bits, status (0 ok, else [`status`] of the refusal), evaluations.
 #[no_mangle]
 pub static mut OUT: [i64; 4] = [0; 4];
 
@@ -63,11 +63,30 @@ fn report(r: Result<PathFit<Fx32>, PathFitError>) -> i32 {
             out[3] = f.path_evals as i64;
             0
         }
-        Err(_) => {
-            out[2] = 1;
-            1
+        Err(e) => {
+            out[2] = status(e);
+            out[2] as i32
         }
     }
+}
+
+/// A refusal's status: 1 + its position in this list (checks compare the two back ends).
+fn status(e: PathFitError) -> i64 {
+    const KINDS: [&str; 8] = [
+        "too_few_samples",
+        "no_motion",
+        "proximal_contact",
+        "past_tip",
+        "second_contact",
+        "bad_fit",
+        "not_determined",
+        "no_convergence",
+    ];
+    let k = e.kind();
+    KINDS
+        .iter()
+        .position(|x| *x == k)
+        .map_or(KINDS.len() as i64 + 1, |i| i as i64 + 1)
 }
 
 /// The same fit on the Cortex-M4F single-precision FPU.
@@ -97,9 +116,9 @@ pub extern "C" fn run_f32() -> i32 {
             out[3] = fit.path_evals as i64;
             0
         }
-        Err(_) => {
-            out[2] = 1;
-            1
+        Err(e) => {
+            out[2] = status(e);
+            out[2] as i32
         }
     }
 }
