@@ -742,7 +742,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // vertex fit: as soon as it clearly matters, its Gauss–Newton step with R free starts
     // the cylinder fit (the vertex fit's remaining iterations would be spent on a model that
     // is then dropped); otherwise the vertex fit runs to convergence and decides there.
-    let first = lm(pm, w, &mut p, &vset, &cset, &bounds, 0, None, |_, _| false)?;
+    let first = lm(pm, w, &mut p, &vset, &cset, &bounds, 0, None, None)?;
     let mut dec = decide(&first.0, &first.1)?;
     let mut vertex = first;
     let mut vertex_converged = false;
@@ -764,7 +764,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
             &bounds,
             8,
             Some(first),
-            &mut hook,
+            Some(&mut hook),
         )?;
         // The decision at the returned (last accepted) hypothesis.
         dec = match last {
@@ -787,9 +787,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
         if fit_contact {
             pc[TC] = (pc[TC] + dec.dtc_lin).max(bounds.tc_lo).min(bounds.tc_hi);
         }
-        match lm(pm, w, &mut pc, &cset, &cset, &bounds, 10, None, |_, _| {
-            false
-        }) {
+        match lm(pm, w, &mut pc, &cset, &cset, &bounds, 10, None, None) {
             Ok(e) if e.0.sse <= vertex.0.sse => {
                 fit = e;
                 pfit = pc;
@@ -809,17 +807,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     if !cylinder && !vertex_converged {
         // The cylinder fit was refused: the vertex fit to convergence after all.
         let mut pv = p_vertex;
-        vertex = lm(
-            pm,
-            w,
-            &mut pv,
-            &vset,
-            &cset,
-            &bounds,
-            8,
-            Some(vertex),
-            |_, _| false,
-        )?;
+        vertex = lm(pm, w, &mut pv, &vset, &cset, &bounds, 8, Some(vertex), None)?;
         dec = decide(&vertex.0, &vertex.1)?;
         fit = vertex;
         pfit = pv;
@@ -1396,8 +1384,11 @@ type Factored<R> = (Eval<R>, Option<Ldl<R>>);
 /// factorisation covers. Undamped (Gauss–Newton, from the kept factorisation) until a step
 /// fails; damped from then on until steps succeed again. Bounded: `iters` steps and the
 /// global [`MAX_EVALS`]; `stop` sees every accepted evaluation and may end the fit.
+/// One instance per back end (the hook is `dyn`, the function never inlined): four inlined
+/// copies cost the firmware ≈ 9 KB of flash for nothing measurable in time.
 #[allow(clippy::too_many_arguments)]
-fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool>(
+#[inline(never)]
+fn lm<R: Real, K: Kernel<R>>(
     pm: &mut K,
     w: &mut Work<R>,
     p: &mut [R; NP],
@@ -1406,7 +1397,7 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool>(
     b: &Bounds<R>,
     iters: usize,
     start: Option<Factored<R>>,
-    mut stop: F,
+    mut stop: Option<&mut dyn FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool>,
 ) -> Result<Factored<R>, PathFitError> {
     let z = R::zero();
     // First evaluation (unless given: `start` is the evaluation at `p`); a hypothesis whose
@@ -1503,7 +1494,7 @@ fn lm<R: Real, K: Kernel<R>, F: FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool>(
                 if mu < mu_off {
                     mu = z;
                 }
-                if stop(&best, &fact) {
+                if stop.as_mut().is_some_and(|f| f(&best, &fact)) {
                     break;
                 }
                 // A step that lowered χ² by less than the tolerance: the valley is flat

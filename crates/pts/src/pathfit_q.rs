@@ -300,7 +300,8 @@ impl PathTable {
     /// configuration outside the formats: K1 or K2 not in (0, 100) N·m/rad, l2 + R_max above
     /// 4 l1, |x2| or |dx2/dθ2| above 4 on the table, more bins than [`MAX_BINS`].
     pub fn new(finger: &Finger, cfg: &PathFitConfig, tick_s: f64) -> Result<Self, PtsError> {
-        let m64 = Model::<f64>::new(finger)?;
+        // The closure at the nodes from the fixed-point model (its own trigonometry, ≈ 1e-9
+        // rad, below the table's Q28 step): the firmware links no f64 trigonometry for it.
         let model = Model::<Fx32>::new(finger)?;
         let consts = FitConsts::new(cfg).map_err(|e| match e {
             PathFitError::Model(p) => p,
@@ -323,8 +324,12 @@ impl PathTable {
             return Err(oor);
         }
         // The θ2 range: free motion over the torque table's range, plus the path's excursions.
-        let lo = m64.free_from_torque(TABLE_TA_MIN_NM)?.theta2 - BELOW;
-        let hi = m64.free_from_torque(TABLE_TA_MAX_NM)?.theta2 + ABOVE;
+        let theta2_free = |ta: f64| -> Result<f64, PtsError> {
+            let ta = Fx32::try_from_f64(ta).ok_or(oor)?;
+            Ok(model.free_from_torque(ta)?.theta2.to_f64())
+        };
+        let lo = theta2_free(TABLE_TA_MIN_NM)? - BELOW;
+        let hi = theta2_free(TABLE_TA_MAX_NM)? + ABOVE;
         let segs = (libm::ceil((hi - lo) / SEG_STEP) as usize).min(MAX_SEGMENTS);
         if !(lo > -7.0 && lo + segs as f64 * SEG_STEP < 7.0) || segs < 2 {
             return Err(oor);
@@ -335,19 +340,21 @@ impl PathTable {
         let mut gamma_prev: Option<f64> = None;
         let mut node = |i: usize| -> Result<[f64; 9], PtsError> {
             let th2 = lo + i as f64 * SEG_STEP;
-            let c = m64.closure(th2)?;
+            let th2_q = Fx32::try_from_f64(th2).ok_or(oor)?;
+            let c = model.closure(th2_q)?;
+            let (gamma, x2, dx2) = (c.gamma.to_f64(), c.x2.to_f64(), c.dx2.to_f64());
             let tau = 2.0 * core::f64::consts::PI;
-            let mut gamma = c.gamma;
+            let mut gamma = gamma;
             if let Some(g) = gamma_prev {
                 gamma -= tau * libm::round((gamma - g) / tau);
             }
             gamma_prev = Some(gamma);
             // Free motion through this θ2: K1(θ1 − θ01) x2 = K2(θ2 − θ02).
-            let th1 = f.theta01 + f.k2 * (th2 - f.theta02) / (f.k1 * c.x2);
+            let th1 = f.theta01 + f.k2 * (th2 - f.theta02) / (f.k1 * x2);
             let ta_free = th1 + th2 - f.phi2 - gamma;
-            let (s, co) = (libm::sin(th2), libm::cos(th2));
+            let (s, co) = (th2_q.sin().to_f64(), th2_q.cos().to_f64());
             // Values and slopes per radian: γ′ = 1 − x2.
-            Ok([gamma, 1.0 - c.x2, c.x2, c.dx2, s, co, co, -s, ta_free])
+            Ok([gamma, 1.0 - x2, x2, dx2, s, co, co, -s, ta_free])
         };
         // The free-motion θa at the nodes only starts the contact solve: clipped to the
         // format (the table's top lies far beyond any contact).
