@@ -1379,6 +1379,9 @@ const CHI2_GAIN_TOL: f64 = 0.05;
 /// decision and the final covariance: one LDLᵀ per accepted evaluation.
 type Factored<R> = (Eval<R>, Option<Ldl<R>>);
 
+/// LM's hook on every accepted hypothesis: `true` ends the fit (see `run_fit`).
+type StopHook<'a, R> = &'a mut dyn FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool;
+
 /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
 /// [`evaluate`] but kept in the normal matrix for its coupling), `full` the set the kept
 /// factorisation covers. Undamped (Gauss–Newton, from the kept factorisation) until a step
@@ -1397,7 +1400,7 @@ fn lm<R: Real, K: Kernel<R>>(
     b: &Bounds<R>,
     iters: usize,
     start: Option<Factored<R>>,
-    mut stop: Option<&mut dyn FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool>,
+    mut stop: Option<StopHook<'_, R>>,
 ) -> Result<Factored<R>, PathFitError> {
     let z = R::zero();
     // First evaluation (unless given: `start` is the evaluation at `p`); a hypothesis whose
