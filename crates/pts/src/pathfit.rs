@@ -51,12 +51,12 @@
 //! ([`path`], any [`Real`]: f64 on the host is the reference); [`q::fit_path_q`] runs the
 //! firmware's 32-bit integer kernel on the controller's own integer samples. Cost on
 //! thumbv7em for the 160 realistic plant requests of the grid (unicorn,
-//! `crates/pts/benches/pathfit/count.sh --summary`): the integer kernel min 58 k / median
-//! 78 k / max 99 k instructions (every fit within the 100 k budget; refusals ≤ 108 k), 5.5 KB
-//! peak stack; this generic fit on the Cortex-M4F FPU 48 k / 61 k / 79 k; on `Fx32` 204 k /
-//! 259 k / 355 k (every I32F32 add saturates and every product takes three to four long
-//! multiplies). No library trigonometry runs in either. It runs once per contact in the
-//! low-priority task.
+//! `crates/pts/benches/pathfit/count.sh --summary`): the integer kernel min 55 k / median
+//! 72 k / max 93 k instructions (every fit and every refusal within the 100 k budget, also on
+//! the ideal plant and other noise seeds), 6.9 KB peak stack; this generic fit on the
+//! Cortex-M4F FPU 48 k / 59 k / 78 k; on `Fx32` 201 k / 255 k / 344 k (every I32F32 add
+//! saturates and every product takes three to four long multiplies). No library
+//! trigonometry runs in either. It runs once per contact in the low-priority task.
 //!
 //! ```
 //! use pts::pathfit::{fit_path, PathFitConfig, PathSample};

@@ -16,7 +16,7 @@
 //! | torque derivatives (N·m/rad, N·m per l1 or l2) | 16 | ±32768 | 1.5e-5 |
 //!
 //! The closure γ(θ2), x2(θ2) and sin θ2, cos θ2 come from a table of cubic Hermite
-//! segments [`SEG_STEP`] apart in θ2, built once from the f64 model ([`PathTable::new`]),
+//! segments [`SEG_STEP`] apart in θ2, built once from the fixed-point model ([`PathTable::new`]),
 //! so a fit runs no closure, no trigonometry and no library call; the same table solves free
 //! motion ([`PathTable::free_torque`]). Bounds: the angles the Newton solves reach are
 //! limited to ±[`MAX_DELTA`] about the contact and to the table, the hypothesis (k2,c, R) by
@@ -25,8 +25,8 @@
 //! quotient and narrowing is checked ([`PathFail::OutOfRange`] otherwise).
 //!
 //! Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh --summary` over the 160
-//! realistic plant requests of the grid): min 58 k / median 78 k / max 99 k instructions per
-//! fit, within the 100 k budget every time (refused requests ≤ 108 k); peak stack 5.5 KB
+//! realistic plant requests of the grid): min 55 k / median 72 k / max 93 k instructions per
+//! fit, within the 100 k budget every time (refused requests ≤ 93 k); peak stack 6.9 KB
 //! (harness included). Memory: the table is 3.6 KB (RAM, built at init), a fit allocates
 //! nothing. `cargo xtask bench` gates the committed cases at 100 k.
 //!
