@@ -355,6 +355,19 @@ pub fn two_point<R: Real>(
     })
 }
 
+/// The last [`FIT_SAMPLES`] samples of the approach, up to the contact detection (half a
+/// sample period of guard): the free motion before the impact.
+fn approach_samples(req: &EstimateRequest) -> impl Iterator<Item = &Sample> + Clone {
+    let guard = u64::from(req.sample_ticks.max(1));
+    let kt = u64::from(req.contact.tick);
+    let before = req
+        .pre
+        .iter()
+        .filter(move |s| u64::from(s.tick) <= kt + guard / 2);
+    let n_before = before.clone().count();
+    before.skip(n_before.saturating_sub(FIT_SAMPLES))
+}
+
 /// Free-motion samples used before the impact (samples).
 pub const FIT_SAMPLES: usize = 12;
 
@@ -362,14 +375,7 @@ pub const FIT_SAMPLES: usize = 12;
 /// [`FIT_SAMPLES`] samples up to `contact.tick` (the approach runs at a limited, constant
 /// speed there, so the measured torque is the static one).
 pub fn free_line(req: &EstimateRequest) -> Option<(f64, f64)> {
-    let guard = u64::from(req.sample_ticks.max(1));
-    let kt = u64::from(req.contact.tick);
-    let before = req
-        .pre
-        .iter()
-        .filter(|s| u64::from(s.tick) <= kt + guard / 2);
-    let n_before = before.clone().count();
-    fit(before.skip(n_before.saturating_sub(FIT_SAMPLES)))
+    fit(approach_samples(req))
 }
 
 /// Where the line through the seated point with slope dθa/dT_a = `b` (rad/(N·m)) meets the
@@ -420,11 +426,60 @@ fn path_parabola(req: &EstimateRequest) -> Option<impl Fn(f64) -> f64> {
 /// current-gain error); the contact is where the path after contact, extrapolated back by
 /// the parabola through the three static points, meets that shifted free-motion curve.
 /// `None` when a solve fails (the caller falls back to [`contact_point`]).
+///
+/// Every query lies near the contact: the approach's last samples and the secant's iterates
+/// below the seated angle, a few mrad apart, where T_free(θa) is smooth. A quadratic through
+/// three of the model's Newton solves spanning the samples and the seated angle answers the
+/// queries inside that span (the contact point within 1e-7 rad and 1e-7 N·m of exact solves,
+/// `tests/contact_point.rs`); a query outside it takes its own solve. On the target: 3
+/// free-motion solves instead of up to 26.
 pub fn contact_point_model<R: Real>(model: &Model<R>, req: &EstimateRequest) -> Option<(f64, f64)> {
-    contact_point_with(req, |th: f64| -> Option<f64> {
+    let exact = |th: f64| -> Option<f64> {
         let c = model.free_from_theta_a(R::try_from_f64(th)?).ok()?;
         Some(c.ta.to_f64())
+    };
+    let span = query_span(req);
+    let quad = span.and_then(|(lo, hi)| FreeQuadratic::through(&exact, lo, hi));
+    contact_point_with(req, |th: f64| match &quad {
+        Some(q) if th >= q.lo && th <= q.hi => Some(q.at(th)),
+        _ => exact(th),
     })
+}
+
+/// The θa span (rad) [`contact_point_with`] queries T_free on for `req`, with a margin: from
+/// the earliest approach sample it averages to the seated angle. `None` when the span is
+/// empty or not finite.
+fn query_span(req: &EstimateRequest) -> Option<(f64, f64)> {
+    const MARGIN_RAD: f64 = 1e-3;
+    let (lo, hi) = approach_samples(req).fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), s| {
+        let th = f64::from(s.theta_a_urad) * 1e-6;
+        (lo.min(th), hi.max(th))
+    });
+    let hi = hi.max(f64::from(req.seat.theta_a_urad) * 1e-6);
+    (lo.is_finite() && hi.is_finite() && hi - lo < 0.1)
+        .then_some((lo - MARGIN_RAD, hi + MARGIN_RAD))
+}
+
+/// T_free(θa) on [lo, hi] as the quadratic through its values at both ends and the middle.
+struct FreeQuadratic {
+    lo: f64,
+    hi: f64,
+    /// Values at lo, the middle and hi (N·m).
+    f: [f64; 3],
+}
+
+impl FreeQuadratic {
+    fn through(exact: &dyn Fn(f64) -> Option<f64>, lo: f64, hi: f64) -> Option<Self> {
+        let f = [exact(lo)?, exact(0.5 * (lo + hi))?, exact(hi)?];
+        Some(FreeQuadratic { lo, hi, f })
+    }
+
+    /// Lagrange form in u = (θ − lo)/(hi − lo) ∈ [0, 1], nodes 0, ½, 1.
+    fn at(&self, th: f64) -> f64 {
+        let u = (th - self.lo) / (self.hi - self.lo);
+        let [f0, fm, f1] = self.f;
+        f0 * (2.0 * u - 1.0) * (u - 1.0) + fm * 4.0 * u * (1.0 - u) + f1 * u * (2.0 * u - 1.0)
+    }
 }
 
 /// [`contact_point_model`] with the free-motion torque T_free(θa) (θa rad → N·m) given:
@@ -434,16 +489,9 @@ pub fn contact_point_with(
     req: &EstimateRequest,
     t_free: impl Fn(f64) -> Option<f64>,
 ) -> Option<(f64, f64)> {
-    let guard = u64::from(req.sample_ticks.max(1));
-    let kt = u64::from(req.contact.tick);
-    let before = req
-        .pre
-        .iter()
-        .filter(|s| u64::from(s.tick) <= kt + guard / 2);
-    let n_before = before.clone().count();
     let mut sum = 0.0;
     let mut n = 0u32;
-    for s in before.skip(n_before.saturating_sub(FIT_SAMPLES)) {
+    for s in approach_samples(req) {
         let tf = t_free(f64::from(s.theta_a_urad) * 1e-6)?;
         sum += f64::from(s.torque_unm) * 1e-6 - tf;
         n += 1;
