@@ -53,7 +53,7 @@
 //! thumbv7em for the 160 realistic plant requests of the grid (unicorn,
 //! `crates/pts/benches/pathfit/count.sh --summary`): the integer kernel min 55 k / median
 //! 72 k / max 93 k instructions (every fit and every refusal within the 100 k budget, also on
-//! the ideal plant and other noise seeds), 6.9 KB peak stack; this generic fit on the
+//! the ideal plant and other noise seeds), 7.1 KB peak stack; this generic fit on the
 //! Cortex-M4F FPU 48 k / 59 k / 78 k; on `Fx32` 201 k / 255 k / 344 k (every I32F32 add
 //! saturates and every product takes three to four long multiplies). No library
 //! trigonometry runs in either. It runs once per contact in the low-priority task.
@@ -661,10 +661,8 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let vset = [true, false, true, fit_contact];
     let cset = [true, true, true, fit_contact];
     let nb_r = from_count::<R>(w.nb as u32);
-    let s2_of = |sse: R, npar: u32| -> R {
-        let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
-        (sse / dof).max(s2_bins)
-    };
+    let dof = |npar: u32| (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
+    let s2_of = |sse: R, npar: u32| -> R { (sse / dof(npar)).max(s2_bins) };
     let count = |s: &[bool; NP]| s.iter().filter(|&&b| b).count() as u32;
 
     // At a vertex hypothesis: marginal σ(R), the Gauss–Newton step with R free, and what an
@@ -712,13 +710,13 @@ fn run_fit<R: Real, K: Kernel<R>>(
                 // The cylinder fit starts from this step; past the largest radius, from the
                 // step with R there and the others optimal for it (R is eliminated last:
                 // the leading block is the factorisation without it).
-                let (dk, dtc) = if d[RAD] * l2 > rmax && f.n > 0 {
-                    let mut lead = *f;
-                    lead.n -= 1;
-                    let dh = lead.solve_r_fixed(&e.a, &e.g, rmax / l2);
-                    (dh[K], dh[TC])
-                } else {
-                    (d[K], d[TC])
+                let lead = f.without_last().filter(|_| d[RAD] * l2 > rmax);
+                let (dk, dtc) = match lead {
+                    Some(lead) => {
+                        let dh = lead.solve_r_fixed(&e.a, &e.g, rmax / l2);
+                        (dh[K], dh[TC])
+                    }
+                    None => (d[K], d[TC]),
                 };
                 (dk * l2, d[RAD] * l2, dtc)
             }
@@ -819,10 +817,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
 
     let npar = count(&set);
     let s2 = s2_of(fit.0.sse, npar);
-    let chi2_raw = {
-        let dof = (nb_r + from_count::<R>(n_priors) - from_count::<R>(npar)).max(R::one());
-        fit.0.sse / dof / s2_bins
-    };
+    let chi2_raw = fit.0.sse / dof(npar) / s2_bins;
     // Refusals that need no covariance first (a refused path pays for no inversion).
     if !(k2c > l2 * R::from_f64(0.02)) {
         return Err(PathFitError::ProximalContact);
@@ -854,7 +849,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let sig_bias = bias_k * R::from_f64(0.5);
     let sigma_k2 = (sig_stat * sig_stat + sig_bias * sig_bias + floor * floor).sqrt();
     let sigma_r = var_r.max(zero).sqrt() * l2;
-    let chi2 = s2_of(fit.sse, npar) / s2_bins;
+    let chi2 = s2 / s2_bins;
     if sigma_k2 > l2 * c.max_sigma_frac {
         return Err(PathFitError::NotDetermined);
     }
@@ -1536,11 +1531,7 @@ fn factor_for<R: Real>(
     let same_but_r = (0..NP).all(|i| i == RAD || set[i] == full[i]);
     match f {
         Some(f) if same_but_r && set[RAD] == full[RAD] => Some(*f),
-        Some(f) if same_but_r && full[RAD] && !set[RAD] && f.n > 0 => {
-            let mut lead = *f;
-            lead.n -= 1;
-            Some(lead)
-        }
+        Some(f) if same_but_r && full[RAD] && !set[RAD] => f.without_last().or_else(|| ldl(a, set)),
         _ => ldl(a, set),
     }
 }
@@ -1630,6 +1621,13 @@ impl<R: Real> Ldl<R> {
             out[idx[i]] = x[i].ldexp(-k[i]);
         }
         out
+    }
+
+    /// The factorisation of the leading block: without the parameter eliminated last (R,
+    /// see [`ORDER`]). `None` when nothing is left.
+    fn without_last(&self) -> Option<Self> {
+        let n = self.n.checked_sub(1).filter(|&n| n > 0)?;
+        Some(Ldl { n, ..*self })
     }
 
     /// The Gauss–Newton step with R's step fixed at `dr` (units of l2), for a factorisation
