@@ -26,7 +26,7 @@
 //!
 //! Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh --summary` over the 160
 //! realistic plant requests of the grid): min 55 k / median 72 k / max 93 k instructions per
-//! fit, within the 100 k budget every time (refused requests ≤ 93 k); peak stack 6.9 KB
+//! fit, within the 100 k budget every time (refused requests ≤ 93 k); peak stack 7.1 KB
 //! (harness included). Memory: the table is 3.6 KB (RAM, built at init), a fit allocates
 //! nothing. `cargo xtask bench` gates the committed cases at 100 k.
 //!
