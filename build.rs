@@ -72,35 +72,43 @@ PROVIDE(ADC = DefaultHandler);
 ";
 
 fn finger_consts(src: &mut String) {
-    let file = match env::var("FINGER_TOML") {
-        Ok(path) if !path.is_empty() => {
+    let given = env::var("FINGER_TOML").ok().filter(|p| !p.is_empty());
+    let file = match &given {
+        Some(path) => {
             println!("cargo:rerun-if-changed={path}");
-            let text = fs::read_to_string(&path)
-                .unwrap_or_else(|e| panic!("FINGER_TOML={path}: cannot read: {e}"));
+            let text = fs::read_to_string(path)
+                .unwrap_or_else(|e| fail(&format!("FINGER_TOML={path}: cannot read: {e}")));
             pts::config::FingerFile::from_toml_str(&text)
-                .unwrap_or_else(|e| panic!("FINGER_TOML={path}: {e:?}"))
+                .unwrap_or_else(|e| fail(&format!("FINGER_TOML={path}: {e}")))
         }
-        _ => pts::config::FingerFile::paper(),
+        None => pts::config::FingerFile::paper(),
     };
+    // The controller's own check (the one `pts finger` runs): a file it refuses is a build
+    // error here, not a halt at boot on the board.
+    let cfg = grasp::ControllerConfig::DEFAULT
+        .with_finger_file(&file, grasp::DriveConfig::DEFAULT.dt_s)
+        .unwrap_or_else(|e| {
+            fail(&format!(
+                "FINGER_TOML={}: {e}",
+                given.as_deref().unwrap_or("(paper prototype)")
+            ))
+        });
     let f = file.finger;
     let _ = writeln!(
         src,
-        "/// Drive, motor, encoder and current-sense constants of a finger file (board build).\n\
+        "/// Drive, motor, encoder and current-sense constants of a finger file.\n\
          #[derive(Clone, Copy, Debug)]\n\
          pub struct DriveConsts {{ pub gear_ratio: f64, pub efficiency: f64, pub kt_nm_per_a: f64, \
          pub resistance_ohm: f64, pub supply_v: f64, pub counts_per_rev: f64, \
-         pub amps_per_count: f64, pub zero_count: f64 }}"
+         pub amps_per_count: f64, pub zero_count: f64, pub max_current_a: f64 }}"
     );
-    if env::var("FINGER_TOML")
-        .map(|p| !p.is_empty())
-        .unwrap_or(false)
-    {
+    if given.is_some() {
         let _ = writeln!(
             src,
             "/// From the finger file given at build time.\n\
              pub const FINGER_DRIVE: Option<DriveConsts> = Some(DriveConsts {{ gear_ratio: {:?}, \
              efficiency: {:?}, kt_nm_per_a: {:?}, resistance_ohm: {:?}, supply_v: {:?}, \
-             counts_per_rev: {:?}, amps_per_count: {:?}, zero_count: {:?} }});",
+             counts_per_rev: {:?}, amps_per_count: {:?}, zero_count: {:?}, max_current_a: {:?} }});",
             file.drive.gear_ratio,
             file.drive.efficiency,
             file.motor.kt_nm_per_a,
@@ -108,7 +116,8 @@ fn finger_consts(src: &mut String) {
             file.motor.supply_v,
             f64::from(file.encoder.counts_per_rev),
             file.current_sense.amps_per_count,
-            f64::from(file.current_sense.zero_count)
+            f64::from(file.current_sense.zero_count),
+            file.motor.max_current_a
         );
     } else {
         let _ = writeln!(
@@ -130,6 +139,19 @@ fn finger_consts(src: &mut String) {
          phi2: {:?}, theta01: {:?}, theta02: {:?}, k1: {:?}, k2: {:?} }};",
         f.l1, f.l2, f.a, f.b, f.c, f.phi2, f.theta01, f.theta02, f.k1, f.k2
     );
+    let _ = writeln!(
+        src,
+        "/// θa at the finger's rest pose (rad), where the encoder is zeroed.\n\
+         pub const FINGER_THETA_A_REST_RAD: f64 = {:?};",
+        cfg.drive.theta_a_rest_rad
+    );
+}
+
+/// A build-time mistake: one clear line (cargo shows a build script's stderr on failure) and a
+/// failed build, instead of a panic's backtrace hint.
+fn fail(message: &str) -> ! {
+    eprintln!("error: {message}");
+    std::process::exit(1)
 }
 
 /// A scene file turned into a constant Rust expression of `plant::Scene` (checked by the

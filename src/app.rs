@@ -55,6 +55,8 @@ mod app {
         est_tx: Sender<'static, Msg, QUEUE>,
         /// The path fit's table (built in `init`; `None` in a two-point build).
         table: Option<&'static ctl::PathTable>,
+        /// The finger the estimate inverts (the controller's).
+        finger: pts::Finger,
         decimation: u32,
     }
 
@@ -92,7 +94,7 @@ mod app {
         };
         cx.local
             .table_store
-            .fill(ctl::estimator_table(cfg.drive.dt_s));
+            .fill(ctl::estimator_table(&cfg.finger, cfg.drive.dt_s));
         let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
         telemetry::spawn(tel_rx).ok();
@@ -104,6 +106,7 @@ mod app {
                 sup_tx: tel_tx.clone(),
                 est_tx: tel_tx.clone(),
                 table,
+                finger: cfg.finger,
                 tel_tx,
                 decimation,
             },
@@ -231,7 +234,7 @@ mod app {
 
     /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample` and
     /// `supervise`.
-    #[task(priority = 2, shared = [sup, link], local = [est_tx, table])]
+    #[task(priority = 2, shared = [sup, link], local = [est_tx, table, finger])]
     async fn estimate(cx: estimate::Context) {
         let mut sup = cx.shared.sup;
         let mut link = cx.shared.link;
@@ -240,7 +243,7 @@ mod app {
         let Some(req) = sup.lock(|s| s.take_request()) else {
             return;
         };
-        let result = ctl::run_estimate(&req, *cx.local.table);
+        let result = ctl::run_estimate(cx.local.finger, &req, *cx.local.table);
         let work = platform::stamp()
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));

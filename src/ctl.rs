@@ -82,23 +82,24 @@ const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFi
 /// The path fit's table for a control period `dt_s` (s), built at init when this build's
 /// estimator is the path fit (f64 arithmetic, once); `None` otherwise, or when the finger
 /// is outside the kernel's formats (the estimate then reports that error).
-pub fn estimator_table(dt_s: f64) -> Option<PathTable> {
+pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<PathTable> {
     match ESTIMATOR {
-        Estimator::PathFit => grasp::path_table(&grasp::estimate::FINGER, (dt_s * 1e9) as u32).ok(),
+        Estimator::PathFit => grasp::path_table(finger, (dt_s * 1e9) as u32).ok(),
         Estimator::TwoPoint => None,
     }
 }
 
-/// The estimate for a settled step with the build's estimator (same numbers as
-/// `grasp::run_estimate_fw` for a request that names it): the two-point method, or the
-/// path fit on the integer kernel with the table from [`estimator_table`].
+/// The estimate for a settled step with the build's estimator and the controller's finger
+/// (same numbers as `grasp::run_estimate_fw` for a request that names it): the two-point
+/// method, or the path fit on the integer kernel with the table from [`estimator_table`].
 pub fn run_estimate(
+    finger: &pts::Finger,
     req: &EstimateRequest,
     table: Option<&PathTable>,
 ) -> Result<EstimateResult, EstimateError> {
     match ESTIMATOR {
         Estimator::TwoPoint => {
-            let model = pts::Model::<grasp::EstReal>::new(&grasp::estimate::FINGER)?;
+            let model = pts::Model::<grasp::EstReal>::new(finger)?;
             grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
         }
         Estimator::PathFit => match table {
@@ -138,20 +139,46 @@ pub fn board_drive() -> DriveConfig {
         d.amps_per_code = f.amps_per_count;
         d.adc_zero_code = f.zero_count;
     }
+    d.theta_a_rest_rad = crate::config::FINGER_THETA_A_REST_RAD;
     d
+}
+
+/// A simulated scene as the build's finger: with a finger file given at build time, the plant
+/// is built from the same geometry, springs and drive constants the controller uses.
+#[cfg(any(feature = "qemu", not(target_os = "none")))]
+pub fn finger_scene(scene: plant::Scene) -> plant::Scene {
+    match crate::config::FINGER_DRIVE {
+        Some(f) => {
+            let mut d = DriveConfig::DEFAULT;
+            d.gear_ratio = f.gear_ratio;
+            d.efficiency = f.efficiency;
+            d.kt_nm_per_a = f.kt_nm_per_a;
+            d.resistance_ohm = f.resistance_ohm;
+            d.bus_v = f.supply_v;
+            sim_board::scene_for_finger(scene, &crate::config::FINGER, &d)
+        }
+        None => scene,
+    }
 }
 
 /// The controller's view of a simulated scene's drive and sensors (nominal constants).
 #[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
-    sim_board::scene_drive(scene, DriveConfig::DEFAULT.theta_a_rest_rad)
+    sim_board::scene_drive(scene, crate::config::FINGER_THETA_A_REST_RAD)
 }
 
-/// The controller configuration for a drive: grasp's defaults otherwise.
+/// The controller configuration for a drive: the build's finger (and its current limit when a
+/// finger file was given), grasp's defaults otherwise.
 pub fn config(drive: DriveConfig) -> ControllerConfig {
+    let overcurrent_a = match crate::config::FINGER_DRIVE {
+        Some(f) => f.max_current_a,
+        None => ControllerConfig::DEFAULT.overcurrent_a,
+    };
     ControllerConfig {
+        finger: crate::config::FINGER,
         drive,
         estimator: ESTIMATOR,
+        overcurrent_a,
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(DELTA_TA_NM)
@@ -164,6 +191,7 @@ pub fn scene() -> Option<plant::Scene> {
         Some(s) => Some(s),
         None => plant::scenes::by_name(crate::config::SCENE),
     }
+    .map(finger_scene)
 }
 
 /// Control ticks between two telemetry samples: 50 Hz whatever the loop rate.

@@ -53,10 +53,15 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         })?,
         None => ctl::scene().ok_or("the build's scene is unknown")?,
     };
+    let scene = if name.is_some() {
+        ctl::finger_scene(scene)
+    } else {
+        scene
+    };
     let plant = plant::Plant::new(&scene).map_err(|e| format!("scene: {e:?}"))?;
     let cfg = ctl::config(ctl::scene_drive(&scene));
     let decimation = ctl::decimation(&cfg.drive);
-    let table = ctl::estimator_table(cfg.drive.dt_s);
+    let table = ctl::estimator_table(&cfg.finger, cfg.drive.dt_s);
     let mut ctrl = Controller::new(cfg).map_err(|e| format!("config: {e:?}"))?;
     // The same adapter as the QEMU board's, without the interrupt plumbing.
     let mut board = sim_board::PlantBoard::new(plant);
@@ -90,7 +95,7 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         }
         if out.estimate_ready {
             if let Some(req) = ctrl.take_request() {
-                let result = ctl::run_estimate(&req, table.as_ref());
+                let result = ctl::run_estimate(&cfg.finger, &req, table.as_ref());
                 ctrl.deliver(&mut board, result);
                 while let Some(ev) = ctrl.poll_event() {
                     println!("E {ev:?}");

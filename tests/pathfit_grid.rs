@@ -250,7 +250,7 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
                     fit_path_q(&table, fx(th_c), Some(fx(t_c)), raw_samples(&req))
                         .map(FitOut::from),
                 );
-                let r = run_estimate(&req);
+                let r = run_estimate(&pts::Finger::PAPER, &req);
                 case.two_point = r.ok().and_then(|e| e.k2_um.map(|k| f64::from(k) * 1e-6));
                 c.deliver(&mut hw, r);
                 break;

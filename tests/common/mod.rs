@@ -106,7 +106,7 @@ pub fn run(
         if o.estimate_ready {
             out.truth_settled = Some(hw.plant.truth());
             if let Some(req) = c.take_request() {
-                let r = run_estimate(&req);
+                let r = run_estimate(&cfg.finger, &req);
                 out.estimate = Some(r);
                 out.request = Some(req);
                 c.deliver(&mut hw, r);

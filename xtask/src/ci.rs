@@ -24,14 +24,33 @@ const ESTIMATE_SEQUENCE: &[&str] = &[
 ];
 /// Tolerance of the QEMU estimate against the host run of the same controller, × l2.
 const K2_TOL_REL_L2: f64 = 1e-4;
+/// A finger that is not the paper's (another l2, springs and gear ratio), for the one-finger
+/// check: firmware, host runner and `pts` built from this one file.
+const TEST_FINGER: &str = "crates/pts-cli/fingers/long_stiff.toml";
+/// The firmware's default ΔT_a (src/ctl.rs), given to `pts sim` so both run the same grasp (N·m).
+const FW_DELTA_TA: &str = "0.8";
+/// How far the two-point estimate may sit from the plant's contact at the settled step, × l2
+/// (the method measures the stiffness between contact and settle; the contact rolls outward).
+const TWO_POINT_VS_SETTLE_TOL_REL_L2: f64 = 0.02;
 
 struct Stages {
     passed: Vec<String>,
     failed: Vec<(String, String)>,
+    /// Run only the stages whose name contains this (case-insensitive); `None`: all.
+    only: Option<String>,
 }
 
 impl Stages {
+    fn selected(&self, name: &str) -> bool {
+        self.only
+            .as_ref()
+            .is_none_or(|o| name.to_lowercase().contains(&o.to_lowercase()))
+    }
+
     fn run(&mut self, name: &str, f: impl FnOnce() -> Res) {
+        if !self.selected(name) {
+            return;
+        }
         eprintln!("\n==== {name} ====");
         let t = Instant::now();
         match f() {
@@ -220,6 +239,111 @@ fn scene_check(
     }
 }
 
+/// The first number after the successive keys `path` in a JSON text (enough for `pts --json`
+/// output, whose keys are unique along these paths).
+fn json_number(text: &str, path: &[&str]) -> Option<f64> {
+    let mut rest = text;
+    for key in path {
+        let at = rest.find(&format!("\"{key}\":"))?;
+        rest = &rest[at + key.len() + 3..];
+    }
+    let end = rest
+        .find(|c: char| !(c.is_ascii_digit() || "+-.eE".contains(c)))
+        .unwrap_or(rest.len());
+    rest[..end].parse().ok()
+}
+
+/// One finger everywhere: with [`TEST_FINGER`] the QEMU firmware, the host runner,
+/// `pts sim --finger` and `pts estimate --finger` (replaying the grasp `pts sim` recorded) give
+/// the same k2 within 1e-4·l2, the firmware's BOOT line shows the file's l2, and the estimate
+/// lies near the plant's own contact.
+fn finger_check() -> Res {
+    let file = util::root().join(TEST_FINGER);
+    let file_s = file
+        .to_str()
+        .ok_or("repository path is not UTF-8")?
+        .to_string();
+    with_env("FINGER_TOML", &file_s, || {
+        let mut w = Vec::new();
+        scene_check("table2", false, &mut w)?;
+        let (host, _) = host_run("table2")?;
+        let l2_um = log::first(&host, "BOOT")
+            .and_then(|b| int(&b.msg, "l2_um"))
+            .ok_or("no l2_um in the host BOOT line")? as f64;
+        let k2_host = log::last(&host, "E Estimated")
+            .and_then(|e| int(&e.msg, "k2_um"))
+            .ok_or("no k2 estimate from the host runner")? as f64;
+        let csv = util::root().join("target").join("finger_check.csv");
+        let csv_s = csv.to_str().ok_or("path is not UTF-8")?;
+        let sim = util::output(util::cargo().args([
+            "run",
+            "-q",
+            "--release",
+            "-p",
+            "pts-cli",
+            "--",
+            "sim",
+            "--scene",
+            "table2",
+            "--dta",
+            FW_DELTA_TA,
+            "--finger",
+            &file_s,
+            "--csv",
+            csv_s,
+            "--json",
+        ]))?;
+        let est = util::output(util::cargo().args([
+            "run",
+            "-q",
+            "--release",
+            "-p",
+            "pts-cli",
+            "--",
+            "estimate",
+            "--trace",
+            csv_s,
+            "--finger",
+            &file_s,
+            "--json",
+        ]))?;
+        let k2_sim = json_number(&sim, &["estimate", "k2"]).ok_or("pts sim gave no k2")? * 1e6;
+        let k2_est = json_number(&est, &["contacts", "k2"]).ok_or("pts estimate gave no k2")? * 1e6;
+        let settle = json_number(&sim, &["truth", "k_at_settle"])
+            .ok_or("pts sim gave no contact at the settled step")?
+            * 1e6;
+        println!(
+            "finger {TEST_FINGER} (l2 {l2_um} µm): k2 host runner {k2_host} µm (= QEMU, checked above), \
+             pts sim {k2_sim:.0} µm, pts estimate {k2_est:.0} µm; plant contact at settle {settle:.0} µm"
+        );
+        let mut errs = Vec::new();
+        if (l2_um - 90_000.0).abs() > 0.5 {
+            errs.push(format!(
+                "BOOT l2_um {l2_um}: the file's l2 (90000 µm) did not reach the firmware"
+            ));
+        }
+        let tol = K2_TOL_REL_L2 * l2_um;
+        for (who, k) in [("pts sim", k2_sim), ("pts estimate", k2_est)] {
+            if (k - k2_host).abs() > tol {
+                errs.push(format!(
+                    "{who} k2 {k:.0} µm differs from the firmware's {k2_host} µm by more than 1e-4·l2"
+                ));
+            }
+        }
+        if (k2_host - settle).abs() > TWO_POINT_VS_SETTLE_TOL_REL_L2 * l2_um {
+            errs.push(format!(
+                "firmware k2 {k2_host} µm is {:.2} % of l2 from the plant's contact at settle ({settle:.0} µm)",
+                (k2_host - settle).abs() / l2_um * 100.0
+            ));
+        }
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            Err(errs.join("\n"))
+        }
+    })
+}
+
 /// A panic or HardFault injected into the QEMU firmware must reach the safe state, say so
 /// in the log and exit with its own status.
 fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
@@ -265,18 +389,25 @@ pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
     Ok(per)
 }
 
-/// `cargo xtask test`.
+/// `cargo xtask test [STAGE]`: every stage, or only those whose name contains STAGE
+/// (case-insensitive), e.g. `cargo xtask test "non-paper finger"`.
 pub fn main(args: &[String]) -> Res<i32> {
-    if let Some(a) = args.first() {
-        return Err(format!("`test` takes no arguments (got {a})"));
+    if args.len() > 1 {
+        return Err(format!(
+            "`test` takes at most one argument, a part of a stage name (got {args:?})"
+        ));
     }
     let start = Instant::now();
     let mut st = Stages {
         passed: Vec::new(),
         failed: Vec::new(),
+        only: args.first().cloned(),
     };
-    st.run("toolchain targets", toolchain);
-    st.run("qemu-system-arm present", qemu::ensure_qemu);
+    // Set-up runs whatever was selected.
+    if let Err(e) = toolchain().and_then(|()| qemu::ensure_qemu()) {
+        st.failed
+            .push(("toolchain targets and qemu-system-arm".into(), e));
+    }
     st.run("cargo fmt --check", || {
         cargo(&["fmt", "--all", "--", "--check"])
     });
@@ -355,6 +486,10 @@ pub fn main(args: &[String]) -> Res<i32> {
             })
         },
     );
+    st.run(
+        "non-paper finger file: QEMU = host runner = pts sim = pts estimate within 1e-4·l2",
+        finger_check,
+    );
     // The numerics owner's benchmark gate (xtask/src/bench.rs), run as its own command so
     // the two modules stay independent.
     st.run("cargo xtask bench --check", || {
@@ -382,6 +517,12 @@ pub fn main(args: &[String]) -> Res<i32> {
     for (f, _) in &st.failed {
         eprintln!("  FAILED  {f}");
     }
+    if st.passed.is_empty() && st.failed.is_empty() {
+        return Err(format!(
+            "no stage name contains {:?}; run `cargo xtask test` for the list",
+            st.only.unwrap_or_default()
+        ));
+    }
     println!("{} passed, {} failed", st.passed.len(), st.failed.len());
     Ok(if st.failed.is_empty() { 0 } else { 1 })
 }
@@ -396,6 +537,16 @@ mod tests {
             level: "INFO".into(),
             msg: msg.into(),
         }
+    }
+
+    #[test]
+    fn json_number_follows_the_key_path() {
+        let t = r#"{"estimate":{"phalanx":"distal","k2":0.037265},"truth":{"k":1e-3,"k2":-2.5}}"#;
+        assert_eq!(json_number(t, &["estimate", "k2"]), Some(0.037265));
+        assert_eq!(json_number(t, &["truth", "k2"]), Some(-2.5));
+        assert_eq!(json_number(t, &["truth", "k"]), Some(1e-3));
+        assert_eq!(json_number(t, &["missing"]), None);
+        assert_eq!(json_number(r#"{"estimate":null}"#, &["estimate"]), None);
     }
 
     #[test]

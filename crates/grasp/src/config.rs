@@ -5,6 +5,7 @@
 //! they mirror the plant's defaults (`plant::Drive`), and the host tests check that they agree.
 
 use crate::DUTY_MAX;
+use pts::{Finger, Model, PtsError};
 
 /// The drive: motor, gearhead + transmission to the base link, encoder and current sensor.
 /// SI units. Mirrors the simulated plant's drive constants.
@@ -100,6 +101,9 @@ pub enum AfterEstimate {
 /// Everything the controller is told, SI units. Converted once by [`ControllerConfig::params`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ControllerConfig {
+    /// The finger's geometry and springs: what both estimators invert, and what fixes the
+    /// rest angle [`DriveConfig::theta_a_rest_rad`] must agree with.
+    pub finger: Finger,
     /// The drive constants.
     pub drive: DriveConfig,
     /// Time with the bridge off used to calibrate the current offset (s; 16‥4096 ticks).
@@ -208,6 +212,7 @@ pub struct ControllerConfig {
 impl ControllerConfig {
     /// Defaults tuned against the simulated plant (see the host tests).
     pub const DEFAULT: ControllerConfig = ControllerConfig {
+        finger: Finger::PAPER,
         drive: DriveConfig::DEFAULT,
         calib_s: 0.02,
         calib_max_offset_codes: 200,
@@ -258,8 +263,19 @@ impl ControllerConfig {
     }
 
     /// Checks the configuration and converts it to the integer parameters of the tick path.
+    ///
+    /// The finger is checked here too (valid linkage, and a rest angle that agrees with
+    /// [`DriveConfig::theta_a_rest_rad`] within [`REST_ANGLE_TOL_RAD`]), so the same verdict is
+    /// given on the host (`pts finger`, build.rs) and on the board.
     pub fn params(&self) -> Result<Params, ConfigError> {
         let d = &self.drive;
+        if !d.theta_a_rest_rad.is_finite() {
+            return Err(ConfigError::NonFinite);
+        }
+        let rest = finger_rest_theta_a_rad(&self.finger)?;
+        if (rest - d.theta_a_rest_rad).abs() > REST_ANGLE_TOL_RAD {
+            return Err(ConfigError::RestAngle);
+        }
         let finite = [
             d.dt_s,
             d.gear_ratio,
@@ -447,6 +463,97 @@ impl ControllerConfig {
     }
 }
 
+#[cfg(feature = "std")]
+impl ControllerConfig {
+    /// The controller for a finger file, on a control period `dt_s` (s): the file's geometry and
+    /// springs, drive, motor, encoder and current sense; the over-current limit from
+    /// `motor.max_current_a`; the encoder zeroed at the finger's own rest angle; everything else
+    /// from `self`. Checked by [`ControllerConfig::params`], so a file accepted here is accepted
+    /// by the firmware built from it. Errors name the file's key and what is allowed.
+    pub fn with_finger_file(
+        self,
+        file: &pts::config::FingerFile,
+        dt_s: f64,
+    ) -> Result<ControllerConfig, pts::config::ConfigError> {
+        use pts::config::ConfigError as E;
+        use std::format;
+        use std::string::ToString;
+        let invalid = |key: &str, message: std::string::String| E::Invalid {
+            key: key.to_string(),
+            message,
+        };
+        let cs = &file.current_sense;
+        if cs.adc_bits != ADC_BITS {
+            return Err(invalid(
+                "current_sense.adc_bits",
+                format!(
+                    "{} bits: the controller reads {ADC_BITS}-bit ADC codes",
+                    cs.adc_bits
+                ),
+            ));
+        }
+        // The current the sensor can still tell apart from the rail, whichever the sign.
+        let codes_to_rail = f64::from(
+            cs.zero_count
+                .min(ADC_MAX_CODE.saturating_sub(cs.zero_count)),
+        );
+        let sense_range_a = cs.amps_per_count.abs() * codes_to_rail;
+        if file.motor.max_current_a >= sense_range_a {
+            return Err(invalid(
+                "motor.max_current_a",
+                format!(
+                    "{} A is beyond the current sensor's range of ±{:.4} A (current_sense): an \
+                     over-current could not be seen; allowed: below the sensor's range",
+                    file.motor.max_current_a, sense_range_a
+                ),
+            ));
+        }
+        let theta_a_rest_rad = finger_rest_theta_a_rad(&file.finger).map_err(|e| {
+            invalid(
+                "geometry",
+                format!("the linkage has no rest pose the model can solve: {e:?}"),
+            )
+        })?;
+        let cfg = ControllerConfig {
+            finger: file.finger,
+            drive: DriveConfig {
+                dt_s,
+                gear_ratio: file.drive.gear_ratio,
+                efficiency: file.drive.efficiency,
+                kt_nm_per_a: file.motor.kt_nm_per_a,
+                resistance_ohm: file.motor.resistance_ohm,
+                bus_v: file.motor.supply_v,
+                encoder_counts_per_rev: f64::from(file.encoder.counts_per_rev),
+                amps_per_code: cs.amps_per_count,
+                adc_zero_code: f64::from(cs.zero_count),
+                theta_a_rest_rad,
+            },
+            overcurrent_a: file.motor.max_current_a,
+            ..self
+        };
+        match cfg.params() {
+            Ok(_) => Ok(cfg),
+            Err(ConfigError::Finger(e)) => Err(invalid(
+                "geometry",
+                format!("not a valid linkage for the model: {e:?}"),
+            )),
+            Err(e) => Err(invalid(
+                "drive",
+                format!(
+                    "the drive, motor, encoder and current-sense values together are outside \
+                     what the controller's integer parameters can hold ({e:?}): e.g. a gear ratio \
+                     or counts per turn so large that one count is below 1 µrad"
+                ),
+            )),
+        }
+    }
+}
+
+/// Resolution of the ADC the controller reads (bits): the STM32F411's, and the simulated board's.
+pub const ADC_BITS: u32 = 12;
+/// Largest ADC code.
+pub const ADC_MAX_CODE: u32 = (1 << ADC_BITS) - 1;
+
 impl Default for ControllerConfig {
     fn default() -> Self {
         Self::DEFAULT
@@ -461,6 +568,26 @@ pub enum ConfigError {
     NonFinite,
     /// A value was outside its documented range (or rounds to zero in integer form).
     OutOfRange,
+    /// The finger's geometry or springs are not a valid linkage (the model's reason).
+    Finger(PtsError),
+    /// [`DriveConfig::theta_a_rest_rad`] is not the finger's rest angle (beyond
+    /// [`REST_ANGLE_TOL_RAD`]): the encoder would be zeroed at a pose the model does not have.
+    RestAngle,
+}
+
+/// Largest accepted difference between the drive's rest angle and the finger's (rad).
+pub const REST_ANGLE_TOL_RAD: f64 = 1e-3;
+
+/// The input-crank angle θa at the finger's rest pose (θ1 = θ0,1, θ2 = θ0,2), in rad: where the
+/// firmware zeroes its encoder.
+pub fn finger_rest_theta_a_rad(finger: &Finger) -> Result<f64, ConfigError> {
+    use pts::Real;
+    let model = Model::<crate::EstReal>::new(finger).map_err(ConfigError::Finger)?;
+    let conv = |v: f64| crate::EstReal::try_from_f64(v).ok_or(ConfigError::OutOfRange);
+    let th = model
+        .theta_a(conv(finger.theta01)?, conv(finger.theta02)?)
+        .map_err(ConfigError::Finger)?;
+    Ok(th.to_f64())
 }
 
 /// Samples kept in the pre-contact history ring (decimated samples).
@@ -590,5 +717,139 @@ fn libm_round(x: f64) -> f64 {
         (x + 0.5) as i64 as f64
     } else {
         (x - 0.5) as i64 as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The rest angle from the model agrees with the reference value of the model document
+    /// (θa = −0.8503608 rad at θ1 = π/4, θ2 = 0 for the paper's finger).
+    #[test]
+    fn rest_angle_of_the_paper_finger_is_the_reference_value() {
+        let rest = finger_rest_theta_a_rad(&Finger::PAPER).unwrap();
+        assert!((rest - -0.850_360_8).abs() < 2e-6, "{rest}");
+        assert!(ControllerConfig::DEFAULT.params().is_ok());
+    }
+
+    #[test]
+    fn a_drive_zeroed_at_another_pose_than_the_fingers_rest_is_refused() {
+        let mut c = ControllerConfig::DEFAULT;
+        c.finger.l2 = 0.09;
+        c.finger.k2 = 2.0;
+        // l2 and K2 do not move the rest pose; θ0,1 does.
+        assert!(c.params().is_ok());
+        c.finger.theta01 += 0.05;
+        assert_eq!(c.params().err(), Some(ConfigError::RestAngle));
+        c.drive.theta_a_rest_rad = finger_rest_theta_a_rad(&c.finger).unwrap();
+        assert!(c.params().is_ok());
+    }
+
+    #[test]
+    fn an_impossible_linkage_is_refused_with_the_models_reason() {
+        let mut c = ControllerConfig::DEFAULT;
+        c.finger.b = 0.5; // the coupler cannot close the four-bar
+        assert!(
+            matches!(c.params(), Err(ConfigError::Finger(_))),
+            "{:?}",
+            c.params()
+        );
+        c.finger = Finger::PAPER;
+        c.finger.k1 = f64::NAN;
+        assert!(matches!(c.params(), Err(ConfigError::Finger(_))));
+    }
+}
+
+#[cfg(all(test, feature = "std"))]
+mod file_tests {
+    use super::*;
+    use pts::config::{ConfigError as E, FingerFile};
+    use std::string::ToString;
+
+    fn key_of(e: E) -> std::string::String {
+        match e {
+            E::Invalid { key, .. } | E::Parse { key, .. } => key,
+        }
+    }
+
+    #[test]
+    fn every_drive_field_of_the_file_reaches_the_controller() {
+        let mut f = FingerFile::paper();
+        f.finger.l2 = 0.09;
+        f.finger.k1 = 0.8;
+        f.drive.gear_ratio = 2560.0;
+        f.drive.efficiency = 0.7;
+        f.motor.kt_nm_per_a = 5e-3;
+        f.motor.resistance_ohm = 15.0;
+        f.motor.supply_v = 5.0;
+        f.motor.max_current_a = 0.29; // the sensor sees ±0.30 A (2000 codes × 0.15 mA)
+        f.encoder.counts_per_rev = 128;
+        f.current_sense.amps_per_count = 1.5e-4;
+        f.current_sense.zero_count = 2000;
+        let c = ControllerConfig::DEFAULT
+            .with_finger_file(&f, 1e-4)
+            .unwrap();
+        assert_eq!(c.finger, f.finger);
+        let d = c.drive;
+        assert_eq!(
+            (
+                d.gear_ratio,
+                d.efficiency,
+                d.kt_nm_per_a,
+                d.resistance_ohm,
+                d.bus_v
+            ),
+            (2560.0, 0.7, 5e-3, 15.0, 5.0)
+        );
+        assert_eq!(
+            (d.encoder_counts_per_rev, d.amps_per_code, d.adc_zero_code),
+            (128.0, 1.5e-4, 2000.0)
+        );
+        assert_eq!(c.overcurrent_a, 0.29);
+        assert_eq!(
+            d.theta_a_rest_rad,
+            finger_rest_theta_a_rad(&f.finger).unwrap()
+        );
+    }
+
+    #[test]
+    fn a_current_limit_the_sensor_cannot_see_is_refused_by_name() {
+        let mut f = FingerFile::paper();
+        // ±0.3298 A of sensor range (2047 codes to the upper rail × 0.161 mA).
+        f.motor.max_current_a = 0.5;
+        let e = ControllerConfig::DEFAULT
+            .with_finger_file(&f, 1e-4)
+            .unwrap_err();
+        assert!(e.to_string().contains("0.3298"), "{e}");
+        assert_eq!(key_of(e), "motor.max_current_a");
+        // An off-centre zero narrows the range on one side.
+        f.motor.max_current_a = 0.28;
+        f.current_sense.zero_count = 4000;
+        let e = ControllerConfig::DEFAULT
+            .with_finger_file(&f, 1e-4)
+            .unwrap_err();
+        assert_eq!(key_of(e), "motor.max_current_a");
+    }
+
+    #[test]
+    fn another_adc_resolution_is_refused_by_name() {
+        let mut f = FingerFile::paper();
+        f.current_sense.adc_bits = 16;
+        let e = ControllerConfig::DEFAULT
+            .with_finger_file(&f, 1e-4)
+            .unwrap_err();
+        assert_eq!(key_of(e), "current_sense.adc_bits");
+    }
+
+    #[test]
+    fn a_drive_the_integer_parameters_cannot_hold_is_refused() {
+        let mut f = FingerFile::paper();
+        f.drive.gear_ratio = 1e6; // one encoder count < 0.1 µrad: rounds to zero in Q16 µrad
+        f.encoder.counts_per_rev = 100_000;
+        let e = ControllerConfig::DEFAULT
+            .with_finger_file(&f, 1e-4)
+            .unwrap_err();
+        assert_eq!(key_of(e), "drive");
     }
 }

@@ -165,12 +165,13 @@ pub struct EstimateResult {
     pub quality: Quality,
 }
 
-/// The finger the default estimator uses (the paper's prototype).
-pub const FINGER: Finger = Finger::PAPER;
-
-/// Runs the estimator the request names, for the paper's finger on [`EstReal`].
-pub fn run_estimate(req: &EstimateRequest) -> Result<EstimateResult, EstimateError> {
-    let model = Model::<EstReal>::new(&FINGER)?;
+/// Runs the estimator the request names for `finger` on [`EstReal`] (the generic back ends;
+/// the firmware's path fit runs on the integer kernel, see [`run_estimate_fw`]).
+pub fn run_estimate(
+    finger: &Finger,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, EstimateError> {
+    let model = Model::<EstReal>::new(finger)?;
     run_estimate_with(&model, req)
 }
 
@@ -239,7 +240,7 @@ pub fn path_fit<R: Real>(
         Some(conv(ta_c)?),
         samples,
     );
-    path_fit_result(req, theta_c, ta_c, fit)
+    path_fit_result(model.l2().to_f64(), req, theta_c, ta_c, fit)
 }
 
 /// The whole-path estimate on the firmware's integer kernel (`pts::pathfit::q`): the
@@ -261,11 +262,12 @@ pub fn path_fit_q(
         torque_unm: s.torque_unm,
     });
     let fit = fit_path_q(table, conv(theta_c)?, Some(conv(ta_c)?), samples);
-    path_fit_result(req, theta_c, ta_c, fit)
+    path_fit_result(table.model().l2().to_f64(), req, theta_c, ta_c, fit)
 }
 
-/// The request's result from a path fit (either back end).
+/// The request's result from a path fit (either back end); `l2_m` grades σ (m).
 fn path_fit_result<R: Real>(
+    l2_m: f64,
     req: &EstimateRequest,
     theta_c: f64,
     ta_c: f64,
@@ -302,7 +304,7 @@ fn path_fit_result<R: Real>(
         k2_um: Some(to_micro(k2)),
         kc_hat_unm_per_rad: to_micro(fit.kc_contact.to_f64()),
         theta_a_c_urad: to_micro(fit.theta_a_c_rad.to_f64()),
-        quality: if sigma > 0.05 * FINGER.l2 {
+        quality: if sigma > 0.05 * l2_m {
             Quality::LowSignal
         } else {
             Quality::Good

@@ -54,6 +54,9 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
+#[cfg(feature = "std")]
+extern crate std;
+
 pub mod config;
 pub mod control_loop;
 pub mod controller;

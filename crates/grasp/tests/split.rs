@@ -250,7 +250,7 @@ fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
             // every `every` ticks.
             if tick % every == 0 && sup.service(&mut link) {
                 let req = sup.take_request().unwrap();
-                sup.deliver(run_estimate(&req));
+                sup.deliver(run_estimate(&pts::Finger::PAPER, &req));
                 sup.publish(&mut link);
                 k2 = sup.result().and_then(|r| r.k2_um);
             }

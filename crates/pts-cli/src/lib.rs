@@ -36,5 +36,10 @@ pub fn load_finger(path: Option<&Path>) -> Result<FingerFile, String> {
     };
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read finger file {}: {e}", path.display()))?;
-    FingerFile::from_toml_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+    let file = FingerFile::from_toml_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    // The controller's own check, the one the firmware's build runs: a file accepted here is
+    // accepted by the board built from it.
+    replay::controller_config(&file, grasp::DriveConfig::DEFAULT.dt_s)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(file)
 }

@@ -135,6 +135,10 @@ struct SimArgs {
     /// The estimator the controller runs on the settled step.
     #[arg(long, value_enum, default_value = "two-point")]
     method: pts_cli::method::Method,
+    /// Finger description (TOML): the simulated finger and the controller are both built from
+    /// it (geometry, springs, drive constants, current limit); default: the scene's finger.
+    #[arg(long)]
+    finger: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -345,6 +349,7 @@ impl From<SimArgs> for pts_cli::sim_cmd::Args {
             k2_pct: a.k2_pct,
             ideal: a.ideal,
             method: a.method,
+            finger: a.finger,
         }
     }
 }

@@ -149,25 +149,18 @@ pub struct Replay {
     pub warnings: Vec<String>,
 }
 
+/// The controller for a finger description and a control period: the one conversion the
+/// firmware's build uses too ([`ControllerConfig::with_finger_file`]), so the replay sees the
+/// finger, the drive, the rest angle and the current limit the firmware would.
+pub fn controller_config(f: &FingerFile, dt_s: f64) -> Result<ControllerConfig, String> {
+    ControllerConfig::DEFAULT
+        .with_finger_file(f, dt_s)
+        .map_err(|e| format!("finger for the controller: {e}"))
+}
+
 /// The controller's drive constants from a finger description and a control period.
 pub fn drive_config(f: &FingerFile, dt_s: f64) -> Result<DriveConfig, String> {
-    let model = pts::Model::<f64>::new(&f.finger).map_err(|e| format!("finger: {e}"))?;
-    let rest = model
-        .free_from_torque(0.0)
-        .map_err(|e| format!("finger rest pose: {e}"))?
-        .theta_a;
-    Ok(DriveConfig {
-        dt_s,
-        gear_ratio: f.drive.gear_ratio,
-        efficiency: f.drive.efficiency,
-        kt_nm_per_a: f.motor.kt_nm_per_a,
-        resistance_ohm: f.motor.resistance_ohm,
-        bus_v: f.motor.supply_v,
-        encoder_counts_per_rev: f64::from(f.encoder.counts_per_rev),
-        amps_per_code: f.current_sense.amps_per_count,
-        adc_zero_code: f64::from(f.current_sense.zero_count),
-        theta_a_rest_rad: rest,
-    })
+    controller_config(f, dt_s).map(|c| c.drive)
 }
 
 struct TraceHw {
@@ -216,11 +209,9 @@ pub fn replay(
         Some(dt) => dt,
         None => return Err("the trace needs at least two rows with increasing t_s".into()),
     };
-    let drive = drive_config(finger, dt)?;
     let cfg = ControllerConfig {
-        drive,
         estimator: method.estimator(),
-        ..ControllerConfig::DEFAULT
+        ..controller_config(finger, dt)?
     }
     .with_delta_ta(dta_nm);
     let mut ctl = Controller::new(cfg).map_err(|e| {
@@ -240,7 +231,7 @@ pub fn replay(
         );
     }
     let rad_per_count = finger.rad_per_count();
-    let rest = drive.theta_a_rest_rad;
+    let rest = cfg.drive.theta_a_rest_rad;
     let mut hw = TraceHw { count: 0, code: 0 };
     let mut rep = Replay {
         estimate: None,

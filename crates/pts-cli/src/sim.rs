@@ -67,6 +67,20 @@ pub struct SimOptions {
     pub record: bool,
     /// The estimator the controller's request names.
     pub method: crate::method::Method,
+    /// The over-current limit (A) of the finger file the scene was built from
+    /// ([`finger_scene`]); `None`: the controller's default.
+    pub overcurrent_a: Option<f64>,
+}
+
+/// A scene as the finger of a finger file: its geometry, springs and drive constants in the
+/// plant (the scene's object, friction and sensor models stay), and the file's current limit
+/// for [`SimOptions::overcurrent_a`]. Checked by the controller's own validation first.
+pub fn finger_scene(scene: Scene, file: &pts::config::FingerFile) -> Result<(Scene, f64), String> {
+    let cfg = crate::replay::controller_config(file, scene.dt_s)?;
+    Ok((
+        sim_board::scene_for_finger(scene, &file.finger, &cfg.drive),
+        cfg.overcurrent_a,
+    ))
 }
 
 /// A timed event from the controller or the plant, for people.
@@ -245,17 +259,18 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
     // The firmware knows the finger from its description, not the plant: θa at rest and the
     // estimator's model come from the pts model of the scene's finger.
     let finger = pts_finger(&scene.finger);
-    let model = pts::Model::<f64>::new(&finger).map_err(|e| format!("scene finger: {e}"))?;
-    let rest = model
-        .free_from_torque(0.0)
-        .map_err(|e| format!("scene finger rest pose: {e}"))?
-        .theta_a;
+    let rest = grasp::config::finger_rest_theta_a_rad(&finger)
+        .map_err(|e| format!("scene finger rest pose: {e:?}"))?;
     let est_model = pts::Model::<grasp::EstReal>::new(&finger)
         .map_err(|e| format!("scene finger on the firmware back end: {e}"))?;
     let drive = drive_config(scene, rest);
     let cfg = ControllerConfig {
+        finger,
         drive,
         estimator: opts.method.estimator(),
+        overcurrent_a: opts
+            .overcurrent_a
+            .unwrap_or(ControllerConfig::DEFAULT.overcurrent_a),
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(opts.delta_ta_nm);

@@ -36,6 +36,21 @@ pub struct Args {
     pub ideal: bool,
     /// Estimator compared with the truth.
     pub method: crate::method::Method,
+    /// Finger description: the plant and the controller are built from it (default: the
+    /// scene's finger).
+    pub finger: Option<PathBuf>,
+}
+
+/// The scene as the finger file's finger, and the file's current limit (none without a file).
+fn with_finger(a: &Args, scene: plant::Scene) -> Result<(plant::Scene, Option<f64>), String> {
+    match &a.finger {
+        None => Ok((scene, None)),
+        Some(path) => {
+            let file = crate::load_finger(Some(path))?;
+            let (scene, imax) = sim::finger_scene(scene, &file)?;
+            Ok((scene, Some(imax)))
+        }
+    }
 }
 
 fn check_dta(dta: &[f64]) -> Result<(), String> {
@@ -67,7 +82,7 @@ pub fn run(a: &Args) -> Result<(), String> {
     if a.dta.len() != 1 {
         return Err("--dta takes one value without --sweep".into());
     }
-    let scene = sim::load_scene(&a.scene)?;
+    let (scene, overcurrent_a) = with_finger(a, sim::load_scene(&a.scene)?)?;
     let t0 = Instant::now();
     let rep = sim::run(&SimOptions {
         scene,
@@ -76,6 +91,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         extra_s: 0.2,
         record: a.csv.is_some() || a.plot.is_some(),
         method: a.method,
+        overcurrent_a,
     })?;
     let wall = t0.elapsed().as_secs_f64();
     if let Some(path) = &a.csv {
@@ -244,6 +260,7 @@ struct Cell {
 fn sweep(a: &Args) -> Result<(), String> {
     let base = plant::scenes::table2();
     let base = if a.ideal { base.ideal() } else { base };
+    let (base, overcurrent_a) = with_finger(a, base)?;
     let l2 = base.finger.l2_m;
     for r in &a.radii_cm {
         if !(r.is_finite() && (0.0..=20.0).contains(r)) {
@@ -285,6 +302,7 @@ fn sweep(a: &Args) -> Result<(), String> {
             extra_s: 0.0,
             record: false,
             method: a.method,
+            overcurrent_a,
         });
         let (err, outcome) = match rep {
             Err(e) => (None, format!("scene: {e}")),

@@ -89,6 +89,31 @@ impl Hardware for PlantBoard {
     }
 }
 
+/// The scene with its finger replaced by `finger` (geometry and springs; the mechanical stops and
+/// the structure's stiffness stay the scene's) and its drive's nominal constants by `drive`'s
+/// (gear ratio, efficiency, motor constant, resistance, supply; the friction, backlash and
+/// sensor models stay the scene's): the plant built from the same finger the controller is.
+pub fn scene_for_finger(mut scene: Scene, finger: &pts::Finger, drive: &DriveConfig) -> Scene {
+    let g = &mut scene.finger;
+    g.l1_m = finger.l1;
+    g.l2_m = finger.l2;
+    g.a_m = finger.a;
+    g.b_m = finger.b;
+    g.c_m = finger.c;
+    g.phi2_rad = finger.phi2;
+    g.theta01_rad = finger.theta01;
+    g.theta02_rad = finger.theta02;
+    g.k1_nm_per_rad = finger.k1;
+    g.k2_nm_per_rad = finger.k2;
+    let d = &mut scene.drive;
+    d.gear_ratio = drive.gear_ratio;
+    d.eff_drive = drive.efficiency;
+    d.kt_nm_per_a = drive.kt_nm_per_a;
+    d.r_ohm = drive.resistance_ohm;
+    d.supply_v = drive.bus_v;
+    scene
+}
+
 /// The controller's view of a scene's drive and sensors: the nominal constants a firmware
 /// would be built with (the plant's gain/offset errors and noise stay unknown to it), with
 /// the actuator angle at rest `theta_a_rest_rad` (rad).

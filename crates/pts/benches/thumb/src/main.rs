@@ -383,7 +383,7 @@ pub extern "C" fn bench_run(id: u32, inp: *const u64, out: *mut u64) -> i32 {
         }
         41 => match s.ctl.sup.take_request() {
             Some(req) => {
-                let r = grasp::run_estimate(&req);
+                let r = grasp::run_estimate(&pts::Finger::PAPER, &req);
                 s.ctl.sup.deliver(r);
                 s.ctl.sup.publish(&mut s.ctl.link);
                 1

@@ -1,0 +1,46 @@
+//! The finger file gets one verdict everywhere: `pts finger` refuses what the controller (and so
+//! the firmware's build) refuses, naming the key and the allowed range.
+
+use std::process::Command;
+
+fn pts(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_pts"))
+        .args(args)
+        .output()
+        .expect("run pts")
+}
+
+fn write(name: &str, text: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("pts-finger-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn a_current_limit_beyond_the_sensor_is_refused_by_pts_finger() {
+    // The paper's current sense sees ±0.33 A; this limit passes the file's own range checks
+    // but an over-current could never be detected.
+    let f = write("imax.toml", "[motor]\nmax_current_a = 0.45\n");
+    let out = pts(&["finger", "--finger", f.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "accepted: {err}");
+    assert!(
+        err.contains("motor.max_current_a") && err.contains("0.3298"),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_shipped_finger_files_are_accepted() {
+    for f in ["fingers/paper.toml", "fingers/long_stiff.toml"] {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(f);
+        let out = pts(&["finger", "--finger", path.to_str().unwrap()]);
+        assert!(
+            out.status.success(),
+            "{f}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
