@@ -66,15 +66,20 @@ the bridge off; 101 / 102 a panic / HardFault (bridge off); 1 the demo itself fa
     },
     Cmd {
         name: "test",
-        args: "",
+        args: "[STAGE]",
         summary: "every check (the CI command); ends with `N passed, M failed`",
         help: "\
 Runs every check of the project (the command .ci/run runs): the toolchain's thumb targets,
 qemu-system-arm, cargo fmt --check, clippy -D warnings, cargo test --workspace, clippy of the
 firmware for QEMU and for the board, the board firmware's flash/RAM budgets, QEMU scenes (three
-estimates checked against the host, a fault scene, the path-fit build, injected panic and
-HardFault) and `cargo xtask bench --check`. Every stage runs even when an earlier one failed; the
-last line is `N passed, M failed`. Installs what it needs (targets, qemu-system-arm).
+estimates checked against the host, a fault scene, the path-fit build, a non-paper finger file,
+injected panic and HardFault) and `cargo xtask bench --check`. Every stage runs even when an
+earlier one failed; the last line is `N passed, M failed`. Installs what it needs (targets,
+qemu-system-arm).
+
+arguments:
+  STAGE                 run only the stages whose name contains STAGE (case-insensitive),
+                        e.g. `cargo xtask test 'non-paper finger'`; no match is an error
 
 options:
   -h, --help            print this help and exit

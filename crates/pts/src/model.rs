@@ -1,6 +1,6 @@
 //! The kinetostatic model of the finger, generic over the numeric back end.
 //!
-//! Conventions and corrections: `../shared/design/MODEL.md`. Flexion positive, SI units,
+//! Conventions and corrections: `docs/MODEL.md`. Flexion positive, SI units,
 //! θ1 absolute, θ2 relative, θa the absolute angle of the input crank O1Oc.
 
 use crate::{Finger, PtsError, Real};
