@@ -158,7 +158,7 @@ fn fail(message: &str) -> ! {
 /// plant's own TOML reader, written out with full paths by `to_rust_expr`).
 fn scene_file_const(path: &str) -> String {
     let scene = plant::toml_scene::from_toml_file(std::path::Path::new(path))
-        .unwrap_or_else(|e| panic!("FINGER_FW_SCENE={path}: {e}"));
+        .unwrap_or_else(|e| fail(&format!("FINGER_FW_SCENE={path}: {e}")));
     plant::toml_scene::to_rust_expr(&scene)
 }
 
@@ -169,12 +169,12 @@ fn inject_consts(src: &mut String) {
         Ok(v) if !v.is_empty() => {
             let (kind, at) = v
                 .split_once('@')
-                .unwrap_or_else(|| panic!("FINGER_FW_INJECT={v}: expected KIND@TICK"));
+                .unwrap_or_else(|| fail(&format!("FINGER_FW_INJECT={v}: expected KIND@TICK")));
             let at: u32 = at
                 .parse()
-                .unwrap_or_else(|_| panic!("FINGER_FW_INJECT={v}: TICK must be a number"));
+                .unwrap_or_else(|_| fail(&format!("FINGER_FW_INJECT={v}: TICK must be a number")));
             if kind != "panic" && kind != "hardfault" {
-                panic!("FINGER_FW_INJECT={v}: KIND is panic or hardfault");
+                fail(&format!("FINGER_FW_INJECT={v}: KIND is panic or hardfault"));
             }
             format!("Some(({kind:?}, {at}))")
         }
@@ -192,13 +192,16 @@ fn estimator_consts(src: &mut String) {
     // `fw_path_fit`: the path fit's table slot exists only in that build (3.6 KB of RAM).
     println!("cargo::rustc-check-cfg=cfg(fw_path_fit)");
     let e = match env::var("FINGER_FW_ESTIMATOR").as_deref() {
-        Ok("two-point") => "Some(grasp::Estimator::TwoPoint)",
-        Ok("path-fit") => {
+        // The host tool's spelling (`--method pathfit`) is accepted too.
+        Ok("two-point" | "twopoint") => "Some(grasp::Estimator::TwoPoint)",
+        Ok("path-fit" | "pathfit") => {
             println!("cargo:rustc-cfg=fw_path_fit");
             "Some(grasp::Estimator::PathFit)"
         }
         Ok("") | Err(_) => "None",
-        Ok(other) => panic!("FINGER_FW_ESTIMATOR={other}: two-point or path-fit"),
+        Ok(other) => fail(&format!(
+            "FINGER_FW_ESTIMATOR={other}: not an estimator; allowed: two-point, path-fit"
+        )),
     };
     let _ = writeln!(
         src,
@@ -207,11 +210,13 @@ fn estimator_consts(src: &mut String) {
     );
     let dta = match env::var("FINGER_FW_DELTA_TA_NM") {
         Ok(v) if !v.is_empty() => {
-            let x: f64 = v
-                .parse()
-                .unwrap_or_else(|_| panic!("FINGER_FW_DELTA_TA_NM={v}: a number (N·m)"));
+            let x: f64 = v.parse().unwrap_or_else(|_| {
+                fail(&format!("FINGER_FW_DELTA_TA_NM={v}: not a number (N·m)"))
+            });
             if !(x > 0.0 && x < 5.0) {
-                panic!("FINGER_FW_DELTA_TA_NM={v}: outside (0, 5) N·m");
+                fail(&format!(
+                    "FINGER_FW_DELTA_TA_NM={v}: outside the allowed (0, 5) N·m"
+                ));
             }
             format!("Some({x:?})")
         }
@@ -243,10 +248,10 @@ fn scene_consts(src: &mut String) {
         );
     } else {
         if !plant::scenes::NAMES.contains(&scene.as_str()) {
-            panic!(
+            fail(&format!(
                 "FINGER_FW_SCENE={scene}: no such scene; built-in scenes: {}",
                 plant::scenes::NAMES.join(", ")
-            );
+            ));
         }
         let _ = writeln!(
             src,

@@ -16,7 +16,25 @@ pub fn root() -> PathBuf {
 pub fn cargo() -> Command {
     let mut c = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
     c.current_dir(root());
+    // Cargo runs build.rs in the repository root; a relative file given by the user means a
+    // path from where they typed the command.
+    for key in ["FINGER_TOML", "FINGER_FW_SCENE"] {
+        if let Some(abs) = std::env::var_os(key).and_then(|v| absolute_file(&v)) {
+            c.env(key, abs);
+        }
+    }
     c
+}
+
+/// `value` made absolute against the current directory when it names a relative `.toml` file;
+/// `None` when it is absolute, empty or not a file name (e.g. a built-in scene name).
+fn absolute_file(value: &std::ffi::OsStr) -> Option<PathBuf> {
+    let p = Path::new(value);
+    let is_file = p.extension().is_some_and(|e| e == "toml");
+    if !is_file || p.is_absolute() {
+        return None;
+    }
+    std::env::current_dir().ok().map(|d| d.join(p))
 }
 
 /// Shows a command the way a user would type it.

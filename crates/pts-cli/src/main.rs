@@ -42,6 +42,9 @@ enum Cmd {
     },
     /// Run the grasp controller closed loop against the simulated finger; print events and the
     /// estimate against the truth. With --sweep, a grid of objects × ΔT_a and its error table.
+    ///
+    /// Exit status: 0 when the grasp produced an estimate (with --sweep: when the grid ran);
+    /// 1 when it ended in a fault, the estimator refused it, or on a usage or input error.
     Sim(SimArgs),
     /// Replay a recorded grasp (CSV) through the controller and estimator the firmware runs.
     ///
@@ -105,8 +108,10 @@ struct SimArgs {
     /// List the built-in scenes and exit.
     #[arg(long)]
     list: bool,
-    /// Torque step after contact ΔT_a (N·m); a list with --sweep.
-    #[arg(long, value_delimiter = ',', default_value = "0.2")]
+    /// Torque step after contact ΔT_a (N·m); a list with --sweep. The default is the firmware's:
+    /// 0.2 N·m lies inside the realistic drive's stiction band, where the step does not move the
+    /// finger (fault: no motion).
+    #[arg(long, value_delimiter = ',', default_value = "0.8")]
     dta: Vec<f64>,
     /// Write every control tick to this CSV (input of `pts estimate` and `pts plot signals`).
     #[arg(long)]

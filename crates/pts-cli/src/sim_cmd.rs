@@ -128,7 +128,17 @@ pub fn run(a: &Args) -> Result<(), String> {
     } else {
         print_report(&rep, a.dta[0], wall);
     }
-    Ok(())
+    // The report (and any CSV or plot) is written either way; the status says whether the
+    // grasp produced what was asked for.
+    match (&rep.estimate, rep.fault()) {
+        (Some(Ok(_)), _) => Ok(()),
+        (_, Some(f)) => Err(format!("the grasp ended in the fault {f}: no estimate")),
+        (Some(Err(e)), None) => Err(format!("the estimator refused the grasp: {}", e.kind)),
+        (None, None) => Err(format!(
+            "no estimate within --max-s {} s (state {:?})",
+            a.max_s, rep.state
+        )),
+    }
 }
 
 fn kc_hat(rep: &SimReport) -> Option<f64> {
@@ -564,8 +574,17 @@ pub fn plot_heat(
     Ok(())
 }
 
-/// A one-line progress bar on stderr.
+/// Progress on stderr: a bar redrawn in place on a terminal; into a file or pipe, a plain line
+/// at every tenth of the runs (no carriage-return frames in logs).
 fn progress(done: usize, total: usize, t0: Instant) {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        let tenth = (total / 10).max(1);
+        if done % tenth == 0 || done == total {
+            eprintln!("{done}/{total} runs, {:.0} s", t0.elapsed().as_secs_f64());
+        }
+        return;
+    }
     let width = 30;
     let filled = (done * width)
         .checked_div(total)
