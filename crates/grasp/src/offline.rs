@@ -182,9 +182,29 @@ pub enum OfflineError {
     },
     /// No static (or steady-torque) hold after the contact.
     NotSettled,
+    /// A lone θa sample far off both its neighbours (which agree): a corrupted row. The
+    /// crank cannot leave and come back within two samples.
+    Outlier {
+        /// Row.
+        row: u32,
+    },
+    /// Fewer than [`MIN_RATE_HZ`] rows per second: the impact and the contact knee cannot be
+    /// told apart at this rate.
+    SampleRateTooLow {
+        /// Mean rate (Hz).
+        rate_hz: u32,
+    },
     /// The model failed.
     Model(PtsError),
 }
+
+/// Least mean sample rate [`make_blocks`] accepts (Hz).
+pub const MIN_RATE_HZ: f64 = 250.0;
+
+/// θa jump (rad) off both neighbours that marks a lone row as an outlier (while the
+/// neighbours agree within a quarter of it): 20 mrad in one sample is 5 rad/s at 250 Hz,
+/// beyond any crank speed of a grasp and far beyond a free-motion step.
+pub const OUTLIER_RAD: f64 = 0.02;
 
 impl OfflineError {
     /// A stable snake_case name.
@@ -198,6 +218,8 @@ impl OfflineError {
             OfflineError::NoContact => "no_contact",
             OfflineError::StepTooSmall { .. } => "step_too_small",
             OfflineError::NotSettled => "not_settled",
+            OfflineError::Outlier { .. } => "outlier_sample",
+            OfflineError::SampleRateTooLow { .. } => "sample_rate_too_low",
             OfflineError::Model(e) => e.kind(),
         }
     }
@@ -261,7 +283,27 @@ pub fn make_blocks<R: pts::Real>(
         }
         prev = r.t_s;
     }
+    for (i, w) in rows.windows(3).enumerate() {
+        if let [a, b, c] = w {
+            let (d1, d2) = (b.theta_a_rad - a.theta_a_rad, b.theta_a_rad - c.theta_a_rad);
+            if d1.abs() > OUTLIER_RAD
+                && d2.abs() > OUTLIER_RAD
+                && d1.signum() == d2.signum()
+                && (c.theta_a_rad - a.theta_a_rad).abs() < 0.25 * OUTLIER_RAD
+            {
+                return Err(OfflineError::Outlier { row: i as u32 + 1 });
+            }
+        }
+    }
     let span = last.t_s - first.t_s;
+    if rows.len() > 1 && span > 0.0 {
+        let rate = (rows.len() - 1) as f64 / span;
+        if rate < MIN_RATE_HZ * 0.98 {
+            return Err(OfflineError::SampleRateTooLow {
+                rate_hz: rate as u32,
+            });
+        }
+    }
     let cap = scratch.len() as f64;
     let block = if span / cfg.block_s > cap - 1.0 {
         span / (cap - 1.0)

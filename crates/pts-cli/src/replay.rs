@@ -369,8 +369,20 @@ pub fn segment(
     method: crate::method::Method,
 ) -> Result<Segmented, String> {
     use grasp::offline::{for_each_contact, make_blocks, Block, OfflineConfig, TraceSample};
-    let rows: Vec<TraceSample> = trace
-        .rows
+    // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
+    // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
+    const IDLE_KEEP_S: f64 = 2.0;
+    let start = trace.rows.first().map_or(0, |r0| {
+        let moved = trace
+            .rows
+            .iter()
+            .position(|r| (r.theta_a_rad - r0.theta_a_rad).abs() > 1e-3);
+        moved.map_or(0, |m| {
+            let t_keep = trace.rows[m].t_s - IDLE_KEEP_S;
+            trace.rows.partition_point(|r| r.t_s < t_keep)
+        })
+    });
+    let rows: Vec<TraceSample> = trace.rows[start..]
         .iter()
         .map(|r| TraceSample {
             t_s: r.t_s,
