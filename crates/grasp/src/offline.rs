@@ -1252,18 +1252,35 @@ pub fn refine_contact<R: pts::Real>(
         return None;
     }
     let scale = id.noise_nm.max(1e-4);
+    // Hinge plus a step: past θa,c the residual is (K_c − K_free)(θa − θa,c) plus what the
+    // transmission's stiction holds once the crank stops on the object (≥ 0); without the
+    // step that excess right after the contact drags the hinge early.
     let sse_at = |thc: f64| -> f64 {
-        let (mut seh, mut shh) = (0.0, 0.0);
+        let (mut seh, mut shh, mut seu, mut shu, mut suu) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for &(th, e) in pts.iter() {
             let h = (th - thc).max(0.0);
+            let u = if th > thc { 1.0 } else { 0.0 };
             seh += e * h;
             shh += h * h;
+            seu += e * u;
+            shu += h * u;
+            suu += u * u;
         }
-        let s = if shh > 0.0 { (seh / shh).max(0.0) } else { 0.0 };
+        let det = shh * suu - shu * shu;
+        let (mut sl, mut d) = if det > 1e-30 {
+            ((seh * suu - seu * shu) / det, (seu * shh - seh * shu) / det)
+        } else {
+            (0.0, 0.0)
+        };
+        if d < 0.0 || sl < 0.0 {
+            d = 0.0;
+            sl = if shh > 0.0 { (seh / shh).max(0.0) } else { 0.0 };
+        }
         // Huber loss at 3 σ: a lone spike must not move the hinge.
         pts.iter()
             .map(|&(th, e)| {
-                let r = (e - s * (th - thc).max(0.0)).abs();
+                let u = if th > thc { d } else { 0.0 };
+                let r = (e - sl * (th - thc).max(0.0) - u).abs();
                 if r <= 3.0 * scale {
                     r * r
                 } else {
