@@ -265,7 +265,7 @@ pub fn path_fit_q(
 }
 
 /// The request's result from a path fit (either back end).
-pub(crate) fn path_fit_result<R: Real>(
+fn path_fit_result<R: Real>(
     req: &EstimateRequest,
     theta_c: f64,
     ta_c: f64,
