@@ -182,9 +182,29 @@ pub enum OfflineError {
     },
     /// No static (or steady-torque) hold after the contact.
     NotSettled,
+    /// A lone θa sample far off both its neighbours (which agree): a corrupted row. The
+    /// crank cannot leave and come back within two samples.
+    Outlier {
+        /// Row.
+        row: u32,
+    },
+    /// Fewer than [`MIN_RATE_HZ`] rows per second: the impact and the contact knee cannot be
+    /// told apart at this rate.
+    SampleRateTooLow {
+        /// Mean rate (Hz).
+        rate_hz: u32,
+    },
     /// The model failed.
     Model(PtsError),
 }
+
+/// Least mean sample rate [`make_blocks`] accepts (Hz).
+pub const MIN_RATE_HZ: f64 = 250.0;
+
+/// θa jump (rad) off both neighbours that marks a lone row as an outlier (while the
+/// neighbours agree within a quarter of it): 20 mrad in one sample is 5 rad/s at 250 Hz,
+/// beyond any crank speed of a grasp and far beyond a free-motion step.
+pub const OUTLIER_RAD: f64 = 0.02;
 
 impl OfflineError {
     /// A stable snake_case name.
@@ -198,6 +218,8 @@ impl OfflineError {
             OfflineError::NoContact => "no_contact",
             OfflineError::StepTooSmall { .. } => "step_too_small",
             OfflineError::NotSettled => "not_settled",
+            OfflineError::Outlier { .. } => "outlier_sample",
+            OfflineError::SampleRateTooLow { .. } => "sample_rate_too_low",
             OfflineError::Model(e) => e.kind(),
         }
     }
@@ -261,7 +283,27 @@ pub fn make_blocks<R: pts::Real>(
         }
         prev = r.t_s;
     }
+    for (i, w) in rows.windows(3).enumerate() {
+        if let [a, b, c] = w {
+            let (d1, d2) = (b.theta_a_rad - a.theta_a_rad, b.theta_a_rad - c.theta_a_rad);
+            if d1.abs() > OUTLIER_RAD
+                && d2.abs() > OUTLIER_RAD
+                && d1.signum() == d2.signum()
+                && (c.theta_a_rad - a.theta_a_rad).abs() < 0.25 * OUTLIER_RAD
+            {
+                return Err(OfflineError::Outlier { row: i as u32 + 1 });
+            }
+        }
+    }
     let span = last.t_s - first.t_s;
+    if rows.len() > 1 && span > 0.0 {
+        let rate = (rows.len() - 1) as f64 / span;
+        if rate < MIN_RATE_HZ * 0.98 {
+            return Err(OfflineError::SampleRateTooLow {
+                rate_hz: rate as u32,
+            });
+        }
+    }
     let cap = scratch.len() as f64;
     let block = if span / cfg.block_s > cap - 1.0 {
         span / (cap - 1.0)
@@ -948,4 +990,384 @@ fn skip_contact(blocks: &[Block], from: usize) -> Option<usize> {
         }
     }
     None
+}
+
+/// Prior knowledge of the drive (from the finger file) for [`identify_drive`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DrivePrior {
+    /// Effective inertia the measured torque carries at the crank (kg·m²).
+    pub inertia_kgm2: f64,
+    /// σ of that prior (kg·m²); ≤ 0 or non-finite: no prior.
+    pub sigma_inertia_kgm2: f64,
+}
+
+/// The drive's nuisance parameters identified from the free-motion approach of one contact:
+/// there the model knows the statics (T_free(θa)), so the measured residual
+/// T_a − T_free(θa) = offset + viscous·θ̇a + inertia·θ̈a + noise is linear in them.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct DriveId {
+    /// Effective inertia at the crank (kg·m²), ≥ 0.
+    pub inertia_kgm2: f64,
+    /// Its σ (kg·m²), prior included.
+    pub sigma_inertia_kgm2: f64,
+    /// Viscous term (N·m·s/rad).
+    pub viscous_nm_s_per_rad: f64,
+    /// Sliding friction plus measurement offset (N·m) at zero speed: the residual's constant.
+    pub offset_nm: f64,
+    /// Robust σ of the residual about the model (N·m, per block).
+    pub noise_nm: f64,
+    /// Blocks used.
+    pub blocks: u32,
+    /// Range of θ̈a seen (rad/s²): 0 when the approach never accelerated.
+    pub accel_span_rad_s2: f64,
+}
+
+/// Identifies [`DriveId`] on the approach blocks `lo..hi` (free motion, moving: blocks where
+/// θa stands still are skipped, a stuck transmission's torque is anywhere in its stiction
+/// band). Speed and acceleration from differences across ±2 blocks (quantisation noise on θ̈a
+/// would otherwise bias the inertia low). Huber-weighted least squares, the inertia with its
+/// prior and kept ≥ 0. `None` with fewer than 8 usable blocks.
+pub fn identify_drive<R: pts::Real>(
+    model: &Model<R>,
+    blocks: &[Block],
+    lo: usize,
+    hi: usize,
+    quantum_rad: f64,
+    prior: &DrivePrior,
+) -> Option<DriveId> {
+    const S: usize = 2;
+    let t_free = |th: f64| -> Option<f64> {
+        model
+            .free_from_theta_a(R::try_from_f64(th)?)
+            .ok()
+            .map(|c| c.ta.to_f64())
+    };
+    // (residual, ω, α) per usable block; at most 1024 of the latest.
+    let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
+    let lo = lo.max(S);
+    let hi = hi.min(blocks.len().saturating_sub(S));
+    let start = hi.saturating_sub(1024).max(lo);
+    let still = 0.5 * quantum_rad.max(1e-9);
+    for k in start..hi {
+        let (Some(a), Some(b), Some(c)) = (blocks.get(k - S), blocks.get(k), blocks.get(k + S))
+        else {
+            continue;
+        };
+        if (c.theta_a_rad - a.theta_a_rad).abs() <= still {
+            continue;
+        }
+        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+        if !(d1 > 0.0 && d2 > 0.0) {
+            continue;
+        }
+        let (v1, v2) = (
+            (b.theta_a_rad - a.theta_a_rad) / d1,
+            (c.theta_a_rad - b.theta_a_rad) / d2,
+        );
+        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+        let acc = 2.0 * (v2 - v1) / (d1 + d2);
+        let Some(tf) = t_free(b.theta_a_rad) else {
+            continue;
+        };
+        let r = b.torque_nm - tf;
+        if r.is_finite() && w.is_finite() && acc.is_finite() {
+            let _ = pts.push((r, w, acc));
+        }
+    }
+    if pts.len() < 8 {
+        return None;
+    }
+    let (amin, amax) = pts
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p.2), h.max(p.2))
+        });
+    let prior_on = prior.sigma_inertia_kgm2.is_finite() && prior.sigma_inertia_kgm2 > 0.0;
+    // IRLS: Huber weights at 2 σ, σ from the MAD of the residuals.
+    let mut x = [0.0f64; 3];
+    let mut scale = f64::INFINITY;
+    let mut cov_jj = f64::INFINITY;
+    for _ in 0..6 {
+        let mut a = [[0.0f64; 3]; 3];
+        let mut g = [0.0f64; 3];
+        for &(r, w, acc) in pts.iter() {
+            let e = r - x[0] - x[1] * w - x[2] * acc;
+            let wt = if scale.is_finite() && e.abs() > 2.0 * scale {
+                2.0 * scale / e.abs()
+            } else {
+                1.0
+            };
+            let row = [1.0, w, acc];
+            for i in 0..3 {
+                g[i] += wt * row[i] * r;
+                for j in 0..3 {
+                    a[i][j] += wt * row[i] * row[j];
+                }
+            }
+        }
+        // Noise per block for the prior's weight (first pass: a guess of 2 mN·m).
+        let s2 = if scale.is_finite() {
+            scale * scale
+        } else {
+            4e-6
+        };
+        if prior_on {
+            let wp = s2 / (prior.sigma_inertia_kgm2 * prior.sigma_inertia_kgm2);
+            a[2][2] += wp;
+            g[2] += wp * prior.inertia_kgm2;
+        }
+        // Tiny ridge on the viscous term: a constant-speed approach cannot separate it from
+        // the offset.
+        a[1][1] += 1e-9 * (a[0][0] + 1.0);
+        let inv = inv3(&a)?;
+        for i in 0..3 {
+            x[i] = (0..3).map(|j| inv[i][j] * g[j]).sum();
+        }
+        if x[2] < 0.0 {
+            // Inertia ≥ 0: refit the other two with it at zero.
+            x[2] = 0.0;
+            let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
+            if !(det.abs() > 0.0) {
+                return None;
+            }
+            x[0] = (a[1][1] * g[0] - a[0][1] * g[1]) / det;
+            x[1] = (a[0][0] * g[1] - a[1][0] * g[0]) / det;
+        }
+        let res = pts
+            .iter()
+            .map(|&(r, w, acc)| r - x[0] - x[1] * w - x[2] * acc);
+        scale = mad_sigma(res).max(1e-5);
+        cov_jj = inv[2][2] * scale * scale;
+    }
+    Some(DriveId {
+        inertia_kgm2: x[2],
+        sigma_inertia_kgm2: <f64 as pts::Real>::sqrt(cov_jj.max(0.0)),
+        viscous_nm_s_per_rad: x[1],
+        offset_nm: x[0],
+        noise_nm: scale,
+        blocks: pts.len() as u32,
+        accel_span_rad_s2: amax - amin,
+    })
+}
+
+/// 1.4826 × the median absolute value (≈ σ for Gaussian noise); over up to 1024 values.
+fn mad_sigma(vals: impl Iterator<Item = f64>) -> f64 {
+    let mut buf: Vec<f64, 1024> = Vec::new();
+    for v in vals {
+        if v.is_finite() {
+            let _ = buf.push(v.abs());
+        }
+    }
+    if buf.is_empty() {
+        return f64::NAN;
+    }
+    buf.sort_unstable_by(|a, b| a.partial_cmp(b).unwrap_or(core::cmp::Ordering::Equal));
+    let n = buf.len();
+    let m = 0.5
+        * (buf.get((n - 1) / 2).copied().unwrap_or(0.0) + buf.get(n / 2).copied().unwrap_or(0.0));
+    1.4826 * m
+}
+
+fn inv3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+        - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+    if !(det.abs() > 0.0) || !det.is_finite() {
+        return None;
+    }
+    let c = |i: usize, j: usize| {
+        let (r0, r1) = ((i + 1) % 3, (i + 2) % 3);
+        let (c0, c1) = ((j + 1) % 3, (j + 2) % 3);
+        a[r0][c0] * a[r1][c1] - a[r0][c1] * a[r1][c0]
+    };
+    let mut m = [[0.0; 3]; 3];
+    for (i, row) in m.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = c(j, i) / det;
+        }
+    }
+    Some(m)
+}
+
+/// The contact point on the dynamics-corrected residual: with the drive identified
+/// ([`identify_drive`]), e = T_a − T_free(θa) − offset − viscous·θ̇a − inertia·θ̈a is noise in
+/// free motion and (K_c − K_free)(θa − θa,c) once the object is touched, whatever the crank's
+/// speed, its ringing before or its bounce after the impact. θa,c is the hinge of that line
+/// (least squares over a 0.1 mrad grid within 15 mrad before the detection), fitted on the
+/// moving blocks from a free-motion window before the knee up to 8 mrad past it.
+/// Returns (θa,c rad, T_a,c = T_free(θa,c) + offset N·m, trace time of θa,c s).
+pub fn refine_contact<R: pts::Real>(
+    model: &Model<R>,
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    seg: &Segment,
+    id: &DriveId,
+    quantum_rad: f64,
+) -> Option<(f64, f64, f64)> {
+    const S: usize = 2;
+    let t_free = |th: f64| -> Option<f64> {
+        model
+            .free_from_theta_a(R::try_from_f64(th)?)
+            .ok()
+            .map(|c| c.ta.to_f64())
+    };
+    let wf = cfg.free_window.clamp(4, 64);
+    let lo = seg.knee.saturating_sub(2 * wf).max(S);
+    let th_det = blocks.get(seg.detect)?.theta_a_rad;
+    let th_top = th_det.max(seg.theta_a_c_rad) + 8e-3;
+    let still = 0.5 * quantum_rad.max(1e-9);
+    // (θ, e) per usable block.
+    let mut pts: Vec<(f64, f64), 512> = Vec::new();
+    let mut k = lo;
+    while k + S < blocks.len() && pts.len() < 512 {
+        let (a, b, c) = (blocks.get(k - S)?, blocks.get(k)?, blocks.get(k + S)?);
+        k += 1;
+        if k > seg.detect + 200 || b.theta_a_rad > th_top {
+            if k > seg.detect {
+                break;
+            }
+            continue;
+        }
+        if (c.theta_a_rad - a.theta_a_rad).abs() <= still {
+            continue;
+        }
+        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+        if !(d1 > 0.0 && d2 > 0.0) {
+            continue;
+        }
+        let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
+        let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
+        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+        let acc = 2.0 * (v2 - v1) / (d1 + d2);
+        let e = b.torque_nm
+            - t_free(b.theta_a_rad)?
+            - id.offset_nm
+            - id.viscous_nm_s_per_rad * w
+            - id.inertia_kgm2 * acc;
+        if e.is_finite() {
+            let _ = pts.push((b.theta_a_rad, e));
+        }
+    }
+    if pts.len() < 8 {
+        return None;
+    }
+    let scale = id.noise_nm.max(1e-4);
+    // Hinge plus a step: past θa,c the residual is (K_c − K_free)(θa − θa,c) plus what the
+    // transmission's stiction holds once the crank stops on the object (≥ 0); without the
+    // step that excess right after the contact drags the hinge early.
+    let sse_at = |thc: f64| -> f64 {
+        let (mut seh, mut shh, mut seu, mut shu, mut suu) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(th, e) in pts.iter() {
+            let h = (th - thc).max(0.0);
+            let u = if th > thc { 1.0 } else { 0.0 };
+            seh += e * h;
+            shh += h * h;
+            seu += e * u;
+            shu += h * u;
+            suu += u * u;
+        }
+        let det = shh * suu - shu * shu;
+        let (mut sl, mut d) = if det > 1e-30 {
+            ((seh * suu - seu * shu) / det, (seu * shh - seh * shu) / det)
+        } else {
+            (0.0, 0.0)
+        };
+        if d < 0.0 || sl < 0.0 {
+            d = 0.0;
+            sl = if shh > 0.0 { (seh / shh).max(0.0) } else { 0.0 };
+        }
+        // Huber loss at 3 σ: a lone spike must not move the hinge.
+        pts.iter()
+            .map(|&(th, e)| {
+                let u = if th > thc { d } else { 0.0 };
+                let r = (e - sl * (th - thc).max(0.0) - u).abs();
+                if r <= 3.0 * scale {
+                    r * r
+                } else {
+                    3.0 * scale * (2.0 * r - 3.0 * scale)
+                }
+            })
+            .sum()
+    };
+    let hi = th_det;
+    let mut best = (f64::INFINITY, hi);
+    let mut thc = hi - 15e-3;
+    while thc <= hi {
+        let v = sse_at(thc);
+        if v < best.0 {
+            best = (v, thc);
+        }
+        thc += 1e-4;
+    }
+    let thc = best.1;
+    let ta_c = t_free(thc)? + id.offset_nm;
+    let t_c = blocks
+        .iter()
+        .skip(lo)
+        .find(|b| b.theta_a_rad >= thc)
+        .map_or(seg.contact_t_s, |b| b.t_s);
+    Some((thc, ta_c, t_c))
+}
+
+/// The firmware's integer path fit on a segmented request with the contact point and the
+/// path-fit configuration given by the caller (the host's per-recording identification),
+/// instead of the controller's defaults and back-dating. `table` must be built for the
+/// caller's configuration and the request's period; `l2_m` (the finger's distal length, m)
+/// grades σ as the controller's estimate does. Returns the result with σ(k2,c) (m) of a
+/// distal answer; a proximal path is reported as [`Located::Proximal`](crate::Located).
+pub fn path_fit_with(
+    table: &pts::pathfit::q::PathTable,
+    req: &EstimateRequest,
+    theta_a_c_rad: f64,
+    ta_c_nm: f64,
+    l2_m: f64,
+) -> Result<(crate::EstimateResult, Option<f64>), pts::pathfit::PathFitError> {
+    use crate::{EstReal, EstimateResult, Located, Quality};
+    use pts::pathfit::{q::RawSample, PathFitError};
+    use pts::Real as _;
+    let conv = |v: f64| EstReal::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
+    let kt = req.contact.tick;
+    let samples = req
+        .pre
+        .iter()
+        .filter(move |s| s.tick > kt)
+        .chain(req.path.iter())
+        .map(|s| RawSample {
+            tick: s.tick,
+            theta_a_urad: s.theta_a_urad,
+            torque_unm: s.torque_unm,
+        });
+    let fit =
+        pts::pathfit::q::fit_path_q(table, conv(theta_a_c_rad)?, Some(conv(ta_c_nm)?), samples);
+    let base = EstimateResult {
+        located: Located::Proximal,
+        k2_um: None,
+        kc_hat_unm_per_rad: 0,
+        kc_proximal_unm_per_rad: 0,
+        kc_tip_unm_per_rad: 0,
+        delta_ta_unm: micro(f64::from(req.end.torque_unm) * 1e-6 - ta_c_nm),
+        delta_theta_a_urad: micro(f64::from(req.end.theta_a_urad) * 1e-6 - theta_a_c_rad),
+        theta_a_c_urad: micro(theta_a_c_rad),
+        ta_c_unm: micro(ta_c_nm),
+        quality: Quality::Ambiguous,
+    };
+    let fit = match fit {
+        Ok(f) => f,
+        Err(PathFitError::ProximalContact) => return Ok((base, None)),
+        Err(e) => return Err(e),
+    };
+    let sigma = fit.sigma_k2_m.to_f64();
+    let r = EstimateResult {
+        located: Located::Distal,
+        k2_um: Some(micro(fit.k2_contact_m.to_f64())),
+        kc_hat_unm_per_rad: micro(fit.kc_contact.to_f64()),
+        theta_a_c_urad: micro(fit.theta_a_c_rad.to_f64()),
+        quality: if sigma > 0.05 * l2_m {
+            Quality::LowSignal
+        } else {
+            Quality::Good
+        },
+        ..base
+    };
+    Ok((r, Some(sigma)))
 }

@@ -98,14 +98,16 @@ pub fn run(
     dta: Option<f64>,
     dt_s: Option<f64>,
     json_out: bool,
-    method: Method,
+    method: Option<Method>,
 ) -> Result<(), String> {
     let text = read_text(path)?;
     // A trace written by `pts sim` (our controller in the loop): replay that controller, bit
     // for bit. Any other recorded grasp: find its contacts with grasp::offline.
     if TraceMeta::find(&text).is_none() {
+        let method = method.unwrap_or(Method::Pathfit);
         return run_segmented(path, &text, finger, dta, dt_s, json_out, method);
     }
+    let method = method.unwrap_or(Method::TwoPoint);
     let (tr, rep, dta) = replay_text(path, &text, finger, dta, dt_s, method)?;
     let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
     let fault = match rep.state {
@@ -245,6 +247,27 @@ fn run_segmented(
                     }
                     Err(e) => v["estimate_error"] = json!(e.kind),
                 }
+                if let Some(s) = c.sigma_k2_m {
+                    v["sigma_k2"] = n(s);
+                }
+                if let Some(d) = &c.drive {
+                    v["drive"] = json!({
+                        "inertia_kgm2": n(d.inertia_kgm2),
+                        "sigma_inertia_kgm2": n(d.sigma_inertia_kgm2),
+                        "viscous_nm_s_per_rad": n(d.viscous_nm_s_per_rad),
+                        "offset_nm": n(d.offset_nm),
+                        "noise_nm": n(d.noise_nm),
+                        "blocks": d.blocks,
+                    });
+                }
+                if let Some(tp) = &c.two_point {
+                    let mut t = json!({});
+                    match tp {
+                        Ok(r) => put_result(&mut t, r),
+                        Err(e) => t["estimate_error"] = json!(e.kind),
+                    }
+                    v["two_point"] = t;
+                }
                 v
             })
             .collect();
@@ -289,9 +312,29 @@ fn run_segmented(
             c.t_s,
             c.end_t_s
         );
+        if let Some(d) = &c.drive {
+            println!(
+                "  drive from the approach: inertia {:.3e} ± {:.1e} kg·m², viscous {:.4} N·m·s/rad, \
+                 offset {:.4} N·m, noise {:.4} N·m ({} blocks)",
+                d.inertia_kgm2,
+                d.sigma_inertia_kgm2,
+                d.viscous_nm_s_per_rad,
+                d.offset_nm,
+                d.noise_nm,
+                d.blocks
+            );
+        }
         match &c.estimate {
             Ok(r) => println!("  {}", crate::sim::describe(r)),
             Err(e) => println!("  estimate refused: {} ({e})", e.kind),
+        }
+        if let Some(s) = c.sigma_k2_m {
+            println!("  σ(k2,c) = {:.2} mm", s * 1e3);
+        }
+        match &c.two_point {
+            Some(Ok(r)) => println!("  two-point (reference): {}", crate::sim::describe(r)),
+            Some(Err(e)) => println!("  two-point (reference) refused: {} ({e})", e.kind),
+            None => {}
         }
     }
     if seg.contacts.is_empty() && seg.errors.is_empty() {

@@ -68,9 +68,10 @@ enum Cmd {
         /// Machine-readable output (one JSON object).
         #[arg(long)]
         json: bool,
-        /// The estimator the controller runs on the settled step.
-        #[arg(long, value_enum, default_value = "two-point")]
-        method: pts_cli::method::Method,
+        /// The estimator. Default: the path fit on a recording (the two-point estimate is
+        /// reported beside it); on a `pts sim` trace, the method `pts sim` defaults to.
+        #[arg(long, value_enum)]
+        method: Option<pts_cli::method::Method>,
     },
     /// Turn a decoded defmt log (text) into a trace CSV for `pts estimate` and `pts plot`.
     Trace {

@@ -332,6 +332,12 @@ pub struct SegmentedContact {
     pub end_t_s: f64,
     /// The estimate, or the estimator's refusal.
     pub estimate: Result<EstimateResult, crate::sim::EstError>,
+    /// The paper's two-point estimate on the same request (reported beside a path fit).
+    pub two_point: Option<Result<EstimateResult, crate::sim::EstError>>,
+    /// The drive identified from this contact's approach (path fit only).
+    pub drive: Option<grasp::offline::DriveId>,
+    /// σ(k2,c) of a distal path-fit answer (m).
+    pub sigma_k2_m: Option<f64>,
 }
 
 /// What the segmenter found: the contacts, and the error that ended the search (if any).
@@ -354,8 +360,20 @@ pub fn segment(
     method: crate::method::Method,
 ) -> Result<Segmented, String> {
     use grasp::offline::{for_each_contact, make_blocks, Block, OfflineConfig, TraceSample};
-    let rows: Vec<TraceSample> = trace
-        .rows
+    // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
+    // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
+    const IDLE_KEEP_S: f64 = 2.0;
+    let start = trace.rows.first().map_or(0, |r0| {
+        let moved = trace
+            .rows
+            .iter()
+            .position(|r| (r.theta_a_rad - r0.theta_a_rad).abs() > 1e-3);
+        moved.map_or(0, |m| {
+            let t_keep = trace.rows[m].t_s - IDLE_KEEP_S;
+            trace.rows.partition_point(|r| r.t_s < t_keep)
+        })
+    });
+    let rows: Vec<TraceSample> = trace.rows[start..]
         .iter()
         .map(|r| TraceSample {
             t_s: r.t_s,
@@ -383,20 +401,98 @@ pub fn segment(
         finger.rad_per_count(),
         |r| match r {
             Ok(seg) => {
-                let est = grasp::run_estimate_fw(&finger.finger, &mfw, &seg.request)
-                    .map_err(|e| crate::sim::EstError::new(e.kind(), &e));
+                let fw = |req: &grasp::EstimateRequest| {
+                    grasp::run_estimate_fw(&finger.finger, &mfw, req)
+                        .map_err(|e| crate::sim::EstError::new(e.kind(), &e))
+                };
+                let (mut t_s, mut theta_a_c, mut ta_c) =
+                    (seg.contact_t_s, seg.theta_a_c_rad, seg.ta_c_nm);
+                let mut sigma_k2_m = None;
+                let (est, two_point, drive) = match method {
+                    crate::method::Method::TwoPoint => (fw(&seg.request), None, None),
+                    crate::method::Method::Pathfit => {
+                        let fit = foreign_path_fit(&m64, &cfg, blocks, seg, finger);
+                        if let Some((_, c)) = &fit.1 {
+                            (t_s, theta_a_c, ta_c) = *c;
+                        }
+                        let mut tp = seg.request.clone();
+                        tp.estimator = grasp::Estimator::TwoPoint;
+                        let est = fit.0.map(|(r, s)| {
+                            sigma_k2_m = s;
+                            r
+                        });
+                        (est, Some(fw(&tp)), fit.1.map(|f| f.0))
+                    }
+                };
                 out.contacts.push(SegmentedContact {
-                    t_s: seg.contact_t_s,
-                    theta_a_c: seg.theta_a_c_rad,
-                    ta_c: seg.ta_c_nm,
+                    t_s,
+                    theta_a_c,
+                    ta_c,
                     end_t_s: blocks
                         .get(seg.end.1.saturating_sub(1))
                         .map_or(f64::NAN, |b| b.t_s),
                     estimate: est,
+                    two_point,
+                    drive,
+                    sigma_k2_m,
                 });
             }
             Err(e) => out.errors.push((e.kind(), format!("{e:?}"))),
         },
     );
     Ok(out)
+}
+
+/// The path fit on a recording our controller did not make: the drive's inertia, viscous
+/// term and friction offset identified from this contact's approach
+/// (`grasp::offline::identify_drive`, the finger file's inertia as the prior), the contact
+/// point on the dynamics-corrected residual (`grasp::offline::refine_contact`), then the
+/// firmware's integer path fit with that inertia and the finger file's backlash. Without an
+/// identification (too short an approach) the controller's defaults.
+#[allow(clippy::type_complexity)]
+fn foreign_path_fit(
+    m64: &pts::Model<f64>,
+    cfg: &grasp::offline::OfflineConfig,
+    blocks: &[grasp::offline::Block],
+    seg: &grasp::offline::Segment,
+    finger: &FingerFile,
+) -> (
+    Result<(EstimateResult, Option<f64>), crate::sim::EstError>,
+    Option<(grasp::offline::DriveId, (f64, f64, f64))>,
+) {
+    use grasp::offline::{identify_drive, path_fit_with, refine_contact, DrivePrior};
+    let q = finger.rad_per_count();
+    let prior = DrivePrior {
+        inertia_kgm2: finger.drive.inertia_kgm2,
+        sigma_inertia_kgm2: finger.drive.inertia_kgm2,
+    };
+    let err = |e: grasp::EstimateError| crate::sim::EstError::new(e.kind(), &e);
+    let id = identify_drive(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior);
+    let (inertia, contact) = match id {
+        Some(id) => (
+            id.inertia_kgm2,
+            refine_contact(m64, cfg, blocks, seg, &id, q).unwrap_or((
+                seg.theta_a_c_rad,
+                seg.ta_c_nm,
+                seg.contact_t_s,
+            )),
+        ),
+        None => (
+            finger.drive.inertia_kgm2,
+            (seg.theta_a_c_rad, seg.ta_c_nm, seg.contact_t_s),
+        ),
+    };
+    let pcfg = pts::pathfit::PathFitConfig {
+        inertia_kgm2: inertia,
+        encoder_lead_rad: 0.5 * finger.drive.backlash_rad,
+        ..pts::pathfit::PathFitConfig::DEFAULT
+    };
+    let dt = f64::from(seg.request.dt_ns) * 1e-9;
+    let res = pts::pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
+        .map_err(|e| err(grasp::EstimateError::Model(e)))
+        .and_then(|table| {
+            path_fit_with(&table, &seg.request, contact.0, contact.1, finger.finger.l2)
+                .map_err(|e| err(grasp::EstimateError::PathFit(e)))
+        });
+    (res, id.map(|i| (i, (contact.2, contact.0, contact.1))))
 }

@@ -103,7 +103,7 @@ fn minimal_columns_and_current_reproduce_it_closely() {
         // replaying the controller), so close to, not equal to, the closed loop: measured
         // k2 0.041531 m vs 0.042003 m (MODEL.md's quasi-static two-point: 0.041529 m),
         // K̂c 9.9995 vs 10.156 N·m/rad.
-        let rep = json_of(&estimate(&p, &[]));
+        let rep = json_of(&estimate(&p, &["--method", "two-point"]));
         assert_eq!(rep["exact_replay"], false);
         assert_eq!(rep["segmented"], true);
         let c = &rep["contacts"][0];

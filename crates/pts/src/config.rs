@@ -108,6 +108,14 @@ pub struct Drive {
     pub gear_ratio: f64,
     /// Transmission efficiency in (0, 1]: T_a = efficiency · gear_ratio · kt · i.
     pub efficiency: f64,
+    /// Prior of the effective inertia the measured torque carries at the crank (kg·m²),
+    /// η·J_rotor·N² for a geared motor; ≥ 0. Host estimators identify the inertia per
+    /// recording from its approach and fall back on this where the approach never
+    /// accelerated.
+    pub inertia_kgm2: f64,
+    /// Backlash between the encoder and the crank (rad, at the crank); ≥ 0. The encoder
+    /// leads the finger by half of it while the drive loads in flexion.
+    pub backlash_rad: f64,
 }
 
 /// The DC motor (paper: Maxon RE10).
@@ -173,6 +181,9 @@ impl FingerFile {
     pub const PAPER_DRIVE: Drive = Drive {
         gear_ratio: 3072.0,
         efficiency: 0.6175,
+        // η · 7.0e-9 kg·m² (RE10 rotor) · 3072², and the plant's 3 mrad.
+        inertia_kgm2: 0.6175 * 7.0e-9 * 3072.0 * 3072.0,
+        backlash_rad: 3e-3,
     };
     /// Motor defaults of the prototype (see [`FingerFile::PAPER_DRIVE`]).
     pub const PAPER_MOTOR: Motor = Motor {
@@ -274,7 +285,7 @@ impl FingerFile {
             "name = {name:?}\n\n\
              [geometry]\nl1_m = {l1:?}\nl2_m = {l2:?}\na_m = {a:?}\nb_m = {b:?}\nc_m = {c:?}\nphi2_rad = {phi2:?}\n\n\
              [springs]\nk1_nm_per_rad = {k1:?}\nk2_nm_per_rad = {k2:?}\ntheta01_rad = {t01:?}\ntheta02_rad = {t02:?}\n\n\
-             [drive]\ngear_ratio = {gr:?}\nefficiency = {eff:?}\n\n\
+             [drive]\ngear_ratio = {gr:?}\nefficiency = {eff:?}\ninertia_kgm2 = {jd:?}\nbacklash_rad = {bl:?}\n\n\
              [motor]\nkt_nm_per_a = {kt:?}\nresistance_ohm = {r:?}\nsupply_v = {v:?}\nmax_current_a = {imax:?}\n\n\
              [encoder]\ncounts_per_rev = {cpr}\n\n\
              [current_sense]\namps_per_count = {apc:?}\nzero_count = {zc}\nadc_bits = {bits}\n",
@@ -291,6 +302,8 @@ impl FingerFile {
             t02 = f.theta02,
             gr = d.gear_ratio,
             eff = d.efficiency,
+            jd = d.inertia_kgm2,
+            bl = d.backlash_rad,
             kt = m.kt_nm_per_a,
             r = m.resistance_ohm,
             v = m.supply_v,
@@ -346,6 +359,8 @@ struct RawSprings {
 struct RawDrive {
     gear_ratio: Option<f64>,
     efficiency: Option<f64>,
+    inertia_kgm2: Option<f64>,
+    backlash_rad: Option<f64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -511,6 +526,24 @@ impl RawFile {
                 false,
                 1.0,
                 "",
+            )?,
+            inertia_kgm2: real(
+                "drive.inertia_kgm2",
+                d.inertia_kgm2,
+                FingerFile::PAPER_DRIVE.inertia_kgm2,
+                0.0,
+                true,
+                10.0,
+                "(effective inertia at the crank)",
+            )?,
+            backlash_rad: real(
+                "drive.backlash_rad",
+                d.backlash_rad,
+                FingerFile::PAPER_DRIVE.backlash_rad,
+                0.0,
+                true,
+                0.1,
+                "(at the crank)",
             )?,
         };
         let m = &self.motor;
