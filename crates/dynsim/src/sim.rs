@@ -1,11 +1,12 @@
 //! The finger as rapier2d rigid bodies: ground, input crank (carrying the drive inertia), coupler,
-//! proximal phalanx and distal phalanx (with its crank), joined by five revolute impulse joints; the
-//! last one (coupler–distal crank at Ob) closes the four-bar loop. The joint springs K1, K2 are
+//! proximal phalanx and distal phalanx (with its crank). The open chain ground–proximal–distal–
+//! coupler–crank is a reduced-coordinate multibody; a revolute impulse joint between the crank and
+//! the ground at O1 closes the four-bar loop. The joint springs K1, K2 are
 //! force-based position motors; the drive's Coulomb friction and stiction is a velocity motor on the
 //! crank joint whose force limit follows a Stribeck curve; the viscous term and the motor torque are
 //! applied as a torque on the crank. The object is a fixed ball collider (a vertex is a 0.5 mm edge).
 
-use crate::linkage::{self, Pose, A_M, B_M, C_M, L1_M, L2_M};
+use crate::linkage::{self, A_M, B_M, C_M, L1_M, L2_M};
 use rapier2d_f64::prelude::*;
 
 /// Radius of the ball that stands for a vertex (a small-radius edge), m.
@@ -123,7 +124,6 @@ pub struct Finger {
     crank: RigidBodyHandle,
     proximal: RigidBodyHandle,
     distal: RigidBodyHandle,
-    coupler: RigidBodyHandle,
     crank_joint: ImpulseJointHandle,
     prox_collider: ColliderHandle,
     distal_collider: ColliderHandle,
@@ -148,7 +148,12 @@ impl Finger {
         Self::at_pose(params, object, engine, rest)
     }
 
-    fn at_pose(params: FingerParams, object: Object, engine: EngineSettings, p: Pose) -> Self {
+    fn at_pose(
+        params: FingerParams,
+        object: Object,
+        engine: EngineSettings,
+        p: linkage::Pose,
+    ) -> Self {
         let mut world = PhysicsWorld::new();
         world.gravity = Vector::ZERO; // the finger works in a horizontal plane
         let ip = &mut world.integration_parameters;
@@ -160,6 +165,8 @@ impl Finger {
             SpringCoefficients::new(engine.contact_hz, engine.contact_damping_ratio);
         ip.static_contact_softness =
             SpringCoefficients::new(engine.contact_hz, engine.contact_damping_ratio);
+        // Penetration may be corrected at up to 1 m/s (the default scales with length_unit to 3 mm/s).
+        ip.normalized_max_corrective_velocity = 1000.0;
         ip.contact_recycling = false;
         ip.warmstart_joints = true;
 
@@ -195,59 +202,78 @@ impl Finger {
         let coupler_dir = [p.ob_m[0] - p.oc_m[0], p.ob_m[1] - p.oc_m[1]];
         let coupler = bodies.insert(dynamic(angle_of(coupler_dir), p.oc_m, link(0.003, B_M)));
 
-        let joints = &mut world.impulse_joints;
-        let spring = |k: f64, rest: f64, a1: Vector| {
-            RevoluteJointBuilder::new()
-                .local_anchor1(a1)
-                .local_anchor2(Vector::ZERO)
-                .motor_model(MotorModel::ForceBased)
-                .motor_position(rest, k, engine.joint_damping_nm_s_per_rad)
+        // The open chain ground → proximal → distal → coupler → crank is a reduced-coordinate
+        // multibody, so a contact sees the articulated inertia (the drive's 1e-4..0.1 kg·m² against
+        // links of a few grams: a maximal-coordinate solver lets the heavy crank creep through the
+        // contact). Each joint's frame puts coordinate 0 at the rest pose.
+        let rel = |from: f64, to: f64| to - from;
+        let coupler_angle = angle_of(coupler_dir);
+        let revolute = |anchor1: Vector, rest_rad: f64| {
+            let mut j: GenericJoint = RevoluteJointBuilder::new()
+                .local_anchor1(anchor1)
                 .contacts_enabled(false)
+                .build()
+                .into();
+            j.set_local_frame1(rapier2d_f64::math::Pose::new(anchor1, rest_rad));
+            j
         };
-        joints.insert(
+        let spring = |mut j: GenericJoint, k: f64, target_rad: f64| {
+            j.set_motor_model(JointAxis::AngX, MotorModel::ForceBased);
+            j.set_motor_position(
+                JointAxis::AngX,
+                target_rad,
+                k,
+                engine.joint_damping_nm_s_per_rad,
+            );
+            j
+        };
+        let mb = &mut world.multibody_joints;
+        mb.insert(
             ground,
             proximal,
-            spring(linkage::K1_NM_PER_RAD, linkage::THETA01_RAD, Vector::ZERO),
+            spring(
+                revolute(Vector::ZERO, p.theta1_rad),
+                linkage::K1_NM_PER_RAD,
+                linkage::THETA01_RAD - p.theta1_rad,
+            ),
             true,
-        );
-        joints.insert(
+        )
+        .expect("tree joint");
+        mb.insert(
             proximal,
             distal,
             spring(
+                revolute(Vector::new(L1_M, 0.0), p.theta2_rad),
                 linkage::K2_NM_PER_RAD,
-                linkage::THETA02_RAD,
-                Vector::new(L1_M, 0.0),
+                linkage::THETA02_RAD - p.theta2_rad,
             ),
             true,
+        )
+        .expect("tree joint");
+        let phi = -linkage::PHI2_RAD;
+        // The coupler's frame is at Oc, so Ob is at +b along it.
+        let mut at_ob = revolute(
+            Vector::new(C_M * phi.cos(), C_M * phi.sin()),
+            rel(p.theta1_rad + p.theta2_rad, coupler_angle),
         );
-        // Dry friction: a velocity motor holding the crank still, limited to the friction torque.
-        let crank_joint = joints.insert(
+        at_ob.set_local_frame2(rapier2d_f64::math::Pose::new(Vector::new(B_M, 0.0), 0.0));
+        mb.insert(distal, coupler, at_ob, true).expect("tree joint");
+        let mut last = revolute(Vector::ZERO, rel(coupler_angle, p.theta_a_rad));
+        last.set_local_frame2(rapier2d_f64::math::Pose::new(Vector::new(A_M, 0.0), 0.0));
+        mb.insert(coupler, crank, last, true).expect("tree joint");
+        // Only the springs' own damping: no default joint damping.
+        if let Some((m, _)) = mb.get_mut(MultibodyJointHandle(crank.0)) {
+            m.damping_mut().fill(0.0);
+        }
+        // The loop closes at O1 (crank to ground); its motor is the drive's dry friction: a
+        // velocity motor holding the crank still, limited to the friction torque.
+        let crank_joint = world.impulse_joints.insert(
             ground,
             crank,
             RevoluteJointBuilder::new()
                 .motor_model(MotorModel::ForceBased)
                 .motor_velocity(0.0, 1.0e3)
                 .motor_max_force(params.friction.dry_limit_nm(0.0))
-                .contacts_enabled(false),
-            true,
-        );
-        joints.insert(
-            crank,
-            coupler,
-            RevoluteJointBuilder::new()
-                .local_anchor1(Vector::new(A_M, 0.0))
-                .contacts_enabled(false),
-            true,
-        );
-        joints.insert(
-            coupler,
-            distal,
-            RevoluteJointBuilder::new()
-                .local_anchor1(Vector::new(B_M, 0.0))
-                .local_anchor2(Vector::new(
-                    C_M * (-linkage::PHI2_RAD).cos(),
-                    C_M * (-linkage::PHI2_RAD).sin(),
-                ))
                 .contacts_enabled(false),
             true,
         );
@@ -296,7 +322,6 @@ impl Finger {
             crank,
             proximal,
             distal,
-            coupler,
             crank_joint,
             prox_collider,
             distal_collider,
@@ -359,14 +384,9 @@ impl Finger {
         t2
     }
 
-    /// Loop-closure error: the gap at Ob between the coupler's end and the distal crank's end, m.
+    /// Loop-closure error: how far the crank's pivot has drifted from O1, m.
     pub fn loop_gap_m(&self) -> f64 {
-        let c = self.world.bodies[self.coupler].position();
-        let d = self.world.bodies[self.distal].position();
-        let ob1 = *c * Vector::new(B_M, 0.0);
-        let phi = -linkage::PHI2_RAD;
-        let ob2 = *d * Vector::new(C_M * phi.cos(), C_M * phi.sin());
-        (ob1 - ob2).length()
+        self.world.bodies[self.crank].translation().length()
     }
 
     /// The engine's contact points between the object and the phalanges that touch (separation ≤ 0).
