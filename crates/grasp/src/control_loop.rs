@@ -12,6 +12,12 @@
 //! Run together, the burst set the sampling task's worst case; split, the sampling task is
 //! short and constant and the burst runs preemptibly below it.
 //!
+//! Supervision: every setpoint carries the supervisor's stamp (the newest loop tick it has
+//! acted on). The loop drives only while that stamp is at most [`ControlLoop::max_setpoint_age_ticks`]
+//! old (`LINK_SAMPLES` samples, what the link can hold: 16 ms at 10 kHz and 4 ms samples); an
+//! older one trips the loop with [`FaultReason::SupervisorStalled`], bridge off, latched. A
+//! stalled supervisor therefore cannot leave the motor pushing on its last setpoint.
+//!
 //! Everything here is bounded integer arithmetic: the inputs are clamped where they enter
 //! (the parameters to i32 by [`ControllerConfig::params`](crate::ControllerConfig::params),
 //! the sums over at most 64 ticks of i32 values), so the products are single 32×32→64
@@ -154,6 +160,8 @@ pub struct Link {
     started: bool,
     calibrated: Option<(u32, i32)>,
     fault: Option<(u32, FaultReason)>,
+    /// The supervisor's heartbeat: the newest loop tick it has acted on.
+    stamp_tick: u32,
 }
 
 /// What the loop hands the supervisor, in the order [`Link::next_input`] gives it.
@@ -199,7 +207,20 @@ impl Link {
             started: false,
             calibrated: None,
             fault: None,
+            stamp_tick: 0,
         }
+    }
+
+    /// Stamps the setpoint with the newest loop tick the supervisor has acted on
+    /// ([`Supervisor::publish`](crate::Supervisor::publish) does it; the loop refuses to
+    /// drive on a stamp older than [`ControlLoop::max_setpoint_age_ticks`]).
+    pub fn stamp(&mut self, tick: u32) {
+        self.stamp_tick = tick;
+    }
+
+    /// The supervisor's last stamp (loop ticks).
+    pub fn stamp_tick(&self) -> u32 {
+        self.stamp_tick
     }
 
     /// Whether [`Link::next_input`] has something.
@@ -305,6 +326,8 @@ pub struct ControlLoop {
     oc_count: u32,
     stall_count: u32,
     last_duty: i16,
+    /// Oldest supervisor stamp the loop drives on (ticks).
+    max_age_ticks: u32,
 }
 
 impl ControlLoop {
@@ -324,7 +347,19 @@ impl ControlLoop {
             oc_count: 0,
             stall_count: 0,
             last_duty: 0,
+            max_age_ticks: LINK_SAMPLES as u32 * p.sample_ticks.clamp(1, 64),
         }
+    }
+
+    /// The oldest supervisor stamp the loop still drives on: `LINK_SAMPLES` samples, the
+    /// most the link holds for the supervisor (16 ms with 4 ms samples at 10 kHz).
+    pub fn max_setpoint_age_ticks(&self) -> u32 {
+        self.max_age_ticks
+    }
+
+    /// Ticks since the supervisor last stamped the link.
+    pub fn setpoint_age_ticks(&self, link: &Link) -> u32 {
+        self.tick.wrapping_sub(link.stamp_tick)
     }
 
     /// Ticks since start.
@@ -429,6 +464,13 @@ impl ControlLoop {
                 out.went_off = true;
             }
             self.stop(hw);
+            return out;
+        }
+        // The supervisor's heartbeat: never drive on a setpoint it no longer vouches for.
+        let age_ticks = self.tick.wrapping_sub(link.stamp_tick);
+        if age_ticks > self.max_age_ticks {
+            let reason = FaultReason::SupervisorStalled { age_ticks };
+            self.trip(hw, link, reason, &mut out);
             return out;
         }
         self.driving = true;

@@ -103,6 +103,12 @@ pub enum FaultReason {
         /// The estimator's reason.
         error: EstimateError,
     },
+    /// The loop found the setpoint older than it may drive on: the supervisor stopped
+    /// stamping it (stalled or starved task). Found by the loop, bridge off at once.
+    SupervisorStalled {
+        /// Ticks since the supervisor's last stamp.
+        age_ticks: u32,
+    },
 }
 
 impl FaultReason {
@@ -122,6 +128,7 @@ impl FaultReason {
             FaultReason::NoMotion { .. } => "no_motion",
             FaultReason::LossOfContact { .. } => "loss_of_contact",
             FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
+            FaultReason::SupervisorStalled { .. } => "supervisor_stalled",
         }
     }
 
@@ -629,10 +636,12 @@ impl Supervisor {
         }
     }
 
-    /// Writes the setpoint and the state into the link.
+    /// Writes the setpoint and the state into the link, stamped with the newest loop tick
+    /// this supervisor has acted on (its heartbeat: the loop refuses an old setpoint).
     pub fn publish(&self, link: &mut Link) {
         link.setpoint = self.setpoint();
         link.state = self.state;
+        link.stamp(self.tick);
     }
 
     /// Handles everything the loop left in the link and publishes the answer. Returns true
