@@ -62,3 +62,37 @@ pub fn inject(tick: u32) {
         _ => {}
     }
 }
+
+/// The supervision chain's check-ins and the watchdog's window.
+///
+/// The sampling task feeds the watchdog only when it runs (the loop is alive) *and* the
+/// supervise task has checked in within [`SUP_WINDOW_TICKS`]: the supervise task runs at
+/// least every [`SUP_HEARTBEAT_TICKS`] (spawned for each sample and, with nothing to do, as a
+/// heartbeat), so a stalled, starved or locked supervisor stops the feeding and the IWDG
+/// resets the MCU within `SUP_WINDOW_TICKS` + the IWDG timeout (6.8–18.8 ms over the LSI's
+/// tolerance). While driving, the loop's own heartbeat check (grasp's `SupervisorStalled`)
+/// switches the bridge off sooner than that.
+pub mod supervision {
+    use core::sync::atomic::{AtomicU32, Ordering};
+
+    /// The sampling task spawns the supervise task at least this often (ticks), input or not.
+    pub const SUP_HEARTBEAT_TICKS: u32 = 32;
+    /// The watchdog is fed only while the supervise task's last check-in is at most this old
+    /// (ticks): two heartbeats.
+    pub const SUP_WINDOW_TICKS: u32 = 2 * SUP_HEARTBEAT_TICKS;
+
+    /// Tick of the supervise task's last check-in (0 before the first: the first ticks are
+    /// inside the window).
+    static SUP_CHECKIN_TICK: AtomicU32 = AtomicU32::new(0);
+
+    /// The supervise task is alive at `tick`.
+    pub fn supervisor_check_in(tick: u32) {
+        SUP_CHECKIN_TICK.store(tick, Ordering::Relaxed);
+    }
+
+    /// Whether the watchdog may be fed at `tick` (the caller, the sampling task, is the
+    /// loop's own check-in).
+    pub fn may_feed(tick: u32) -> bool {
+        tick.wrapping_sub(SUP_CHECKIN_TICK.load(Ordering::Relaxed)) <= SUP_WINDOW_TICKS
+    }
+}

@@ -200,6 +200,10 @@ fn scene_check(
         }
     }
     let per = instr_per_stamp(q)?;
+    match watchdog_window(q, per) {
+        Ok(line) => println!("{scene}: {line}"),
+        Err(e) => errs.push(e),
+    }
     work.push((
         scene.to_string(),
         int(&end.msg, "work_max").unwrap_or(0) as f64 * per,
@@ -263,6 +267,34 @@ pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
         ));
     }
     Ok(per)
+}
+
+/// Worst IWDG timeout over the LSI's tolerance (17–47 kHz for a nominal 10 ms), ms.
+const WDG_TIMEOUT_WORST_MS: f64 = 6.8;
+/// Cycles per instruction assumed on the board (100 MHz, flash wait states behind the ART
+/// accelerator): a conservative 2, so the instruction budget is half the cycle budget.
+const BOARD_CYCLES_PER_INSTR: f64 = 2.0;
+
+/// The watchdog's first window: from its start (end of init) to its first feed must take at
+/// most half the worst timeout on the board (100 MHz). Init's own length is reported (the
+/// watchdog is not running during it).
+fn watchdog_window(frames: &[Frame], per: f64) -> Res<String> {
+    let init = log::first(frames, "INIT")
+        .and_then(|f| int(&f.msg, "stamps"))
+        .ok_or("no INIT line with stamps in the log")? as f64
+        * per;
+    let wdg = log::first(frames, "WDG first feed")
+        .and_then(|f| int(&f.msg, "start"))
+        .ok_or("no `WDG first feed` line: the watchdog is never fed")? as f64
+        * per;
+    let budget = WDG_TIMEOUT_WORST_MS * 1e-3 * 100e6 / 2.0 / BOARD_CYCLES_PER_INSTR;
+    let line = format!(
+        "init {init:.0} instructions (watchdog not yet started); watchdog start -> first feed {wdg:.0} instructions (budget {budget:.0}: half of {WDG_TIMEOUT_WORST_MS} ms at 100 MHz, {BOARD_CYCLES_PER_INSTR} cycles/instruction)"
+    );
+    if wdg > budget {
+        return Err(format!("watchdog window too long: {line}"));
+    }
+    Ok(line)
 }
 
 /// `cargo xtask test`.
@@ -406,5 +438,23 @@ mod tests {
         let bad = [frame("CAL instructions=200002 stamps=10000")];
         assert!(instr_per_stamp(&bad).is_err());
         assert!(instr_per_stamp(&[frame("BOOT")]).is_err());
+    }
+
+    #[test]
+    fn watchdog_window_is_checked_against_half_the_worst_timeout() {
+        let init = frame("INIT stamps=33144 (watchdog started at its end)");
+        let ok = [
+            init.clone(),
+            frame("WDG first feed, stamps since start=155"),
+        ];
+        assert!(watchdog_window(&ok, 40.0).is_ok());
+        // 170,000 instructions is the budget: one stamp more fails.
+        let late = [
+            init.clone(),
+            frame("WDG first feed, stamps since start=4251"),
+        ];
+        assert!(watchdog_window(&late, 40.0).is_err());
+        // Never fed at all is a failure, not a pass.
+        assert!(watchdog_window(&[init], 40.0).is_err());
     }
 }
