@@ -4,12 +4,14 @@
 //! * `test`: every check the project has (the CI entry point, see .ci/run).
 //! * `size`: flash and static RAM of the board firmware against the budgets.
 //! * `qemu ELF`: run a firmware ELF in QEMU and print its decoded defmt log.
+//! * `panics`: no panic reachable from any firmware task (whole-program call graph).
 
 mod bench;
 mod ci;
 mod demo;
 mod fuzz;
 mod log;
+mod panics;
 mod qemu;
 mod size;
 mod util;
@@ -24,6 +26,7 @@ usage: cargo xtask <command>
                              builds, size budgets, QEMU scenes) and print `N passed, M failed`
   size                       flash / static RAM of the release board firmware vs the budgets
   qemu ELF                   run a firmware ELF in QEMU and print its decoded defmt log
+  panics                     no panic reachable from any firmware task (board builds)
 ";
 
 fn main() -> ExitCode {
@@ -33,6 +36,7 @@ fn main() -> ExitCode {
         Some("demo") => demo::main(rest),
         Some("test") => ci::main(rest),
         Some("size") => size::main(rest).map(|_| 0),
+        Some("panics") => panics::main(rest).map(|_| 0),
         Some("qemu") => match rest.first() {
             Some(elf) => qemu::run(std::path::Path::new(elf), &mut |f| {
                 println!("{}", log::show(f))
