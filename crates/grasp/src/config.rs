@@ -345,6 +345,13 @@ impl ControllerConfig {
         {
             return Err(ConfigError::OutOfRange);
         }
+        // The sensor must read past the limit: full scale from the zero code to the nearer
+        // rail, 5 % kept for offset and gain error (else the ADC sits at its rail below the
+        // limit, and over-current detection is blind).
+        let full_scale_a = d.adc_zero_code.min(4095.0 - d.adc_zero_code) * d.amps_per_code.abs();
+        if self.overcurrent_a > 0.95 * full_scale_a {
+            return Err(ConfigError::OverCurrentBeyondSensor);
+        }
         let secs = |s: f64| to_u32(s / d.dt_s);
         let calib_ticks = secs(self.calib_s);
         let sample_ticks = secs(self.sample_s);
@@ -461,6 +468,9 @@ pub enum ConfigError {
     NonFinite,
     /// A value was outside its documented range (or rounds to zero in integer form).
     OutOfRange,
+    /// The over-current limit is beyond what the current sensor can read (its full scale,
+    /// from the zero code to the nearer ADC rail, less 5 %): the trip could never fire.
+    OverCurrentBeyondSensor,
 }
 
 /// Samples kept in the pre-contact history ring (decimated samples).

@@ -1,7 +1,7 @@
 //! The fast half of the controller: one [`ControlLoop::tick`] per control period (10 kHz).
 //!
 //! It reads the sensors, checks what must be caught within a tick (encoder jump, ADC code,
-//! over-current, stall), moves the torque reference as the [`Setpoint`] says, runs the
+//! ADC at a rail, over-current, stall), moves the torque reference as the [`Setpoint`] says, runs the
 //! torque loop and sums θa, T_a, duty and current over `sample_ticks` ticks. A finished sum
 //! goes to the [`Supervisor`](crate::Supervisor) through the [`Link`]; the supervisor (the
 //! grasp state machine, a lower priority on the target) answers with the next [`Setpoint`].
@@ -324,6 +324,8 @@ pub struct ControlLoop {
     driving: bool,
     acc: Acc,
     oc_count: u32,
+    /// Consecutive driving ticks with the ADC at a rail.
+    rail_count: u32,
     stall_count: u32,
     last_duty: i16,
     /// Oldest supervisor stamp the loop drives on (ticks).
@@ -345,6 +347,7 @@ impl ControlLoop {
             driving: false,
             acc: Acc::default(),
             oc_count: 0,
+            rail_count: 0,
             stall_count: 0,
             last_duty: 0,
             max_age_ticks: LINK_SAMPLES as u32 * p.sample_ticks.clamp(1, 64),
@@ -474,6 +477,19 @@ impl ControlLoop {
             return out;
         }
         self.driving = true;
+
+        // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
+        // Over the over-current time it is a fault of its own (the configuration keeps the
+        // limit inside the sensor's range, so a healthy drive trips over-current first).
+        if code == 0 || code >= 4095 {
+            self.rail_count += 1;
+            if self.rail_count >= self.p.overcurrent_ticks {
+                self.trip(hw, link, FaultReason::AdcRail { code }, &mut out);
+                return out;
+            }
+        } else {
+            self.rail_count = 0;
+        }
 
         // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
         // so a current chattering around the limit still trips: it trips after

@@ -63,6 +63,12 @@ pub enum FaultReason {
         /// Measured offset ×256 (codes).
         offset_q8: i32,
     },
+    /// The current ADC sat at a rail (code 0 or 4095) for the over-current time while
+    /// driving: the current is beyond the sensor's range, or the sensor failed.
+    AdcRail {
+        /// The code.
+        code: u16,
+    },
     /// |motor current| above the limit for the configured number of ticks.
     OverCurrent {
         /// Current at the trip (µA).
@@ -119,6 +125,7 @@ impl FaultReason {
             FaultReason::EncoderMismatch { .. } => "encoder_mismatch",
             FaultReason::AdcCode { .. } => "adc_code",
             FaultReason::AdcOffset { .. } => "adc_offset",
+            FaultReason::AdcRail { .. } => "adc_rail",
             FaultReason::OverCurrent { .. } => "over_current",
             FaultReason::Stall => "stall",
             FaultReason::NoContact => "no_contact",
@@ -140,6 +147,7 @@ impl FaultReason {
                 | FaultReason::EncoderMismatch { .. }
                 | FaultReason::AdcCode { .. }
                 | FaultReason::AdcOffset { .. }
+                | FaultReason::AdcRail { .. }
         )
     }
 }

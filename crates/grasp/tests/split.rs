@@ -425,3 +425,55 @@ fn a_supervisor_late_by_less_than_the_link_never_trips_the_heartbeat() {
     }
     assert_eq!(sup.state(), State::Holding);
 }
+
+/// A current ADC pinned at a rail while driving is a fault of its own after the over-current
+/// time, bridge off (named as the sensor at its rail, not as an over-current: the current
+/// beyond the rail is unknown).
+#[test]
+fn an_adc_pinned_at_a_rail_while_driving_trips_adc_rail() {
+    for rail in [0u16, 4095] {
+        let (p, mut lp, mut hw, mut link) = enabled(Reference::Hold);
+        hw.code = rail;
+        let mut tripped_after = None;
+        for n in 1..=p.overcurrent_ticks + 5 {
+            let o = lp.tick(&mut hw, &mut link);
+            if o.went_off {
+                tripped_after = Some(n);
+                break;
+            }
+        }
+        assert_eq!(tripped_after, Some(p.overcurrent_ticks), "rail {rail}");
+        assert!(hw.off);
+        let mut fault = None;
+        while let Some(i) = link.next_input() {
+            if let Input::LoopFault { reason, .. } = i {
+                fault = Some(reason);
+            }
+        }
+        assert_eq!(fault, Some(FaultReason::AdcRail { code: rail }));
+    }
+}
+
+/// A limit the sensor cannot read is refused when the configuration is validated.
+#[test]
+fn an_overcurrent_limit_beyond_the_sensor_range_is_refused() {
+    let d = ControllerConfig::DEFAULT.drive;
+    let full_scale_a = d.adc_zero_code.min(4095.0 - d.adc_zero_code) * d.amps_per_code;
+    let with = |a: f64| ControllerConfig {
+        overcurrent_a: a,
+        ..ControllerConfig::DEFAULT
+    };
+    assert!(with(0.9 * full_scale_a).params().is_ok());
+    assert_eq!(
+        with(full_scale_a).params(),
+        Err(grasp::config::ConfigError::OverCurrentBeyondSensor)
+    );
+    // The same limit with a sensor of half the range (twice the gain): refused.
+    let mut half = ControllerConfig::DEFAULT;
+    half.drive.amps_per_code = d.amps_per_code / 2.0;
+    assert!(ControllerConfig::DEFAULT.params().is_ok());
+    assert_eq!(
+        half.params(),
+        Err(grasp::config::ConfigError::OverCurrentBeyondSensor)
+    );
+}
