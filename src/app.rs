@@ -290,6 +290,11 @@ mod app {
         while let Ok(msg) = rx.recv().await {
             tm::log(&msg);
             if let Msg::Done(done) = msg {
+                #[cfg(feature = "qemu")]
+                {
+                    let (used, size) = crate::fault::stack::high_water();
+                    defmt::info!("STACK used={=u32} size={=u32}", used, size);
+                }
                 platform::finish(done.status);
             }
         }

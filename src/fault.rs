@@ -96,3 +96,33 @@ pub mod supervision {
         tick.wrapping_sub(SUP_CHECKIN_TICK.load(Ordering::Relaxed)) <= SUP_WINDOW_TICKS
     }
 }
+
+/// The stack's high-water mark: cortex-m-rt's `paint-stack` (QEMU builds) fills the stack with
+/// a pattern at reset; the deepest word no longer holding it is the deepest the stack went.
+/// With flip-link the stack grows down from `_stack_start` to `_stack_end`, the start of RAM.
+#[cfg(feature = "qemu")]
+pub mod stack {
+    /// cortex-m-rt's paint pattern.
+    const PAINT: u32 = 0xCCCC_CCCC;
+
+    extern "C" {
+        static _stack_start: u32;
+        static _stack_end: u32;
+    }
+
+    /// (bytes used at most, stack size in bytes). Reads memory below the live stack pointer
+    /// only; words still painted are untouched.
+    pub fn high_water() -> (u32, u32) {
+        // SAFETY: the linker symbols' addresses bound the stack region; reading it word by
+        // word (volatile) from its far end up to the first overwritten word stays inside it.
+        unsafe {
+            let top = core::ptr::addr_of!(_stack_start) as usize;
+            let bottom = core::ptr::addr_of!(_stack_end) as usize;
+            let mut p = bottom;
+            while p < top && core::ptr::read_volatile(p as *const u32) == PAINT {
+                p += 4;
+            }
+            ((top - p) as u32, (top - bottom) as u32)
+        }
+    }
+}

@@ -200,6 +200,10 @@ fn scene_check(
         }
     }
     let per = instr_per_stamp(q)?;
+    match size::stack_check(q) {
+        Ok(line) => println!("{scene}: {line}"),
+        Err(e) => errs.push(e),
+    }
     match watchdog_window(q, per) {
         Ok(line) => println!("{scene}: {line}"),
         Err(e) => errs.push(e),

@@ -24,7 +24,8 @@ usage: cargo xtask <command>
                              show the grasp live and the estimate against the plant's truth
   test                       run every test (fmt, clippy, unit/integration tests, target
                              builds, size budgets, QEMU scenes) and print `N passed, M failed`
-  size                       flash / static RAM of the release board firmware vs the budgets
+  size                       flash / static RAM of the release board firmware vs the budgets,
+                             and the stack's high-water mark (QEMU) against the board's stack
   qemu ELF                   run a firmware ELF in QEMU and print its decoded defmt log
   panics                     no panic reachable from any firmware task (board builds)
 ";
@@ -32,6 +33,16 @@ usage: cargo xtask <command>
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let rest = args.get(1..).unwrap_or(&[]);
+    let builds = !matches!(
+        args.first().map(String::as_str),
+        None | Some("help" | "--help" | "-h")
+    );
+    if builds {
+        if let Err(e) = size::ensure_flip_link() {
+            eprintln!("error: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
     let result: Result<i32, String> = match args.first().map(String::as_str) {
         Some("demo") => demo::main(rest),
         Some("test") => ci::main(rest),
