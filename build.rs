@@ -151,8 +151,8 @@ fn inject_consts(src: &mut String) {
             let at: u32 = at
                 .parse()
                 .unwrap_or_else(|_| panic!("FINGER_FW_INJECT={v}: TICK must be a number"));
-            if kind != "panic" && kind != "hardfault" {
-                panic!("FINGER_FW_INJECT={v}: KIND is panic or hardfault");
+            if !matches!(kind, "panic" | "hardfault" | "reset") {
+                panic!("FINGER_FW_INJECT={v}: KIND is panic, hardfault or reset");
             }
             format!("Some(({kind:?}, {at}))")
         }

@@ -79,6 +79,27 @@ mod app {
             platform::NAME,
             (cfg.drive.dt_s * 1e6) as u32
         );
+        // A fault that caused the last reset is latched: report it and do not move (the
+        // encoder would be zeroed wherever the finger stopped). A power-on clears the latch.
+        let (cause, power_on) = platform::reset_cause();
+        let latched = crate::fault::latch::get();
+        let (code, info) = latched.unwrap_or((0, 0));
+        defmt::info!(
+            "RESET cause={=str} latched_code={=u32} latched_info={=u32}",
+            cause,
+            code,
+            info
+        );
+        if power_on {
+            crate::fault::latch::clear();
+        } else if latched.is_some() || cause == "independent_watchdog" {
+            defmt::error!(
+                "LATCHED fault (code {=u32}) from before the {=str} reset: bridge off, waiting for a power cycle",
+                code,
+                cause
+            );
+            platform::wait_latched();
+        }
         let decimation = ctl::decimation(&cfg.drive);
         // Calibration of the work counter: `delay(n)` is n + 1 passes of `subs; bne`, i.e.
         // 200 002 instructions (QEMU icount: stamps × 40; board: CPU cycles of that loop).

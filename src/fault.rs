@@ -1,5 +1,7 @@
 //! Last-resort handlers: a panic or a HardFault puts the H-bridge in its safe state first,
-//! then reports (QEMU: exits non-zero through semihosting; board: halts, the IWDG resets).
+//! latches the fault in RAM that survives a reset ([`latch`]), then reports (QEMU: exits
+//! non-zero through semihosting; board: halts, the IWDG resets, and the next boot finds the
+//! latch and waits for a power cycle instead of moving).
 
 use core::panic::PanicInfo;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -18,6 +20,10 @@ static REPORTING: AtomicBool = AtomicBool::new(false);
 #[panic_handler]
 fn panic(info: &PanicInfo) -> ! {
     platform::safe_state();
+    latch::set(
+        latch::PANIC,
+        crate::telemetry::TICKS.load(Ordering::Relaxed),
+    );
     cortex_m::interrupt::disable();
     if !REPORTING.swap(true, Ordering::SeqCst) {
         if let Some(loc) = info.location() {
@@ -37,6 +43,7 @@ fn panic(info: &PanicInfo) -> ! {
 #[cortex_m_rt::exception]
 unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
     platform::safe_state();
+    latch::set(latch::HARDFAULT, frame.pc());
     if !REPORTING.swap(true, Ordering::SeqCst) {
         defmt::error!(
             "HARDFAULT pc={=u32:#x} bridge_safe={=bool}",
@@ -47,12 +54,18 @@ unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
     platform::halt(STATUS_HARDFAULT)
 }
 
-/// Fault injection for the test command (`FINGER_FW_INJECT=panic@TICK|hardfault@TICK` at build
+/// Fault injection for the test command (`FINGER_FW_INJECT=panic|hardfault|reset@TICK` at build
 /// time; never set in a normal build): checks that the handlers above reach the safe state.
 #[inline(always)]
 pub fn inject(tick: u32) {
     match crate::config::INJECT {
         Some(("panic", at)) if at == tick => panic!("injected panic at tick {}", tick),
+        Some(("reset", at)) if at == tick => {
+            // A fault that resets the MCU mid-grasp (as the watchdog does after a halt).
+            platform::safe_state();
+            latch::set(latch::INJECTED, tick);
+            cortex_m::peripheral::SCB::sys_reset();
+        }
         Some(("hardfault", at)) if at == tick => {
             // A read from unmapped memory: BusFault, escalated to HardFault (not enabled).
             // SAFETY: deliberately faulting; the handler never returns.
@@ -124,5 +137,67 @@ pub mod stack {
             }
             ((top - p) as u32, (top - bottom) as u32)
         }
+    }
+}
+
+/// A fault that caused a reset, kept across it: four words in `.uninit` (not zeroed at
+/// reset) with a magic number and a checksum, so that RAM's random content after a power-on
+/// is not taken for a latch. A power-on (or brown-out) reset clears it.
+pub mod latch {
+    use core::mem::MaybeUninit;
+
+    const MAGIC: u32 = 0x4C41_5443;
+    /// A panic.
+    pub const PANIC: u32 = 1;
+    /// A HardFault (the second word is its PC).
+    pub const HARDFAULT: u32 = 2;
+    /// A reset injected by the test command.
+    pub const INJECTED: u32 = 3;
+
+    #[link_section = ".uninit.FAULT_LATCH"]
+    static mut LATCH: MaybeUninit<[u32; 4]> = MaybeUninit::uninit();
+
+    fn check(code: u32, info: u32) -> u32 {
+        MAGIC ^ code.rotate_left(7) ^ info.rotate_left(19) ^ 0xA5A5_5A5A
+    }
+
+    fn words() -> *mut u32 {
+        // SAFETY: only the address is taken.
+        core::ptr::addr_of_mut!(LATCH).cast::<u32>()
+    }
+
+    /// Latches a fault (code, tick or PC).
+    pub fn set(code: u32, info: u32) {
+        let w = words();
+        // SAFETY: four words of a static reserved for this; volatile so the stores happen
+        // before a reset.
+        unsafe {
+            w.write_volatile(MAGIC);
+            w.add(1).write_volatile(code);
+            w.add(2).write_volatile(info);
+            w.add(3).write_volatile(check(code, info));
+        }
+    }
+
+    /// The latched fault, if the four words hold a valid one.
+    pub fn get() -> Option<(u32, u32)> {
+        let w = words();
+        // SAFETY: reads of the same four words (whatever they hold, every bit pattern is a
+        // valid u32).
+        let [m, code, info, c] = unsafe {
+            [
+                w.read_volatile(),
+                w.add(1).read_volatile(),
+                w.add(2).read_volatile(),
+                w.add(3).read_volatile(),
+            ]
+        };
+        (m == MAGIC && c == check(code, info)).then_some((code, info))
+    }
+
+    /// Clears the latch (a power cycle: the operator's acknowledgement).
+    pub fn clear() {
+        // SAFETY: as in `set`.
+        unsafe { words().write_volatile(0) }
     }
 }

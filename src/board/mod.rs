@@ -58,6 +58,42 @@ pub struct Board {
     wdg_start: u32,
 }
 
+/// Why the MCU last reset, from RCC_CSR (the flags are cleared for the next boot). `true`
+/// with it when the reset was a power-on or brown-out (RAM content is then meaningless).
+pub fn reset_cause() -> (&'static str, bool) {
+    // SAFETY: a read of RCC_CSR and a write of its RMVF bit (clears the reset flags only).
+    let rcc = unsafe { &*pac::RCC::ptr() };
+    let csr = rcc.csr().read().bits();
+    rcc.csr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | (1 << 24)) });
+    let cause = if csr & (1 << 25) != 0 {
+        "brown_out"
+    } else if csr & (1 << 27) != 0 {
+        "power_on"
+    } else if csr & (1 << 29) != 0 {
+        "independent_watchdog"
+    } else if csr & (1 << 30) != 0 {
+        "window_watchdog"
+    } else if csr & (1 << 28) != 0 {
+        "software"
+    } else if csr & (1 << 31) != 0 {
+        "low_power"
+    } else if csr & (1 << 26) != 0 {
+        "pin"
+    } else {
+        "unknown"
+    };
+    (cause, csr & ((1 << 25) | (1 << 27)) != 0)
+}
+
+/// After a latched fault: bridge safe, nothing runs; the MCU waits for a power cycle.
+pub fn wait_latched() -> ! {
+    safe_state();
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
 /// Clocks, pins, PWM, encoder timer, ADC and watchdog; the first sample interrupt comes one
 /// control period later.
 pub fn init(

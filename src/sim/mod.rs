@@ -199,6 +199,26 @@ pub fn rearm_sampling() {
     cortex_m::peripheral::NVIC::unpend(pac::Interrupt::ADC);
 }
 
+/// Why the MCU last reset: QEMU has no reset flags. A fresh QEMU start is a power-on; a reset
+/// from inside the run (SYSRESETREQ) keeps RAM, which the latch's checksum tells apart.
+pub fn reset_cause() -> (&'static str, bool) {
+    if crate::fault::latch::get().is_some() {
+        ("software", false)
+    } else {
+        ("power_on", true)
+    }
+}
+
+/// After a latched fault: bridge safe; QEMU exits with [`STATUS_LATCHED`] (the board waits
+/// for a power cycle).
+pub fn wait_latched() -> ! {
+    safe_state();
+    exit(STATUS_LATCHED)
+}
+
+/// Exit status of a boot that found a latched fault and did not move.
+pub const STATUS_LATCHED: i32 = 5;
+
 /// A free-running cycle stamp (TIMER0 ticks, 40 instructions each at `-icount shift=0`).
 #[inline(always)]
 pub fn stamp() -> u32 {

@@ -258,6 +258,53 @@ fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
     }
 }
 
+/// A reset mid-grasp with a latched fault: the next boot reports the cause and the latch,
+/// and waits (exit 5 on QEMU) with the bridge off instead of starting a new grasp.
+fn latch_check() -> Res {
+    let elf = qemu::build_with("table2", Some("reset@3000"))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if !f.msg.starts_with("S ") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let q = &run.frames;
+    let mut errs = Vec::new();
+    if run.status != 5 {
+        errs.push(format!("exit status {} (expected 5: latched)", run.status));
+    }
+    let boots = q.iter().filter(|f| f.msg.starts_with("BOOT")).count();
+    if boots != 2 {
+        errs.push(format!(
+            "{boots} boots (expected 2: before and after the reset)"
+        ));
+    }
+    let reset = log::last(q, "RESET")
+        .map(|f| f.msg.clone())
+        .unwrap_or_default();
+    if word(&reset, "cause") != Some("software") || int(&reset, "latched_info") != Some(3000) {
+        errs.push(format!("second boot did not report the latch: {reset:?}"));
+    }
+    match q.iter().position(|f| f.msg.starts_with("LATCHED")) {
+        Some(i) if i + 1 == q.len() => {}
+        Some(_) => errs.push("the firmware went on after LATCHED".into()),
+        None => errs.push("no LATCHED line".into()),
+    }
+    let calibrations = q
+        .iter()
+        .filter(|f| f.msg.starts_with("E Calibrated"))
+        .count();
+    if calibrations != 1 {
+        errs.push(format!(
+            "{calibrations} calibrations (a second grasp started)"
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
 /// Instructions per work stamp, from the firmware's calibration loop (CAL line); must agree
 /// with the icount arithmetic (1 ns per instruction, 40 ns per 25 MHz timer tick).
 pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
@@ -406,6 +453,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run("QEMU: injected HardFault -> bridge safe, exit 102", || {
         inject_check("hardfault", 3000, 102, "HARDFAULT")
     });
+    st.run(
+        "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
+        latch_check,
+    );
 
     eprintln!(
         "\n==== summary ({:.0} s) ====",
