@@ -173,8 +173,10 @@ fn inject_consts(src: &mut String) {
             let at: u32 = at
                 .parse()
                 .unwrap_or_else(|_| fail(&format!("FINGER_FW_INJECT={v}: TICK must be a number")));
-            if kind != "panic" && kind != "hardfault" {
-                fail(&format!("FINGER_FW_INJECT={v}: KIND is panic or hardfault"));
+            if !matches!(kind, "panic" | "hardfault" | "reset") {
+                fail(&format!(
+                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault or reset"
+                ));
             }
             format!("Some(({kind:?}, {at}))")
         }

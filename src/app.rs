@@ -7,6 +7,10 @@
 //! | 2    | `estimate`  | software (async)             | `take_request`, `run_estimate`, `deliver`        |
 //! | 1    | `telemetry` | software (async)             | defmt: every event, θa/T_a/state decimated to 50 Hz |
 //!
+//! Supervision: the loop drives only on a setpoint the supervisor stamped within
+//! `LINK_SAMPLES` samples (grasp), and the watchdog (started at the end of `init`) is fed
+//! by `sample` only while `supervise` has checked in recently ([`crate::fault::supervision`]).
+//!
 //! The loop and the state machine meet only in the [`grasp::Link`]: the loop leaves sample
 //! sums there and applies the setpoint it finds; the supervisor takes the sums and writes the
 //! setpoint. Every lock of it is a copy of a few words, so the 10 kHz task never waits for the
@@ -37,6 +41,7 @@ mod app {
     use rtic_sync::make_channel;
 
     use crate::ctl;
+    use crate::fault::supervision;
     use crate::platform::{self, Board};
     use crate::telemetry::{self as tm, Done, Msg, QUEUE};
 
@@ -62,6 +67,7 @@ mod app {
 
     #[init(local = [table_store: ctl::TableSlot = ctl::TableSlot::Empty])]
     fn init(cx: init::Context) -> (Shared, Local) {
+        let init0 = platform::stamp();
         let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
         #[cfg(feature = "qemu")]
         let (board, cfg) = platform::init(cx.core);
@@ -75,6 +81,27 @@ mod app {
             platform::NAME,
             (cfg.drive.dt_s * 1e6) as u32
         );
+        // A fault that caused the last reset is latched: report it and do not move (the
+        // encoder would be zeroed wherever the finger stopped). A power-on clears the latch.
+        let (cause, power_on) = platform::reset_cause();
+        let latched = crate::fault::latch::get();
+        let (code, info) = latched.unwrap_or((0, 0));
+        defmt::info!(
+            "RESET cause={=str} latched_code={=u32} latched_info={=u32}",
+            cause,
+            code,
+            info
+        );
+        if power_on {
+            crate::fault::latch::clear();
+        } else if latched.is_some() || cause == "independent_watchdog" {
+            defmt::error!(
+                "LATCHED fault (code {=u32}) from before the {=str} reset: bridge off, waiting for a power cycle",
+                code,
+                cause
+            );
+            platform::wait_latched();
+        }
         let decimation = ctl::decimation(&cfg.drive);
         // Calibration of the work counter: `delay(n)` is n + 1 passes of `subs; bne`, i.e.
         // 200 002 instructions (QEMU icount: stamps × 40; board: CPU cycles of that loop).
@@ -98,6 +125,14 @@ mod app {
         let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
         telemetry::spawn(tel_rx).ok();
+        // The watchdog starts last: init's long work (calibration loop, the path fit's table)
+        // runs before it, so only the window from here to the first feed counts.
+        let mut board = board;
+        board.start_watchdog();
+        defmt::info!(
+            "INIT stamps={=u32} (watchdog started at its end)",
+            platform::stamp().wrapping_sub(init0)
+        );
         (
             Shared { link, sup },
             Local {
@@ -129,7 +164,7 @@ mod app {
         binds = ADC,
         priority = 4,
         shared = [link],
-        local = [lp, board, tel_tx, decimation, done: bool = false, last_state: State = State::Init]
+        local = [lp, board, tel_tx, decimation, done: bool = false, last_state: State = State::Init, fed: bool = false]
     )]
     fn sample(cx: sample::Context) {
         let t0 = platform::stamp();
@@ -150,6 +185,22 @@ mod app {
         // its loop, else the next tick's spawn starts it.
         if input && supervise::spawn().is_err() {
             tm::SUP_BUSY.fetch_add(1, Ordering::Relaxed);
+        }
+        // The supervisor's heartbeat: it runs (and checks in) even when the loop has nothing
+        // for it (bridge off, end of run), so the watchdog can demand its check-in always.
+        if !input && tick % supervision::SUP_HEARTBEAT_TICKS == 0 {
+            let _ = supervise::spawn();
+        }
+        // The watchdog: the loop is alive (this task runs) and so is the supervisor.
+        if supervision::may_feed(tick) {
+            board.feed_watchdog();
+            if !*cx.local.fed {
+                *cx.local.fed = true;
+                defmt::info!(
+                    "WDG first feed, stamps since start={=u32}",
+                    board.watchdog_age()
+                );
+            }
         }
         // The plant's truth once the step has settled (the supervisor has just published it).
         if state == State::Estimating && *cx.local.last_state != State::Estimating {
@@ -230,6 +281,7 @@ mod app {
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
         let _ = tm::record_max(&tm::SUP_WORK_MAX, work);
+        supervision::supervisor_check_in(tm::TICKS.load(Ordering::Relaxed));
     }
 
     /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample` and
@@ -262,6 +314,11 @@ mod app {
         while let Ok(msg) = rx.recv().await {
             tm::log(&msg);
             if let Msg::Done(done) = msg {
+                #[cfg(feature = "qemu")]
+                {
+                    let (used, size) = crate::fault::stack::high_water();
+                    defmt::info!("STACK used={=u32} size={=u32}", used, size);
+                }
                 platform::finish(done.status);
             }
         }

@@ -1,5 +1,7 @@
 //! Last-resort handlers: a panic or a HardFault puts the H-bridge in its safe state first,
-//! then reports (QEMU: exits non-zero through semihosting; board: halts, the IWDG resets).
+//! latches the fault in RAM that survives a reset ([`latch`]), then reports (QEMU: exits
+//! non-zero through semihosting; board: halts, the IWDG resets, and the next boot finds the
+//! latch and waits for a power cycle instead of moving).
 
 use core::panic::PanicInfo;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -18,6 +20,10 @@ static REPORTING: AtomicBool = AtomicBool::new(false);
 #[panic_handler]
 fn panic(info: &PanicInfo) -> ! {
     platform::safe_state();
+    latch::set(
+        latch::PANIC,
+        crate::telemetry::TICKS.load(Ordering::Relaxed),
+    );
     cortex_m::interrupt::disable();
     if !REPORTING.swap(true, Ordering::SeqCst) {
         if let Some(loc) = info.location() {
@@ -37,6 +43,7 @@ fn panic(info: &PanicInfo) -> ! {
 #[cortex_m_rt::exception]
 unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
     platform::safe_state();
+    latch::set(latch::HARDFAULT, frame.pc());
     if !REPORTING.swap(true, Ordering::SeqCst) {
         defmt::error!(
             "HARDFAULT pc={=u32:#x} bridge_safe={=bool}",
@@ -47,12 +54,18 @@ unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
     platform::halt(STATUS_HARDFAULT)
 }
 
-/// Fault injection for the test command (`FINGER_FW_INJECT=panic@TICK|hardfault@TICK` at build
+/// Fault injection for the test command (`FINGER_FW_INJECT=panic|hardfault|reset@TICK` at build
 /// time; never set in a normal build): checks that the handlers above reach the safe state.
 #[inline(always)]
 pub fn inject(tick: u32) {
     match crate::config::INJECT {
         Some(("panic", at)) if at == tick => panic!("injected panic at tick {}", tick),
+        Some(("reset", at)) if at == tick => {
+            // A fault that resets the MCU mid-grasp (as the watchdog does after a halt).
+            platform::safe_state();
+            latch::set(latch::INJECTED, tick);
+            cortex_m::peripheral::SCB::sys_reset();
+        }
         Some(("hardfault", at)) if at == tick => {
             // A read from unmapped memory: BusFault, escalated to HardFault (not enabled).
             // SAFETY: deliberately faulting; the handler never returns.
@@ -60,5 +73,131 @@ pub fn inject(tick: u32) {
             core::hint::black_box(v);
         }
         _ => {}
+    }
+}
+
+/// The supervision chain's check-ins and the watchdog's window.
+///
+/// The sampling task feeds the watchdog only when it runs (the loop is alive) *and* the
+/// supervise task has checked in within [`SUP_WINDOW_TICKS`]: the supervise task runs at
+/// least every [`SUP_HEARTBEAT_TICKS`] (spawned for each sample and, with nothing to do, as a
+/// heartbeat), so a stalled, starved or locked supervisor stops the feeding and the IWDG
+/// resets the MCU within `SUP_WINDOW_TICKS` + the IWDG timeout (6.8–18.8 ms over the LSI's
+/// tolerance). While driving, the loop's own heartbeat check (grasp's `SupervisorStalled`)
+/// switches the bridge off sooner than that.
+pub mod supervision {
+    use core::sync::atomic::{AtomicU32, Ordering};
+
+    /// The sampling task spawns the supervise task at least this often (ticks), input or not.
+    pub const SUP_HEARTBEAT_TICKS: u32 = 32;
+    /// The watchdog is fed only while the supervise task's last check-in is at most this old
+    /// (ticks): two heartbeats.
+    pub const SUP_WINDOW_TICKS: u32 = 2 * SUP_HEARTBEAT_TICKS;
+
+    /// Tick of the supervise task's last check-in (0 before the first: the first ticks are
+    /// inside the window).
+    static SUP_CHECKIN_TICK: AtomicU32 = AtomicU32::new(0);
+
+    /// The supervise task is alive at `tick`.
+    pub fn supervisor_check_in(tick: u32) {
+        SUP_CHECKIN_TICK.store(tick, Ordering::Relaxed);
+    }
+
+    /// Whether the watchdog may be fed at `tick` (the caller, the sampling task, is the
+    /// loop's own check-in).
+    pub fn may_feed(tick: u32) -> bool {
+        tick.wrapping_sub(SUP_CHECKIN_TICK.load(Ordering::Relaxed)) <= SUP_WINDOW_TICKS
+    }
+}
+
+/// The stack's high-water mark: cortex-m-rt's `paint-stack` (QEMU builds) fills the stack with
+/// a pattern at reset; the deepest word no longer holding it is the deepest the stack went.
+/// With flip-link the stack grows down from `_stack_start` to `_stack_end`, the start of RAM.
+#[cfg(feature = "qemu")]
+pub mod stack {
+    /// cortex-m-rt's paint pattern.
+    const PAINT: u32 = 0xCCCC_CCCC;
+
+    extern "C" {
+        static _stack_start: u32;
+        static _stack_end: u32;
+    }
+
+    /// (bytes used at most, stack size in bytes). Reads memory below the live stack pointer
+    /// only; words still painted are untouched.
+    pub fn high_water() -> (u32, u32) {
+        // SAFETY: the linker symbols' addresses bound the stack region; reading it word by
+        // word (volatile) from its far end up to the first overwritten word stays inside it.
+        unsafe {
+            let top = core::ptr::addr_of!(_stack_start) as usize;
+            let bottom = core::ptr::addr_of!(_stack_end) as usize;
+            let mut p = bottom;
+            while p < top && core::ptr::read_volatile(p as *const u32) == PAINT {
+                p += 4;
+            }
+            ((top - p) as u32, (top - bottom) as u32)
+        }
+    }
+}
+
+/// A fault that caused a reset, kept across it: four words in `.uninit` (not zeroed at
+/// reset) with a magic number and a checksum, so that RAM's random content after a power-on
+/// is not taken for a latch. A power-on (or brown-out) reset clears it.
+pub mod latch {
+    use core::mem::MaybeUninit;
+
+    const MAGIC: u32 = 0x4C41_5443;
+    /// A panic.
+    pub const PANIC: u32 = 1;
+    /// A HardFault (the second word is its PC).
+    pub const HARDFAULT: u32 = 2;
+    /// A reset injected by the test command.
+    pub const INJECTED: u32 = 3;
+
+    #[link_section = ".uninit.FAULT_LATCH"]
+    static mut LATCH: MaybeUninit<[u32; 4]> = MaybeUninit::uninit();
+
+    fn check(code: u32, info: u32) -> u32 {
+        MAGIC ^ code.rotate_left(7) ^ info.rotate_left(19) ^ 0xA5A5_5A5A
+    }
+
+    fn words() -> *mut u32 {
+        // SAFETY: only the address is taken.
+        core::ptr::addr_of_mut!(LATCH).cast::<u32>()
+    }
+
+    /// Latches a fault (code, tick or PC).
+    pub fn set(code: u32, info: u32) {
+        let w = words();
+        // SAFETY: four words of a static reserved for this; volatile so the stores happen
+        // before a reset.
+        unsafe {
+            w.write_volatile(MAGIC);
+            w.add(1).write_volatile(code);
+            w.add(2).write_volatile(info);
+            w.add(3).write_volatile(check(code, info));
+        }
+    }
+
+    /// The latched fault, if the four words hold a valid one.
+    pub fn get() -> Option<(u32, u32)> {
+        let w = words();
+        // SAFETY: reads of the same four words (whatever they hold, every bit pattern is a
+        // valid u32).
+        let [m, code, info, c] = unsafe {
+            [
+                w.read_volatile(),
+                w.add(1).read_volatile(),
+                w.add(2).read_volatile(),
+                w.add(3).read_volatile(),
+            ]
+        };
+        (m == MAGIC && c == check(code, info)).then_some((code, info))
+    }
+
+    /// Clears the latch (a power cycle: the operator's acknowledgement).
+    pub fn clear() {
+        // SAFETY: as in `set`.
+        unsafe { words().write_volatile(0) }
     }
 }

@@ -9,7 +9,7 @@
 //! | DRV8871 IN1 (flex)        | PA8  | TIM1_CH1 (AF1), 20 kHz centre-aligned PWM | 10 kΩ pull-down on the board |
 //! | DRV8871 IN2 (extend)      | PA9  | TIM1_CH2 (AF1)                 | 10 kΩ pull-down                    |
 //! | shunt amplifier output    | PA4  | ADC1_IN4, injected, TIM1_TRGO  | mid-scale (1.65 V) at 0 A          |
-//! | watchdog                  | —    | IWDG, 10 ms                    | fed by the sampling task           |
+//! | watchdog                  | —    | IWDG, 10 ms                    | started at the end of init; fed by the sampling task while the supervisor checks in |
 //!
 //! Timing: TIM1 runs centre-aligned at 20 kHz (ARR = 2500 at 100 MHz); its repetition counter
 //! (RCR = 3 for the controller's dt = 100 µs) makes an update event every second PWM period, at the counter underflow, i.e. in
@@ -54,6 +54,44 @@ pub struct Board {
     adc_code: u16,
     off: bool,
     wdg: IndependentWatchdog,
+    /// Cycle stamp when the watchdog was started.
+    wdg_start: u32,
+}
+
+/// Why the MCU last reset, from RCC_CSR (the flags are cleared for the next boot). `true`
+/// with it when the reset was a power-on or brown-out (RAM content is then meaningless).
+pub fn reset_cause() -> (&'static str, bool) {
+    // SAFETY: a read of RCC_CSR and a write of its RMVF bit (clears the reset flags only).
+    let rcc = unsafe { &*pac::RCC::ptr() };
+    let csr = rcc.csr().read().bits();
+    rcc.csr()
+        .modify(|r, w| unsafe { w.bits(r.bits() | (1 << 24)) });
+    let cause = if csr & (1 << 25) != 0 {
+        "brown_out"
+    } else if csr & (1 << 27) != 0 {
+        "power_on"
+    } else if csr & (1 << 29) != 0 {
+        "independent_watchdog"
+    } else if csr & (1 << 30) != 0 {
+        "window_watchdog"
+    } else if csr & (1 << 28) != 0 {
+        "software"
+    } else if csr & (1 << 31) != 0 {
+        "low_power"
+    } else if csr & (1 << 26) != 0 {
+        "pin"
+    } else {
+        "unknown"
+    };
+    (cause, csr & ((1 << 25) | (1 << 27)) != 0)
+}
+
+/// After a latched fault: bridge safe, nothing runs; the MCU waits for a power cycle.
+pub fn wait_latched() -> ! {
+    safe_state();
+    loop {
+        cortex_m::asm::wfi();
+    }
 }
 
 /// Clocks, pins, PWM, encoder timer, ADC and watchdog; the first sample interrupt comes one
@@ -136,14 +174,15 @@ pub fn init(
         tim1.cr1().write(|w| w.bits(1 | (0b01 << 5) | (1 << 7)));
     }
 
-    let mut wdg = IndependentWatchdog::new(dp.IWDG);
-    wdg.start(10.millis());
+    // Started by `start_watchdog` at the end of init, after the long work there.
+    let wdg = IndependentWatchdog::new(dp.IWDG);
 
     (
         Board {
             adc_code: 2048,
             off: true,
             wdg,
+            wdg_start: 0,
         },
         crate::ctl::config(drive),
     )
@@ -159,9 +198,24 @@ impl Board {
         adc.sr().write(|w| unsafe { w.bits(!(1 << 2)) });
     }
 
-    /// End of the control period: feed the watchdog (the loop is alive).
-    pub fn advance(&mut self) {
+    /// End of the control period: nothing to advance on the real board.
+    pub fn advance(&mut self) {}
+
+    /// Starts the IWDG (10 ms nominal, 6.8–18.8 ms over the LSI's tolerance); it cannot be
+    /// stopped again.
+    pub fn start_watchdog(&mut self) {
+        self.wdg.start(10.millis());
+        self.wdg_start = stamp();
+    }
+
+    /// Feeds the IWDG.
+    pub fn feed_watchdog(&mut self) {
         self.wdg.feed();
+    }
+
+    /// Cycle stamps since the watchdog was started.
+    pub fn watchdog_age(&self) -> u32 {
+        stamp().wrapping_sub(self.wdg_start)
     }
 
     /// True when the bridge is off.

@@ -46,6 +46,8 @@ pub type Board = SimBoard;
 pub struct SimBoard {
     /// The plant behind grasp's Hardware trait (the adapter the host runs use too).
     hw: sim_board::PlantBoard,
+    /// Work stamp when the (modelled) watchdog was started.
+    wdg_start: u32,
 }
 
 /// Brings up the simulated board for the build's scene and starts the sampling interrupt.
@@ -72,12 +74,27 @@ pub fn init(core: rtic::export::Peripherals) -> (Board, grasp::ControllerConfig)
     (
         SimBoard {
             hw: sim_board::PlantBoard::new(plant),
+            wdg_start: 0,
         },
         cfg,
     )
 }
 
 impl SimBoard {
+    /// QEMU's mps2-an386 has no watchdog: the start is recorded so the window to the first
+    /// feed can be measured (`WDG` line) against the board's timeout.
+    pub fn start_watchdog(&mut self) {
+        self.wdg_start = stamp();
+    }
+
+    /// No watchdog to feed on QEMU.
+    pub fn feed_watchdog(&mut self) {}
+
+    /// Work stamps since [`SimBoard::start_watchdog`].
+    pub fn watchdog_age(&self) -> u32 {
+        stamp().wrapping_sub(self.wdg_start)
+    }
+
     /// Nothing to acknowledge: SysTick pended the line.
     pub fn ack_sample(&mut self) {}
 
@@ -181,6 +198,26 @@ pub fn rearm_sampling() {
     }
     cortex_m::peripheral::NVIC::unpend(pac::Interrupt::ADC);
 }
+
+/// Why the MCU last reset: QEMU has no reset flags. A fresh QEMU start is a power-on; a reset
+/// from inside the run (SYSRESETREQ) keeps RAM, which the latch's checksum tells apart.
+pub fn reset_cause() -> (&'static str, bool) {
+    if crate::fault::latch::get().is_some() {
+        ("software", false)
+    } else {
+        ("power_on", true)
+    }
+}
+
+/// After a latched fault: bridge safe; QEMU exits with [`STATUS_LATCHED`] (the board waits
+/// for a power cycle).
+pub fn wait_latched() -> ! {
+    safe_state();
+    exit(STATUS_LATCHED)
+}
+
+/// Exit status of a boot that found a latched fault and did not move.
+pub const STATUS_LATCHED: i32 = 5;
 
 /// A free-running cycle stamp (TIMER0 ticks, 40 instructions each at `-icount shift=0`).
 #[inline(always)]

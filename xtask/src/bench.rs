@@ -85,6 +85,9 @@ fn build_harness(root: &Path) -> Result<Vec<PathBuf>, String> {
                 .current_dir(&dir)
                 // The harness brings its own linker script; ignore any target rustflags.
                 .env("RUSTFLAGS", "")
+                // Their own link scripts have no MEMORY.RAM: the firmware's flip-link
+                // (.cargo/config.toml) does not apply to them.
+                .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld")
                 .env("CARGO_TARGET_DIR", &target_dir),
         )?;
         elfs.push(target_dir.join(t).join("release/pts-bench-thumb"));
@@ -149,6 +152,9 @@ fn pathfit_check(root: &Path) -> Result<i32, String> {
             .arg(dir.join("Cargo.toml"))
             .env("CARGO_TARGET_DIR", root.join("target/bench-pathfit"))
             .env("RUSTFLAGS", "")
+            // Their own link scripts have no MEMORY.RAM: the firmware's flip-link
+            // (.cargo/config.toml) does not apply to them.
+            .env("CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER", "rust-lld")
             .current_dir(root),
     )?;
     let elf = root.join("target/bench-pathfit/thumbv7em-none-eabihf/release/pathfit-icount");

@@ -219,6 +219,14 @@ fn scene_check(
         }
     }
     let per = instr_per_stamp(q)?;
+    match size::stack_check(q) {
+        Ok(line) => println!("{scene}: {line}"),
+        Err(e) => errs.push(e),
+    }
+    match watchdog_window(q, per) {
+        Ok(line) => println!("{scene}: {line}"),
+        Err(e) => errs.push(e),
+    }
     work.push((
         scene.to_string(),
         int(&end.msg, "work_max").unwrap_or(0) as f64 * per,
@@ -374,6 +382,53 @@ fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
     }
 }
 
+/// A reset mid-grasp with a latched fault: the next boot reports the cause and the latch,
+/// and waits (exit 5 on QEMU) with the bridge off instead of starting a new grasp.
+fn latch_check() -> Res {
+    let elf = qemu::build_with("table2", Some("reset@3000"))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if !f.msg.starts_with("S ") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let q = &run.frames;
+    let mut errs = Vec::new();
+    if run.status != 5 {
+        errs.push(format!("exit status {} (expected 5: latched)", run.status));
+    }
+    let boots = q.iter().filter(|f| f.msg.starts_with("BOOT")).count();
+    if boots != 2 {
+        errs.push(format!(
+            "{boots} boots (expected 2: before and after the reset)"
+        ));
+    }
+    let reset = log::last(q, "RESET")
+        .map(|f| f.msg.clone())
+        .unwrap_or_default();
+    if word(&reset, "cause") != Some("software") || int(&reset, "latched_info") != Some(3000) {
+        errs.push(format!("second boot did not report the latch: {reset:?}"));
+    }
+    match q.iter().position(|f| f.msg.starts_with("LATCHED")) {
+        Some(i) if i + 1 == q.len() => {}
+        Some(_) => errs.push("the firmware went on after LATCHED".into()),
+        None => errs.push("no LATCHED line".into()),
+    }
+    let calibrations = q
+        .iter()
+        .filter(|f| f.msg.starts_with("E Calibrated"))
+        .count();
+    if calibrations != 1 {
+        errs.push(format!(
+            "{calibrations} calibrations (a second grasp started)"
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
 /// Instructions per work stamp, from the firmware's calibration loop (CAL line); must agree
 /// with the icount arithmetic (1 ns per instruction, 40 ns per 25 MHz timer tick).
 pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
@@ -387,6 +442,34 @@ pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
         ));
     }
     Ok(per)
+}
+
+/// Worst IWDG timeout over the LSI's tolerance (17–47 kHz for a nominal 10 ms), ms.
+const WDG_TIMEOUT_WORST_MS: f64 = 6.8;
+/// Cycles per instruction assumed on the board (100 MHz, flash wait states behind the ART
+/// accelerator): a conservative 2, so the instruction budget is half the cycle budget.
+const BOARD_CYCLES_PER_INSTR: f64 = 2.0;
+
+/// The watchdog's first window: from its start (end of init) to its first feed must take at
+/// most half the worst timeout on the board (100 MHz). Init's own length is reported (the
+/// watchdog is not running during it).
+fn watchdog_window(frames: &[Frame], per: f64) -> Res<String> {
+    let init = log::first(frames, "INIT")
+        .and_then(|f| int(&f.msg, "stamps"))
+        .ok_or("no INIT line with stamps in the log")? as f64
+        * per;
+    let wdg = log::first(frames, "WDG first feed")
+        .and_then(|f| int(&f.msg, "start"))
+        .ok_or("no `WDG first feed` line: the watchdog is never fed")? as f64
+        * per;
+    let budget = WDG_TIMEOUT_WORST_MS * 1e-3 * 100e6 / 2.0 / BOARD_CYCLES_PER_INSTR;
+    let line = format!(
+        "init {init:.0} instructions (watchdog not yet started); watchdog start -> first feed {wdg:.0} instructions (budget {budget:.0}: half of {WDG_TIMEOUT_WORST_MS} ms at 100 MHz, {BOARD_CYCLES_PER_INSTR} cycles/instruction)"
+    );
+    if wdg > budget {
+        return Err(format!("watchdog window too long: {line}"));
+    }
+    Ok(line)
 }
 
 /// `cargo xtask test [STAGE]`: every stage, or only those whose name contains STAGE
@@ -456,6 +539,10 @@ pub fn main(args: &[String]) -> Res<i32> {
             "warnings",
         ])
     });
+    st.run(
+        "no panic reachable from a firmware task (xtask panics)",
+        || crate::panics::main(&[]),
+    );
     st.run("board firmware (release) within flash/RAM budgets", || {
         let elf = size::build_board()?;
         size::report(size::measure(&elf)?)
@@ -501,6 +588,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run("QEMU: injected HardFault -> bridge safe, exit 102", || {
         inject_check("hardfault", 3000, 102, "HARDFAULT")
     });
+    st.run(
+        "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
+        latch_check,
+    );
 
     eprintln!(
         "\n==== summary ({:.0} s) ====",
@@ -557,5 +648,23 @@ mod tests {
         let bad = [frame("CAL instructions=200002 stamps=10000")];
         assert!(instr_per_stamp(&bad).is_err());
         assert!(instr_per_stamp(&[frame("BOOT")]).is_err());
+    }
+
+    #[test]
+    fn watchdog_window_is_checked_against_half_the_worst_timeout() {
+        let init = frame("INIT stamps=33144 (watchdog started at its end)");
+        let ok = [
+            init.clone(),
+            frame("WDG first feed, stamps since start=155"),
+        ];
+        assert!(watchdog_window(&ok, 40.0).is_ok());
+        // 170,000 instructions is the budget: one stamp more fails.
+        let late = [
+            init.clone(),
+            frame("WDG first feed, stamps since start=4251"),
+        ];
+        assert!(watchdog_window(&late, 40.0).is_err());
+        // Never fed at all is a failure, not a pass.
+        assert!(watchdog_window(&[init], 40.0).is_err());
     }
 }

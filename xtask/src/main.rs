@@ -15,6 +15,7 @@ mod ci;
 mod demo;
 mod fuzz;
 mod log;
+mod panics;
 mod qemu;
 mod size;
 mod util;
@@ -153,6 +154,23 @@ left in fuzz/artifacts/<target>/).
         run: fuzz::main,
     },
     Cmd {
+        name: "panics",
+        args: "",
+        summary: "no panic reachable from any firmware task (whole-program call graph)",
+        help: "\
+Builds the board firmware (two-point and path-fit estimators) as one LTO assembly file and walks
+the call graph from the sampling interrupt and the task dispatchers. Any reachable core panic
+entry point (unwrap, expect, slice index, bounds check, division, panic_fmt, ...) that is not on
+the list of known open or accepted sites is reported with its call path.
+
+options:
+  -h, --help            print this help and exit
+
+exit status: 0 when nothing new is reachable; 1 otherwise.
+",
+        run: |a| panics::main(a).map(|()| 0),
+    },
+    Cmd {
         name: "qemu",
         args: "ELF",
         summary: "run a firmware ELF in QEMU and print its decoded defmt log",
@@ -256,7 +274,11 @@ fn run(args: &[String]) -> Result<i32, String> {
     }
     let name = args.first().map(String::as_str).unwrap_or_default();
     match find(name) {
-        Some(c) => (c.run)(&args[1..]),
+        Some(c) => {
+            // The thumb builds link with flip-link (stack overflow caught by the hardware).
+            size::ensure_flip_link()?;
+            (c.run)(&args[1..])
+        }
         None => Err(format!("unknown command `{name}`\n{}", overview())),
     }
 }

@@ -1,4 +1,6 @@
-//! Flash and static RAM of the release board firmware, from its ELF sections.
+//! Flash and static RAM of the release board firmware, from its ELF sections, and the stack:
+//! its size on the board (flip-link puts it below the statics) and its high-water mark,
+//! measured in QEMU (the stack is painted at reset and read back at the end of the run).
 
 use object::{Object, ObjectSection, SectionFlags};
 
@@ -93,8 +95,64 @@ pub fn report(s: Sizes) -> Res {
     }
 }
 
-/// `cargo xtask size`.
+/// The board's RAM (STM32F411CE).
+const BOARD_RAM: u64 = 128 * 1024;
+/// The stack may use at most this share of what the board leaves it.
+const STACK_MAX_SHARE: f64 = 0.5;
+
+/// Installs flip-link (the thumb builds' linker, .cargo/config.toml) when it is missing.
+pub fn ensure_flip_link() -> Res {
+    let found = std::env::var_os("PATH")
+        .is_some_and(|paths| std::env::split_paths(&paths).any(|d| d.join("flip-link").is_file()));
+    if found {
+        return Ok(());
+    }
+    eprintln!("flip-link (the firmware's linker) is missing: installing it");
+    util::run(
+        std::process::Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()))
+            .args(["install", "flip-link", "--locked"]),
+    )
+}
+
+/// The stack line of a QEMU run checked against the board: the high-water mark must fit in
+/// half of the board's RAM left after the static budget.
+pub fn stack_check(frames: &[crate::qemu::Frame]) -> Res<String> {
+    let line = crate::log::first(frames, "STACK").ok_or("no STACK line in the log")?;
+    let used = crate::log::int(&line.msg, "used").ok_or("STACK without used")? as u64;
+    let avail = BOARD_RAM - RAM_BUDGET;
+    let max = (avail as f64 * STACK_MAX_SHARE) as u64;
+    let text = format!(
+        "stack high-water {used} B (QEMU, the simulated plant included), board stack {avail} B (RAM less the static budget): margin {} B; limit {max} B",
+        avail.saturating_sub(used)
+    );
+    if used > max {
+        Err(format!("stack too deep: {text}"))
+    } else {
+        Ok(text)
+    }
+}
+
+/// `cargo xtask size`: flash and static RAM of the board build, then the stack's high-water
+/// mark of the Table 2 scene in QEMU for both estimators.
 pub fn main(_args: &[String]) -> Res {
     let elf = build_board()?;
-    report(measure(&elf)?)
+    let sized = report(measure(&elf)?);
+    let mut errs = Vec::new();
+    for est in ["two-point", "path-fit"] {
+        std::env::set_var("FINGER_FW_ESTIMATOR", est);
+        let r = crate::qemu::build("table2")
+            .and_then(|elf| crate::qemu::run(&elf, &mut |_| {}))
+            .and_then(|run| stack_check(&run.frames));
+        std::env::remove_var("FINGER_FW_ESTIMATOR");
+        match r {
+            Ok(t) => println!("{est}: {t}"),
+            Err(e) => errs.push(format!("{est}: {e}")),
+        }
+    }
+    sized?;
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
 }

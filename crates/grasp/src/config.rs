@@ -361,6 +361,13 @@ impl ControllerConfig {
         {
             return Err(ConfigError::OutOfRange);
         }
+        // The sensor must read past the limit: full scale from the zero code to the nearer
+        // rail, 5 % kept for offset and gain error (else the ADC sits at its rail below the
+        // limit, and over-current detection is blind).
+        let full_scale_a = d.adc_zero_code.min(4095.0 - d.adc_zero_code) * d.amps_per_code.abs();
+        if self.overcurrent_a > 0.95 * full_scale_a {
+            return Err(ConfigError::OverCurrentBeyondSensor);
+        }
         let secs = |s: f64| to_u32(s / d.dt_s);
         let calib_ticks = secs(self.calib_s);
         let sample_ticks = secs(self.sample_s);
@@ -498,13 +505,16 @@ impl ControllerConfig {
                 .min(ADC_MAX_CODE.saturating_sub(cs.zero_count)),
         );
         let sense_range_a = cs.amps_per_count.abs() * codes_to_rail;
-        if file.motor.max_current_a >= sense_range_a {
+        // The same rule as `params` (5 % kept for offset and gain error), said with the key.
+        if file.motor.max_current_a > 0.95 * sense_range_a {
             return Err(invalid(
                 "motor.max_current_a",
                 format!(
                     "{} A is beyond the current sensor's range of ±{:.4} A (current_sense): an \
-                     over-current could not be seen; allowed: below the sensor's range",
-                    file.motor.max_current_a, sense_range_a
+                     over-current could not be seen; allowed: up to {:.4} A (95 % of the range)",
+                    file.motor.max_current_a,
+                    sense_range_a,
+                    0.95 * sense_range_a
                 ),
             ));
         }
@@ -568,6 +578,9 @@ pub enum ConfigError {
     NonFinite,
     /// A value was outside its documented range (or rounds to zero in integer form).
     OutOfRange,
+    /// The over-current limit is beyond what the current sensor can read (its full scale,
+    /// from the zero code to the nearer ADC rail, less 5 %): the trip could never fire.
+    OverCurrentBeyondSensor,
     /// The finger's geometry or springs are not a valid linkage (the model's reason).
     Finger(PtsError),
     /// [`DriveConfig::theta_a_rest_rad`] is not the finger's rest angle (beyond
@@ -783,7 +796,7 @@ mod file_tests {
         f.motor.kt_nm_per_a = 5e-3;
         f.motor.resistance_ohm = 15.0;
         f.motor.supply_v = 5.0;
-        f.motor.max_current_a = 0.29; // the sensor sees ±0.30 A (2000 codes × 0.15 mA)
+        f.motor.max_current_a = 0.28; // the sensor sees ±0.30 A (2000 codes × 0.15 mA)
         f.encoder.counts_per_rev = 128;
         f.current_sense.amps_per_count = 1.5e-4;
         f.current_sense.zero_count = 2000;
@@ -806,7 +819,7 @@ mod file_tests {
             (d.encoder_counts_per_rev, d.amps_per_code, d.adc_zero_code),
             (128.0, 1.5e-4, 2000.0)
         );
-        assert_eq!(c.overcurrent_a, 0.29);
+        assert_eq!(c.overcurrent_a, 0.28);
         assert_eq!(
             d.theta_a_rest_rad,
             finger_rest_theta_a_rad(&f.finger).unwrap()

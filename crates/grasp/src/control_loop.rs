@@ -1,7 +1,7 @@
 //! The fast half of the controller: one [`ControlLoop::tick`] per control period (10 kHz).
 //!
 //! It reads the sensors, checks what must be caught within a tick (encoder jump, ADC code,
-//! over-current, stall), moves the torque reference as the [`Setpoint`] says, runs the
+//! ADC at a rail, over-current, stall), moves the torque reference as the [`Setpoint`] says, runs the
 //! torque loop and sums θa, T_a, duty and current over `sample_ticks` ticks. A finished sum
 //! goes to the [`Supervisor`](crate::Supervisor) through the [`Link`]; the supervisor (the
 //! grasp state machine, a lower priority on the target) answers with the next [`Setpoint`].
@@ -11,6 +11,12 @@
 //! sample; the loop's own work is a few hundred instructions every tick with no division.
 //! Run together, the burst set the sampling task's worst case; split, the sampling task is
 //! short and constant and the burst runs preemptibly below it.
+//!
+//! Supervision: every setpoint carries the supervisor's stamp (the newest loop tick it has
+//! acted on). The loop drives only while that stamp is at most [`ControlLoop::max_setpoint_age_ticks`]
+//! old (`LINK_SAMPLES` samples, what the link can hold: 16 ms at 10 kHz and 4 ms samples); an
+//! older one trips the loop with [`FaultReason::SupervisorStalled`], bridge off, latched. A
+//! stalled supervisor therefore cannot leave the motor pushing on its last setpoint.
 //!
 //! Everything here is bounded integer arithmetic: the inputs are clamped where they enter
 //! (the parameters to i32 by [`ControllerConfig::params`](crate::ControllerConfig::params),
@@ -154,6 +160,8 @@ pub struct Link {
     started: bool,
     calibrated: Option<(u32, i32)>,
     fault: Option<(u32, FaultReason)>,
+    /// The supervisor's heartbeat: the newest loop tick it has acted on.
+    stamp_tick: u32,
 }
 
 /// What the loop hands the supervisor, in the order [`Link::next_input`] gives it.
@@ -199,7 +207,20 @@ impl Link {
             started: false,
             calibrated: None,
             fault: None,
+            stamp_tick: 0,
         }
+    }
+
+    /// Stamps the setpoint with the newest loop tick the supervisor has acted on
+    /// ([`Supervisor::publish`](crate::Supervisor::publish) does it; the loop refuses to
+    /// drive on a stamp older than [`ControlLoop::max_setpoint_age_ticks`]).
+    pub fn stamp(&mut self, tick: u32) {
+        self.stamp_tick = tick;
+    }
+
+    /// The supervisor's last stamp (loop ticks).
+    pub fn stamp_tick(&self) -> u32 {
+        self.stamp_tick
     }
 
     /// Whether [`Link::next_input`] has something.
@@ -303,8 +324,12 @@ pub struct ControlLoop {
     driving: bool,
     acc: Acc,
     oc_count: u32,
+    /// Consecutive driving ticks with the ADC at a rail.
+    rail_count: u32,
     stall_count: u32,
     last_duty: i16,
+    /// Oldest supervisor stamp the loop drives on (ticks).
+    max_age_ticks: u32,
 }
 
 impl ControlLoop {
@@ -322,9 +347,22 @@ impl ControlLoop {
             driving: false,
             acc: Acc::default(),
             oc_count: 0,
+            rail_count: 0,
             stall_count: 0,
             last_duty: 0,
+            max_age_ticks: LINK_SAMPLES as u32 * p.sample_ticks.clamp(1, 64),
         }
+    }
+
+    /// The oldest supervisor stamp the loop still drives on: `LINK_SAMPLES` samples, the
+    /// most the link holds for the supervisor (16 ms with 4 ms samples at 10 kHz).
+    pub fn max_setpoint_age_ticks(&self) -> u32 {
+        self.max_age_ticks
+    }
+
+    /// Ticks since the supervisor last stamped the link.
+    pub fn setpoint_age_ticks(&self, link: &Link) -> u32 {
+        self.tick.wrapping_sub(link.stamp_tick)
     }
 
     /// Ticks since start.
@@ -431,7 +469,27 @@ impl ControlLoop {
             self.stop(hw);
             return out;
         }
+        // The supervisor's heartbeat: never drive on a setpoint it no longer vouches for.
+        let age_ticks = self.tick.wrapping_sub(link.stamp_tick);
+        if age_ticks > self.max_age_ticks {
+            let reason = FaultReason::SupervisorStalled { age_ticks };
+            self.trip(hw, link, reason, &mut out);
+            return out;
+        }
         self.driving = true;
+
+        // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
+        // Over the over-current time it is a fault of its own (the configuration keeps the
+        // limit inside the sensor's range, so a healthy drive trips over-current first).
+        if code == 0 || code >= 4095 {
+            self.rail_count += 1;
+            if self.rail_count >= self.p.overcurrent_ticks {
+                self.trip(hw, link, FaultReason::AdcRail { code }, &mut out);
+                return out;
+            }
+        } else {
+            self.rail_count = 0;
+        }
 
         // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
         // so a current chattering around the limit still trips: it trips after

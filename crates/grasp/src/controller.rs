@@ -63,6 +63,12 @@ pub enum FaultReason {
         /// Measured offset ×256 (codes).
         offset_q8: i32,
     },
+    /// The current ADC sat at a rail (code 0 or 4095) for the over-current time while
+    /// driving: the current is beyond the sensor's range, or the sensor failed.
+    AdcRail {
+        /// The code.
+        code: u16,
+    },
     /// |motor current| above the limit for the configured number of ticks.
     OverCurrent {
         /// Current at the trip (µA).
@@ -103,6 +109,12 @@ pub enum FaultReason {
         /// The estimator's reason.
         error: EstimateError,
     },
+    /// The loop found the setpoint older than it may drive on: the supervisor stopped
+    /// stamping it (stalled or starved task). Found by the loop, bridge off at once.
+    SupervisorStalled {
+        /// Ticks since the supervisor's last stamp.
+        age_ticks: u32,
+    },
 }
 
 impl FaultReason {
@@ -113,6 +125,7 @@ impl FaultReason {
             FaultReason::EncoderMismatch { .. } => "encoder_mismatch",
             FaultReason::AdcCode { .. } => "adc_code",
             FaultReason::AdcOffset { .. } => "adc_offset",
+            FaultReason::AdcRail { .. } => "adc_rail",
             FaultReason::OverCurrent { .. } => "over_current",
             FaultReason::Stall => "stall",
             FaultReason::NoContact => "no_contact",
@@ -122,6 +135,7 @@ impl FaultReason {
             FaultReason::NoMotion { .. } => "no_motion",
             FaultReason::LossOfContact { .. } => "loss_of_contact",
             FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
+            FaultReason::SupervisorStalled { .. } => "supervisor_stalled",
         }
     }
 
@@ -133,6 +147,7 @@ impl FaultReason {
                 | FaultReason::EncoderMismatch { .. }
                 | FaultReason::AdcCode { .. }
                 | FaultReason::AdcOffset { .. }
+                | FaultReason::AdcRail { .. }
         )
     }
 }
@@ -629,10 +644,12 @@ impl Supervisor {
         }
     }
 
-    /// Writes the setpoint and the state into the link.
+    /// Writes the setpoint and the state into the link, stamped with the newest loop tick
+    /// this supervisor has acted on (its heartbeat: the loop refuses an old setpoint).
     pub fn publish(&self, link: &mut Link) {
         link.setpoint = self.setpoint();
         link.state = self.state;
+        link.stamp(self.tick);
     }
 
     /// Handles everything the loop left in the link and publishes the answer. Returns true

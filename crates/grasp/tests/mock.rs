@@ -165,7 +165,7 @@ fn encoder_jump_is_a_sensor_fault() {
 }
 
 #[test]
-fn adc_rail_is_over_current() {
+fn adc_rail_is_a_fault() {
     let mut c = Controller::new(cfg(0.2)).unwrap();
     let mut hw = Mock::new(drive());
     run(&mut c, &mut hw, 60_000, |t, hw| {
@@ -174,7 +174,7 @@ fn adc_rail_is_over_current() {
         }
     });
     assert!(
-        matches!(c.state(), State::Fault(FaultReason::OverCurrent { .. })),
+        matches!(c.state(), State::Fault(FaultReason::AdcRail { code: 4095 })),
         "{:?}",
         c.state()
     );

@@ -67,6 +67,8 @@ fn calibrated(lp: &mut ControlLoop, hw: &mut Still) -> Link {
     assert_eq!(link.next_input(), Some(Input::Started));
     assert!(matches!(link.next_input(), Some(Input::Calibrated { .. })));
     assert_eq!(link.next_input(), None);
+    // As the supervisor does when it answers the calibration.
+    link.stamp(lp.ticks());
     link
 }
 
@@ -127,10 +129,14 @@ fn ramp_moves_at_most_its_rate_per_tick_both_ways() {
 #[test]
 fn sums_are_handed_over_in_order_and_overflow_is_counted() {
     let (p, mut lp, mut hw, mut link) = enabled(Reference::Hold);
-    // Nobody takes the samples: the link keeps LINK_SAMPLES, drops and counts the rest.
+    // Nobody takes the samples (the supervisor keeps stamping, so the loop keeps driving):
+    // the link keeps LINK_SAMPLES, drops and counts the rest.
     let n = p.sample_ticks as usize * (LINK_SAMPLES + 3);
     let ready = (0..n)
-        .filter(|_| lp.tick(&mut hw, &mut link).sample_ready)
+        .filter(|_| {
+            link.stamp(lp.ticks());
+            lp.tick(&mut hw, &mut link).sample_ready
+        })
         .count();
     assert_eq!(ready, LINK_SAMPLES + 3);
     assert_eq!(link.samples_dropped(), 3);
@@ -272,4 +278,202 @@ fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
     let (a, b) = (on_time.1.unwrap(), late.1.unwrap());
     println!("k2 on time {a} µm, late {b} µm");
     assert!((a - b).abs() <= 750, "k2 {a} µm on time vs {b} µm late");
+}
+
+/// The supervisor's heartbeat: in every state the supervisor can stop in (its task stalled,
+/// starved or stuck in a lock), the loop switches the bridge off within
+/// `max_setpoint_age_ticks` + 1 ticks of the last stamp, latches, and the supervisor, if it
+/// ever runs again, reports `SupervisorStalled`.
+#[test]
+fn a_stalled_supervisor_switches_the_bridge_off_in_every_state() {
+    let cfg = ControllerConfig {
+        damping_nm_s_per_rad: 0.0,
+        approach_speed_max_rad_s: 100.0,
+        detect_min_rise_nm: 0.002,
+        emf_mismatch_v: 1000.0,
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(0.5);
+    let mut seen = Vec::new();
+    for stop_in in [
+        State::Calibrating,
+        State::Approach,
+        State::Seating,
+        State::Step,
+        State::Settling,
+        State::Estimating,
+        State::Holding,
+    ] {
+        let mut hw = Finger {
+            d: cfg.drive,
+            duty: 0.0,
+            off: true,
+            theta: cfg.drive.theta_a_rest_rad,
+        };
+        let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
+        let max_age = lp.max_setpoint_age_ticks();
+        assert_eq!(
+            max_age,
+            LINK_SAMPLES as u32 * cfg.params().unwrap().sample_ticks
+        );
+        // Run normally until the state is reached (the estimate is delivered at once, except
+        // when the stall is to happen while estimating).
+        let mut reached = false;
+        for _ in 0..60_000u32 {
+            lp.tick(&mut hw, &mut link);
+            if sup.service(&mut link) && stop_in != State::Estimating {
+                let req = sup.take_request().unwrap();
+                sup.deliver(run_estimate(&pts::Finger::PAPER, &req));
+                sup.publish(&mut link);
+            }
+            if sup.state() == stop_in {
+                reached = true;
+                break;
+            }
+        }
+        assert!(reached, "never reached {stop_in:?}");
+        // One more tick, so the loop applies what the supervisor just published.
+        lp.tick(&mut hw, &mut link);
+        sup.service(&mut link);
+        let was_driving = lp.driving();
+        // The supervisor stops: the loop goes on alone.
+        let last_stamp = link.stamp_tick();
+        let mut off_at = None;
+        for _ in 0..(max_age + 50) {
+            let o = lp.tick(&mut hw, &mut link);
+            if hw.off && !lp.driving() && off_at.is_none() {
+                off_at = Some(o.tick);
+            }
+            if off_at.is_some() {
+                assert!(
+                    hw.off && o.duty == 0,
+                    "drove again after the trip in {stop_in:?}"
+                );
+            }
+        }
+        let off_at = off_at.expect("bridge off");
+        if stop_in == State::Calibrating {
+            // Never enabled: the bridge never came on.
+            assert!(!was_driving);
+            continue;
+        }
+        assert!(
+            was_driving,
+            "{stop_in:?}: the loop was driving before the stall"
+        );
+        assert!(
+            off_at.wrapping_sub(last_stamp) <= max_age + 1,
+            "{stop_in:?}: off {} ticks after the last stamp",
+            off_at.wrapping_sub(last_stamp)
+        );
+        // The supervisor wakes: the loop's reason reaches the state machine.
+        sup.service(&mut link);
+        assert!(
+            matches!(
+                sup.state(),
+                State::Fault(FaultReason::SupervisorStalled { age_ticks }) if age_ticks == max_age + 1
+            ),
+            "{stop_in:?}: {:?}",
+            sup.state()
+        );
+        // And the loop stays off whatever the supervisor now asks.
+        link.stamp(lp.ticks());
+        link.setpoint = Setpoint {
+            enable: true,
+            reference: Reference::Set(TorqueQ16::from_unm(100_000)),
+            damp_unm: 0,
+        };
+        lp.tick(&mut hw, &mut link);
+        assert!(hw.off);
+        seen.push((stop_in, off_at.wrapping_sub(last_stamp)));
+    }
+    println!("supervisor stalled in state → bridge off (ticks after the last stamp): {seen:?}");
+    assert_eq!(seen.len(), 6);
+}
+
+/// The heartbeat does not trip a supervisor that keeps up: run the whole grasp with the
+/// supervisor as late as the link allows minus one sample.
+#[test]
+fn a_supervisor_late_by_less_than_the_link_never_trips_the_heartbeat() {
+    let cfg = ControllerConfig {
+        damping_nm_s_per_rad: 0.0,
+        approach_speed_max_rad_s: 100.0,
+        detect_min_rise_nm: 0.002,
+        emf_mismatch_v: 1000.0,
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(0.5);
+    let p = cfg.params().unwrap();
+    let mut hw = Finger {
+        d: cfg.drive,
+        duty: 0.0,
+        off: true,
+        theta: cfg.drive.theta_a_rest_rad,
+    };
+    let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
+    let every = p.sample_ticks * (LINK_SAMPLES as u32 - 1);
+    for tick in 1..=60_000u32 {
+        lp.tick(&mut hw, &mut link);
+        if tick % every == 0 && sup.service(&mut link) {
+            let req = sup.take_request().unwrap();
+            sup.deliver(run_estimate(&pts::Finger::PAPER, &req));
+            sup.publish(&mut link);
+        }
+        if matches!(sup.state(), State::Holding | State::Fault(_)) {
+            break;
+        }
+    }
+    assert_eq!(sup.state(), State::Holding);
+}
+
+/// A current ADC pinned at a rail while driving is a fault of its own after the over-current
+/// time, bridge off (named as the sensor at its rail, not as an over-current: the current
+/// beyond the rail is unknown).
+#[test]
+fn an_adc_pinned_at_a_rail_while_driving_trips_adc_rail() {
+    for rail in [0u16, 4095] {
+        let (p, mut lp, mut hw, mut link) = enabled(Reference::Hold);
+        hw.code = rail;
+        let mut tripped_after = None;
+        for n in 1..=p.overcurrent_ticks + 5 {
+            let o = lp.tick(&mut hw, &mut link);
+            if o.went_off {
+                tripped_after = Some(n);
+                break;
+            }
+        }
+        assert_eq!(tripped_after, Some(p.overcurrent_ticks), "rail {rail}");
+        assert!(hw.off);
+        let mut fault = None;
+        while let Some(i) = link.next_input() {
+            if let Input::LoopFault { reason, .. } = i {
+                fault = Some(reason);
+            }
+        }
+        assert_eq!(fault, Some(FaultReason::AdcRail { code: rail }));
+    }
+}
+
+/// A limit the sensor cannot read is refused when the configuration is validated.
+#[test]
+fn an_overcurrent_limit_beyond_the_sensor_range_is_refused() {
+    let d = ControllerConfig::DEFAULT.drive;
+    let full_scale_a = d.adc_zero_code.min(4095.0 - d.adc_zero_code) * d.amps_per_code;
+    let with = |a: f64| ControllerConfig {
+        overcurrent_a: a,
+        ..ControllerConfig::DEFAULT
+    };
+    assert!(with(0.9 * full_scale_a).params().is_ok());
+    assert_eq!(
+        with(full_scale_a).params(),
+        Err(grasp::config::ConfigError::OverCurrentBeyondSensor)
+    );
+    // The same limit with a sensor of half the range (twice the gain): refused.
+    let mut half = ControllerConfig::DEFAULT;
+    half.drive.amps_per_code = d.amps_per_code / 2.0;
+    assert!(ControllerConfig::DEFAULT.params().is_ok());
+    assert_eq!(
+        half.params(),
+        Err(grasp::config::ConfigError::OverCurrentBeyondSensor)
+    );
 }

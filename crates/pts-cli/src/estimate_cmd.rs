@@ -11,15 +11,38 @@ use std::path::Path;
 /// Default ΔT_a (N·m) when neither the flag nor the trace says: the controller's default.
 pub const DEFAULT_DTA_NM: f64 = 0.2;
 
-/// Reads a text file (`-` = stdin) with a clear message; non-UTF-8 bytes are replaced.
+/// Largest trace or log file the tools read (bytes): far above any grasp (a 10 s trace at
+/// 10 kHz is about 4 MB), small enough that a wrong file cannot exhaust the machine.
+pub const TEXT_MAX_BYTES: u64 = 64 << 20;
+
+/// Reads a text file (`-` = stdin) with a clear message; non-UTF-8 bytes are replaced. Files
+/// above [`TEXT_MAX_BYTES`] are refused, naming the limit.
 pub fn read_text(path: &Path) -> Result<String, String> {
+    read_text_limited(path, TEXT_MAX_BYTES)
+}
+
+/// [`read_text`] with a given limit (bytes).
+pub fn read_text_limited(path: &Path, limit: u64) -> Result<String, String> {
+    let too_big = |what: &str| format!("{what} is larger than the {limit}-byte limit for a trace");
     let mut bytes = vec![];
     if path.as_os_str() == "-" {
         std::io::stdin()
+            .lock()
+            .take(limit + 1)
             .read_to_end(&mut bytes)
             .map_err(|e| format!("reading stdin: {e}"))?;
+        if bytes.len() as u64 > limit {
+            return Err(too_big("stdin"));
+        }
     } else {
-        bytes = std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        let f = std::fs::File::open(path)
+            .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        f.take(limit + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        if bytes.len() as u64 > limit {
+            return Err(too_big(&path.display().to_string()));
+        }
     }
     Ok(String::from_utf8_lossy(&bytes).into_owned())
 }
@@ -438,4 +461,22 @@ pub fn plot_signals(
     crate::plot::signals(out, size, &title, &sig)?;
     eprintln!("wrote {}", out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod limit_tests {
+    use super::*;
+
+    #[test]
+    fn a_file_above_the_limit_is_refused_naming_the_limit() {
+        let dir = std::env::temp_dir().join(format!("pts-limit-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("t.csv");
+        std::fs::write(&p, vec![b'x'; 101]).unwrap();
+        let e = read_text_limited(&p, 100).unwrap_err();
+        assert!(e.contains("100-byte limit"), "{e}");
+        std::fs::write(&p, vec![b'x'; 100]).unwrap();
+        assert_eq!(read_text_limited(&p, 100).unwrap().len(), 100);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -393,3 +393,64 @@ mod tests {
         assert!(out["message"].as_str().unwrap().contains("capital K"));
     }
 }
+
+/// Longest request line `pts eval` reads (bytes); a longer line ends the stream with an error
+/// naming the limit instead of growing without bound (`pts eval < /dev/zero`).
+pub const LINE_MAX_BYTES: usize = 64 * 1024;
+
+/// Reads one line (without its `\n`/`\r\n`) into `buf`, at most `limit` bytes. `Ok(false)`
+/// at the end of the input; an error naming the limit for a longer line.
+pub fn read_line_limited(
+    r: &mut impl std::io::BufRead,
+    buf: &mut Vec<u8>,
+    limit: usize,
+) -> Result<bool, String> {
+    use std::io::{BufRead, Read};
+    buf.clear();
+    // Room for the content, `\r` and `\n`: a longer line stops here, unread past it.
+    let n = r
+        .take(limit as u64 + 2)
+        .read_until(b'\n', buf)
+        .map_err(|e| format!("reading stdin: {e}"))?;
+    if n == 0 {
+        return Ok(false);
+    }
+    let newline = buf.last() == Some(&b'\n');
+    if newline {
+        buf.pop();
+    }
+    if buf.last() == Some(&b'\r') {
+        buf.pop();
+    }
+    if buf.len() > limit || (!newline && n == limit + 2) {
+        return Err(format!(
+            "a request line is longer than the {limit}-byte limit of `pts eval`"
+        ));
+    }
+    Ok(true)
+}
+
+#[cfg(test)]
+mod line_limit_tests {
+    use super::*;
+
+    #[test]
+    fn lines_up_to_the_limit_pass_and_a_longer_one_is_refused_naming_it() {
+        let mut buf = Vec::new();
+        let mut ok = std::io::Cursor::new(b"abcd\r\nxy\nlast".to_vec());
+        assert!(read_line_limited(&mut ok, &mut buf, 4).unwrap());
+        assert_eq!(buf, b"abcd");
+        assert!(read_line_limited(&mut ok, &mut buf, 4).unwrap());
+        assert_eq!(buf, b"xy");
+        assert!(read_line_limited(&mut ok, &mut buf, 4).unwrap());
+        assert_eq!(buf, b"last");
+        assert!(!read_line_limited(&mut ok, &mut buf, 4).unwrap());
+        // An endless line (as from /dev/zero) stops at the limit.
+        use std::io::Read;
+        let mut zeros = std::io::repeat(0).take(1 << 20);
+        let mut r = std::io::BufReader::new(&mut zeros);
+        let e = read_line_limited(&mut r, &mut buf, 1000).unwrap_err();
+        assert!(e.contains("1000-byte limit"), "{e}");
+        assert!(buf.len() <= 1002);
+    }
+}

@@ -2,7 +2,7 @@
 
 use clap::{Parser, Subcommand};
 use pts_cli::eval::{Evaluator, Numeric};
-use std::io::{BufRead, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -254,20 +254,7 @@ fn run_eval(finger: Option<PathBuf>, numeric: Numeric) -> Result<(), String> {
     let mut stdin = std::io::stdin().lock();
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let mut buf = Vec::new();
-    loop {
-        buf.clear();
-        let n = stdin
-            .read_until(b'\n', &mut buf)
-            .map_err(|e| format!("reading stdin: {e}"))?;
-        if n == 0 {
-            break;
-        }
-        if buf.last() == Some(&b'\n') {
-            buf.pop();
-        }
-        if buf.last() == Some(&b'\r') {
-            buf.pop();
-        }
+    while pts_cli::eval::read_line_limited(&mut stdin, &mut buf, pts_cli::eval::LINE_MAX_BYTES)? {
         // A line that is not UTF-8 is a malformed request like any other, not a failed stdin.
         let answer = match std::str::from_utf8(&buf) {
             Ok(line) => ev.eval_line(line),

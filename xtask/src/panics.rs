@@ -1,0 +1,380 @@
+//! `cargo xtask panics`: no panic reachable from any firmware task on thumbv7em.
+//!
+//! The release firmware is built with fat LTO and `--emit=asm`, which gives the whole
+//! program (firmware, grasp, pts, core, the HAL) as one assembly file. Its direct call graph
+//! (every `bl`/`blx`/`b`/conditional branch/`cbz` to a symbol) is walked from the task entry
+//! points: the sampling interrupt and the RTIC dispatchers that run `supervise`, `estimate`
+//! and `telemetry`. A function is a panic path if its (mangled or demangled) name names a
+//! core panic entry point ([`is_panic`]) or it is the panic handler itself
+//! (`rust_begin_unwind`, which every panic reaches). Indirect calls (function pointers,
+//! trait objects) are not followed; the tasks use none on their control path.
+//!
+//! The checker is tested on planted functions (an `unwrap`, a slice index, a range index,
+//! a division, an `expect`) compiled for the same target.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::path::{Path, PathBuf};
+
+use crate::util::{self, Res};
+
+/// The builds checked: (label, cargo features, estimator).
+const BUILDS: &[(&str, &[&str], &str)] = &[
+    ("board, two-point", &[], "two-point"),
+    ("board, path fit", &[], "path-fit"),
+];
+
+/// The board's task entry points: the sampling interrupt and the three dispatchers.
+const BOARD_ROOTS: &[&str] = &["ADC", "SPI2", "SPI3", "SPI4"];
+
+/// Whether a symbol (mangled legacy `_ZN…`, v0 `_R…` or plain) is a core panic entry point or
+/// the panic handler. Matching is on the identifier words, so every mangling is covered.
+pub fn is_panic(sym: &str) -> bool {
+    let s = sym.to_ascii_lowercase();
+    const WORDS: &[&str] = &[
+        "panic", // core::panicking::*, panic_fmt, panic_bounds_check, panic_const_*, begin_panic
+        "unwrap_failed",
+        "expect_failed",
+        "_fail", // slice_index_fail, slice_{start,end}_index_len_fail, slice_index_order_fail, str_index_overflow_fail, assert_failed
+        "rust_begin_unwind",
+        "unreachable_display",
+        "handle_alloc_error",
+    ];
+    WORDS.iter().any(|w| s.contains(w))
+}
+
+/// True for a Thumb branch mnemonic that can leave the function: b, bl, blx, b<cond>, with
+/// an optional .w/.n width (not bfc, bfi, bic, bkpt, ...).
+fn is_branch(op: &str) -> bool {
+    let op = op
+        .strip_suffix(".w")
+        .or_else(|| op.strip_suffix(".n"))
+        .unwrap_or(op);
+    const CONDS: &[&str] = &[
+        "eq", "ne", "cs", "hs", "cc", "lo", "mi", "pl", "vs", "vc", "hi", "ls", "ge", "lt", "gt",
+        "le", "al",
+    ];
+    match op {
+        "b" | "bl" | "blx" => true,
+        _ => op.strip_prefix('b').is_some_and(|c| CONDS.contains(&c)),
+    }
+}
+
+/// Function label → symbols it branches to, from GNU assembly.
+pub fn call_graph(asm: &str) -> BTreeMap<String, BTreeSet<String>> {
+    let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    let mut cur: Option<String> = None;
+    for line in asm.lines() {
+        let t = line.trim();
+        if let Some(label) = t.strip_suffix(':') {
+            if !label.starts_with('.') && !label.contains(' ') && !label.starts_with('$') {
+                let l = label.trim_matches('"').to_string();
+                g.entry(l.clone()).or_default();
+                cur = Some(l);
+            }
+            continue;
+        }
+        let mut parts = t.split_whitespace();
+        let Some(op) = parts.next() else { continue };
+        let rest: Vec<&str> = parts.collect();
+        let target = if is_branch(op) {
+            rest.first().copied()
+        } else if matches!(op, "cbz" | "cbnz") {
+            rest.get(1).copied()
+        } else {
+            None
+        };
+        let Some(target) = target else { continue };
+        let target = target.trim_end_matches(',').trim_matches('"');
+        if target.starts_with(".L")
+            || target.starts_with('r') && target.len() <= 3
+            || target == "lr"
+        {
+            continue;
+        }
+        if let Some(c) = &cur {
+            g.entry(c.clone()).or_default().insert(target.to_string());
+        }
+    }
+    g
+}
+
+/// The panic paths reachable from `root`: every call from a reachable function into a panic
+/// function, each with the call chain from the root to it (shortest, breadth-first).
+pub fn panic_paths(g: &BTreeMap<String, BTreeSet<String>>, root: &str) -> Vec<Vec<String>> {
+    let mut parent: BTreeMap<String, String> = BTreeMap::new();
+    let mut seen = BTreeSet::from([root.to_string()]);
+    let mut queue = VecDeque::from([root.to_string()]);
+    let mut found = Vec::new();
+    let chain_to = |parent: &BTreeMap<String, String>, f: &str| {
+        let mut chain = vec![f.to_string()];
+        let mut at = f.to_string();
+        while let Some(p) = parent.get(&at) {
+            chain.push(p.clone());
+            at = p.clone();
+        }
+        chain.reverse();
+        chain
+    };
+    if is_panic(root) {
+        return vec![vec![root.to_string()]];
+    }
+    while let Some(f) = queue.pop_front() {
+        for c in g.get(&f).into_iter().flatten() {
+            if is_panic(c) {
+                // Not into the panic machinery itself: the edge is the finding.
+                let mut chain = chain_to(&parent, &f);
+                chain.push(c.clone());
+                found.push(chain);
+            } else if seen.insert(c.clone()) {
+                parent.insert(c.clone(), f.clone());
+                queue.push_back(c.clone());
+            }
+        }
+    }
+    found
+}
+
+/// Panic edges accepted, with why: (caller, panic function) substrings.
+const ACCEPTED: &[(&str, &str, &str)] = &[
+    (
+        "_defmt_release",
+        "panic_fmt",
+        "defmt-rtt's check that release follows acquire: every defmt macro pairs them",
+    ),
+    (
+        "_defmt_acquire",
+        "panic_fmt",
+        "defmt-rtt's re-entrance check: acquire runs inside its critical section",
+    ),
+    (
+        "",
+        "panic_const_async_fn_resumed",
+        "the compiler's guard against polling a finished async task: RTIC's executor never does",
+    ),
+];
+
+/// Panic edges known to remain, reported but not failed: (caller, panic function) substrings.
+/// The path fit's integer kernel (crates/pts/src/pathfit, owned by the estimator's side).
+const KNOWN_OPEN: &[(&str, &str)] = &[("pts7pathfit", "")];
+
+fn matches_edge(chain: &[String], caller: &str, callee: &str) -> bool {
+    let n = chain.len();
+    n >= 1
+        && chain[n - 1].contains(callee)
+        && (caller.is_empty() || n >= 2 && chain[n - 2].contains(caller))
+}
+
+/// Builds one firmware with `--emit=asm` (own target directory); returns the assembly path.
+fn build_asm(features: &[&str], estimator: &str) -> Res<PathBuf> {
+    // One target directory for every build: only the firmware crate differs between them.
+    let target_dir = util::root().join("target").join("fw-asm");
+    let mut cmd = util::cargo();
+    cmd.args([
+        "rustc",
+        "--release",
+        "-p",
+        "finger-fw",
+        "--bin",
+        "finger-fw",
+        "--target",
+        crate::qemu::TARGET,
+    ])
+    .arg("--target-dir")
+    .arg(&target_dir)
+    .env("FINGER_FW_ESTIMATOR", estimator);
+    if !features.is_empty() {
+        cmd.args(["--no-default-features", "--features", &features.join(",")]);
+    }
+    cmd.args(["--", "--emit=asm,link", "-C", "debuginfo=0"]);
+    util::run(&mut cmd)?;
+    newest_asm(
+        &target_dir
+            .join(crate::qemu::TARGET)
+            .join("release")
+            .join("deps"),
+        "finger_fw-",
+    )
+}
+
+fn newest_asm(dir: &Path, prefix: &str) -> Res<PathBuf> {
+    std::fs::read_dir(dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(Result::ok)
+        .map(|e| e.path())
+        .filter(|p| {
+            p.extension().is_some_and(|e| e == "s")
+                && p.file_name()
+                    .and_then(|n| n.to_str())
+                    .is_some_and(|n| n.starts_with(prefix))
+        })
+        .max_by_key(|p| p.metadata().and_then(|m| m.modified()).ok())
+        .ok_or_else(|| format!("no {prefix}*.s in {}", dir.display()))
+}
+
+/// Checks one assembly file: every root present, no panic path from any of them except the
+/// accepted ones. Returns the report lines (known open paths included), or the panic chains
+/// as the error.
+pub fn check_asm(asm: &str, roots: &[&str]) -> Res<Vec<String>> {
+    let g = call_graph(asm);
+    let mut lines = Vec::new();
+    let mut bad = Vec::new();
+    for root in roots {
+        if !g.contains_key(*root) {
+            return Err(format!(
+                "task entry {root} not in the assembly: checker broken"
+            ));
+        }
+        let paths = panic_paths(&g, root);
+        let mut accepted = 0;
+        for p in paths {
+            if ACCEPTED.iter().any(|(a, b, _)| matches_edge(&p, a, b)) {
+                accepted += 1;
+            } else if KNOWN_OPEN.iter().any(|(a, b)| matches_edge(&p, a, b)) {
+                lines.push(format!("  KNOWN OPEN {root}: {}", p.join(" -> ")));
+            } else {
+                bad.push(format!("{root}: {}", p.join(" -> ")));
+            }
+        }
+        lines.push(format!("{root}: {accepted} accepted panic edge(s)"));
+    }
+    if bad.is_empty() {
+        Ok(lines)
+    } else {
+        Err(format!(
+            "panic reachable from a firmware task:\n  {}",
+            bad.join("\n  ")
+        ))
+    }
+}
+
+/// `cargo xtask panics`.
+pub fn main(_args: &[String]) -> Res<()> {
+    let mut errs = Vec::new();
+    for (label, features, estimator) in BUILDS {
+        let asm_path = build_asm(features, estimator)?;
+        let asm = std::fs::read_to_string(&asm_path)
+            .map_err(|e| format!("{}: {e}", asm_path.display()))?;
+        match check_asm(&asm, BOARD_ROOTS) {
+            Ok(lines) => println!(
+                "{label}: no unaccepted panic reachable\n{}",
+                lines.join("\n")
+            ),
+            Err(e) => errs.push(format!("{label}: {e}")),
+        }
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Planted panics, compiled for the firmware's target: the checker must flag each one and
+    /// pass the clean function.
+    const PLANTED: &str = r#"
+#![no_std]
+#[panic_handler]
+fn ph(_: &core::panic::PanicInfo) -> ! { loop {} }
+#[no_mangle] #[inline(never)] pub fn planted_unwrap(x: Option<u32>) -> u32 { x.unwrap() }
+#[no_mangle] #[inline(never)] pub fn planted_result(x: Result<u32, u8>) -> u32 { x.unwrap() }
+#[no_mangle] #[inline(never)] pub fn planted_expect(x: Option<u32>) -> u32 { x.expect("x") }
+#[no_mangle] #[inline(never)] pub fn planted_index(s: &[u32], i: usize) -> u32 { s[i] }
+#[no_mangle] #[inline(never)] pub fn planted_range(s: &[u32], n: usize) -> u32 { s[..n].iter().sum() }
+#[no_mangle] #[inline(never)] pub fn planted_div(a: u32, b: u32) -> u32 { a / b }
+#[no_mangle] #[inline(never)] pub fn planted_deep(s: &[u32], i: usize) -> u32 { planted_index(s, i) + 1 }
+#[no_mangle] #[inline(never)] pub fn planted_clean(s: &[u32], i: usize) -> u32 { s.get(i).copied().unwrap_or(0) / 3 }
+"#;
+
+    fn planted_asm() -> String {
+        let dir = std::env::temp_dir().join(format!("xtask-planted-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let src = dir.join("planted.rs");
+        std::fs::write(&src, PLANTED).unwrap();
+        let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+        let st = std::process::Command::new(rustc)
+            .current_dir(util::root())
+            .args([
+                "--edition",
+                "2021",
+                "--crate-type",
+                "lib",
+                "--target",
+                crate::qemu::TARGET,
+                "-C",
+                "opt-level=s",
+                "-C",
+                "panic=abort",
+                "--emit=asm",
+                "-o",
+            ])
+            .arg(dir.join("planted.s"))
+            .arg(&src)
+            .status()
+            .expect("rustc");
+        assert!(st.success());
+        let asm = std::fs::read_to_string(dir.join("planted.s")).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        asm
+    }
+
+    #[test]
+    fn the_checker_flags_every_planted_panic_and_passes_the_clean_function() {
+        let asm = planted_asm();
+        let g = call_graph(&asm);
+        for f in [
+            "planted_unwrap",
+            "planted_result",
+            "planted_expect",
+            "planted_index",
+            "planted_range",
+            "planted_div",
+            "planted_deep",
+        ] {
+            assert!(g.contains_key(f), "{f} not in the planted assembly");
+            let p = panic_paths(&g, f);
+            assert!(
+                !p.is_empty(),
+                "{f}: panic not found; callees {:?}",
+                g.get(f)
+            );
+            assert!(check_asm(&asm, &[f]).is_err());
+        }
+        assert!(panic_paths(&g, "planted_clean").is_empty());
+        assert!(check_asm(&asm, &["planted_clean"]).is_ok());
+        assert!(check_asm(&asm, &["no_such_task"]).is_err());
+    }
+
+    #[test]
+    fn names_of_core_panic_entry_points_are_recognised_in_every_mangling() {
+        for s in [
+            "_ZN4core9panicking9panic_fmt17h0123456789abcdefE",
+            "_ZN4core9panicking18panic_bounds_check17h0123456789abcdefE",
+            "_ZN4core6option13unwrap_failed17h0123456789abcdefE",
+            "_ZN4core6result13unwrap_failed17h0123456789abcdefE",
+            "_ZN4core6option13expect_failed17h0123456789abcdefE",
+            "_ZN4core5slice5index16slice_index_fail17h0123456789abcdefE",
+            "_ZN4core5slice5index24slice_end_index_len_fail17h0123456789abcdefE",
+            "_ZN4core5slice5index26slice_start_index_len_fail17h0123456789abcdefE",
+            "_ZN4core5slice5index22slice_index_order_fail17h0123456789abcdefE",
+            "_RNvNtCs7ldSeZOOJos_4core9panicking5panic",
+            "_RNvNtNtCs7ldSeZOOJos_4core9panicking11panic_const23panic_const_div_by_zero",
+            "_RNvCsfLfy6EI15iL_7___rustc17rust_begin_unwind",
+            "core::panicking::assert_failed",
+        ] {
+            assert!(is_panic(s), "{s}");
+        }
+        for s in ["__aeabi_memcpy", "_ZN5grasp8estimate9back_date17hE", "ADC"] {
+            assert!(!is_panic(s), "{s}");
+        }
+        for op in ["b", "bl", "blx", "b.w", "bhs.w", "bne", "beq.n"] {
+            assert!(is_branch(op), "{op}");
+        }
+        for op in ["bfc", "bics.w", "bic", "bfi", "bkpt", "bx"] {
+            assert!(!is_branch(op), "{op}");
+        }
+    }
+}
