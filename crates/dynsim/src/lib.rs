@@ -7,5 +7,6 @@
 //! engine's own contact points.
 
 pub mod grasp;
+pub mod grid;
 pub mod linkage;
 pub mod sim;

