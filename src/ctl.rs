@@ -125,9 +125,9 @@ pub fn status(state: State) -> i32 {
     }
 }
 
-/// Drive constants for the real board.
-#[cfg(all(target_os = "none", not(feature = "qemu")))]
-pub fn board_drive() -> DriveConfig {
+/// The drive of the build's finger: the finger file's constants when one was given at build
+/// time, the controller's default drive otherwise; the encoder zeroed at the finger's rest.
+pub fn file_drive() -> DriveConfig {
     let mut d = DriveConfig::DEFAULT;
     if let Some(f) = crate::config::FINGER_DRIVE {
         d.gear_ratio = f.gear_ratio;
@@ -143,20 +143,18 @@ pub fn board_drive() -> DriveConfig {
     d
 }
 
+/// Drive constants for the real board.
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
+pub fn board_drive() -> DriveConfig {
+    file_drive()
+}
+
 /// A simulated scene as the build's finger: with a finger file given at build time, the plant
 /// is built from the same geometry, springs and drive constants the controller uses.
 #[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn finger_scene(scene: plant::Scene) -> plant::Scene {
     match crate::config::FINGER_DRIVE {
-        Some(f) => {
-            let mut d = DriveConfig::DEFAULT;
-            d.gear_ratio = f.gear_ratio;
-            d.efficiency = f.efficiency;
-            d.kt_nm_per_a = f.kt_nm_per_a;
-            d.resistance_ohm = f.resistance_ohm;
-            d.bus_v = f.supply_v;
-            sim_board::scene_for_finger(scene, &crate::config::FINGER, &d)
-        }
+        Some(_) => sim_board::scene_for_finger(scene, &crate::config::FINGER, &file_drive()),
         None => scene,
     }
 }
