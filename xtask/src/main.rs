@@ -11,6 +11,7 @@
 //! ([`COMMANDS`]), so a command cannot be added without its help.
 
 mod bench;
+mod callgraph;
 mod ci;
 mod demo;
 mod fuzz;

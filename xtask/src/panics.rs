@@ -13,6 +13,8 @@
 //! a division, an `expect`) compiled for the same target.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
+
+pub use crate::callgraph::{call_graph, is_panic};
 use std::path::{Path, PathBuf};
 
 use crate::util::{self, Res};
@@ -25,78 +27,6 @@ const BUILDS: &[(&str, &[&str], &str)] = &[
 
 /// The board's task entry points: the sampling interrupt and the three dispatchers.
 const BOARD_ROOTS: &[&str] = &["ADC", "SPI2", "SPI3", "SPI4"];
-
-/// Whether a symbol (mangled legacy `_ZN…`, v0 `_R…` or plain) is a core panic entry point or
-/// the panic handler. Matching is on the identifier words, so every mangling is covered.
-pub fn is_panic(sym: &str) -> bool {
-    let s = sym.to_ascii_lowercase();
-    const WORDS: &[&str] = &[
-        "panic", // core::panicking::*, panic_fmt, panic_bounds_check, panic_const_*, begin_panic
-        "unwrap_failed",
-        "expect_failed",
-        "_fail", // slice_index_fail, slice_{start,end}_index_len_fail, slice_index_order_fail, str_index_overflow_fail, assert_failed
-        "rust_begin_unwind",
-        "unreachable_display",
-        "handle_alloc_error",
-    ];
-    WORDS.iter().any(|w| s.contains(w))
-}
-
-/// True for a Thumb branch mnemonic that can leave the function: b, bl, blx, b<cond>, with
-/// an optional .w/.n width (not bfc, bfi, bic, bkpt, ...).
-fn is_branch(op: &str) -> bool {
-    let op = op
-        .strip_suffix(".w")
-        .or_else(|| op.strip_suffix(".n"))
-        .unwrap_or(op);
-    const CONDS: &[&str] = &[
-        "eq", "ne", "cs", "hs", "cc", "lo", "mi", "pl", "vs", "vc", "hi", "ls", "ge", "lt", "gt",
-        "le", "al",
-    ];
-    match op {
-        "b" | "bl" | "blx" => true,
-        _ => op.strip_prefix('b').is_some_and(|c| CONDS.contains(&c)),
-    }
-}
-
-/// Function label → symbols it branches to, from GNU assembly.
-pub fn call_graph(asm: &str) -> BTreeMap<String, BTreeSet<String>> {
-    let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    let mut cur: Option<String> = None;
-    for line in asm.lines() {
-        let t = line.trim();
-        if let Some(label) = t.strip_suffix(':') {
-            if !label.starts_with('.') && !label.contains(' ') && !label.starts_with('$') {
-                let l = label.trim_matches('"').to_string();
-                g.entry(l.clone()).or_default();
-                cur = Some(l);
-            }
-            continue;
-        }
-        let mut parts = t.split_whitespace();
-        let Some(op) = parts.next() else { continue };
-        let rest: Vec<&str> = parts.collect();
-        let target = if is_branch(op) {
-            rest.first().copied()
-        } else if matches!(op, "cbz" | "cbnz") {
-            rest.get(1).copied()
-        } else {
-            None
-        };
-        let Some(target) = target else { continue };
-        let target = target.trim_end_matches(',').trim_matches('"');
-        if target.starts_with(".L")
-            || target.starts_with('r') && target.len() <= 3
-            || target == "lr"
-        {
-            continue;
-        }
-        if let Some(c) = &cur {
-            g.entry(c.clone()).or_default().insert(target.to_string());
-        }
-    }
-    g
-}
 
 /// The panic paths reachable from `root`: every call from a reachable function into a panic
 /// function, each with the call chain from the root to it (shortest, breadth-first).
@@ -272,6 +202,7 @@ pub fn main(_args: &[String]) -> Res<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::callgraph::is_branch;
 
     /// Planted panics, compiled for the firmware's target: the checker must flag each one and
     /// pass the clean function.

@@ -38,66 +38,10 @@ fn is_soft_float(sym: &str) -> bool {
         || s.starts_with("truncdfsf")
 }
 
-/// Whether a symbol (legacy `_ZN…`, v0 `_R…` or plain) is a core panic entry point or the
-/// panic handler: `contains("panic")` alone misses `unwrap_failed`, `expect_failed` and the
-/// slice-index failures. The same list as `cargo xtask panics` (xtask/src/panics.rs).
-fn is_panic(sym: &str) -> bool {
-    let s = sym.to_ascii_lowercase();
-    [
-        "panic",
-        "unwrap_failed",
-        "expect_failed",
-        "_fail",
-        "rust_begin_unwind",
-        "unreachable_display",
-        "handle_alloc_error",
-    ]
-    .iter()
-    .any(|w| s.contains(w))
-}
-
-/// True for a Thumb branch that can leave the function: b, bl, blx and b<cond>, optionally
-/// .w/.n (a conditional tail branch to a panic must not be missed; bfc, bic, bx are not).
-fn is_branch(op: &str) -> bool {
-    let op = op
-        .strip_suffix(".w")
-        .or_else(|| op.strip_suffix(".n"))
-        .unwrap_or(op);
-    const CONDS: [&str; 17] = [
-        "eq", "ne", "cs", "hs", "cc", "lo", "mi", "pl", "vs", "vc", "hi", "ls", "ge", "lt", "gt",
-        "le", "al",
-    ];
-    matches!(op, "b" | "bl" | "blx") || op.strip_prefix('b').is_some_and(|c| CONDS.contains(&c))
-}
-
-/// Function label → called symbols (bl/b/blx to a non-local label), from GNU assembly.
-fn call_graph(asm: &str) -> BTreeMap<String, BTreeSet<String>> {
-    let mut g: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    let mut cur: Option<String> = None;
-    for line in asm.lines() {
-        let t = line.trim();
-        if let Some(label) = t.strip_suffix(':') {
-            if !label.starts_with('.') && !label.contains(' ') && !label.starts_with('$') {
-                cur = Some(label.trim_matches('"').to_string());
-                g.entry(label.trim_matches('"').to_string()).or_default();
-            }
-            continue;
-        }
-        let mut parts = t.split_whitespace();
-        let (Some(op), Some(arg)) = (parts.next(), parts.next()) else {
-            continue;
-        };
-        if !is_branch(op) || arg.starts_with(".L") || arg.starts_with('r') || arg == "lr" {
-            continue;
-        }
-        if let Some(c) = &cur {
-            g.entry(c.clone())
-                .or_default()
-                .insert(arg.trim_matches('"').to_string());
-        }
-    }
-    g
-}
+// The panic names and the call graph are `cargo xtask panics`' own (one source, two checks).
+#[path = "../../../xtask/src/callgraph.rs"]
+mod callgraph;
+use callgraph::{call_graph, is_panic};
 
 #[test]
 fn the_panic_filter_cannot_miss_the_core_entry_points() {
