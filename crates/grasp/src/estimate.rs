@@ -240,7 +240,7 @@ pub fn path_fit<R: Real>(
         Some(conv(ta_c)?),
         samples,
     );
-    path_fit_result(model.l2().to_f64(), req, theta_c, ta_c, fit)
+    path_fit_result(model.l2().to_f64(), req, theta_c, ta_c, fit).map(|(r, _)| r)
 }
 
 /// The whole-path estimate on the firmware's integer kernel (`pts::pathfit::q`): the
@@ -255,6 +255,18 @@ pub fn path_fit_q(
     }
     let t_free = |th: f64| Some(table.free_torque(EstReal::try_from_f64(th)?).ok()?.to_f64());
     let (theta_c, ta_c) = contact_point_with(req, t_free).unwrap_or_else(|| contact_point(req));
+    path_fit_q_at(table, req, theta_c, ta_c).map(|(r, _)| r)
+}
+
+/// The firmware's integer path fit with the contact point given (θa,c in rad, T_a,c in N·m),
+/// e.g. by a recording's own contact detection: the result, and σ(k2,c) in m when the answer is
+/// distal.
+pub fn path_fit_q_at(
+    table: &PathTable,
+    req: &EstimateRequest,
+    theta_c: f64,
+    ta_c: f64,
+) -> Result<(EstimateResult, Option<f64>), PathFitError> {
     let conv = |v: f64| EstReal::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
     let samples = path_samples(req).map(|s| RawSample {
         tick: s.tick,
@@ -265,14 +277,15 @@ pub fn path_fit_q(
     path_fit_result(table.model().l2().to_f64(), req, theta_c, ta_c, fit)
 }
 
-/// The request's result from a path fit (either back end); `l2_m` grades σ (m).
+/// The request's result from a path fit (either back end), with σ(k2,c) (m) of a distal answer;
+/// `l2_m` grades σ (m).
 fn path_fit_result<R: Real>(
     l2_m: f64,
     req: &EstimateRequest,
     theta_c: f64,
     ta_c: f64,
     fit: Result<PathFit<R>, PathFitError>,
-) -> Result<EstimateResult, PathFitError> {
+) -> Result<(EstimateResult, Option<f64>), PathFitError> {
     let dta = f64::from(req.end.torque_unm) * 1e-6 - ta_c;
     let dth = f64::from(req.end.theta_a_urad) * 1e-6 - theta_c;
     let base = EstimateResult {
@@ -290,16 +303,19 @@ fn path_fit_result<R: Real>(
     let fit = match fit {
         Ok(f) => f,
         Err(PathFitError::ProximalContact) => {
-            return Ok(EstimateResult {
-                quality: Quality::Ambiguous,
-                ..base
-            })
+            return Ok((
+                EstimateResult {
+                    quality: Quality::Ambiguous,
+                    ..base
+                },
+                None,
+            ))
         }
         Err(e) => return Err(e),
     };
     let k2 = fit.k2_contact_m.to_f64();
     let sigma = fit.sigma_k2_m.to_f64();
-    Ok(EstimateResult {
+    let r = EstimateResult {
         located: Located::Distal,
         k2_um: Some(to_micro(k2)),
         kc_hat_unm_per_rad: to_micro(fit.kc_contact.to_f64()),
@@ -310,7 +326,8 @@ fn path_fit_result<R: Real>(
             Quality::Good
         },
         ..base
-    })
+    };
+    Ok((r, Some(sigma)))
 }
 
 /// The paper's two-point estimate from the request.
@@ -623,7 +640,7 @@ fn fit<'a>(samples: impl Iterator<Item = &'a Sample> + Clone) -> Option<(f64, f6
     Some((mth - b * mt, b))
 }
 
-fn to_micro(v: f64) -> i32 {
+pub(crate) fn to_micro(v: f64) -> i32 {
     let x = v * 1e6;
     if !x.is_finite() {
         return 0;

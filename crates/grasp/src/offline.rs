@@ -51,7 +51,7 @@ use heapless::Vec;
 use pts::{Model, PtsError};
 
 use crate::config::{Estimator, HISTORY};
-use crate::estimate::{EstimateRequest, Sample, PATH_CAPACITY};
+use crate::estimate::{to_micro as micro, EstimateRequest, Sample, PATH_CAPACITY};
 
 /// One row of a recorded trace.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
@@ -452,15 +452,6 @@ fn mean(w: &[Block], f: impl Fn(&Block) -> f64) -> f64 {
         return f64::NAN;
     }
     w.iter().map(f).sum::<f64>() / w.len() as f64
-}
-
-fn micro(v: f64) -> i32 {
-    let x = v * 1e6;
-    if !x.is_finite() {
-        return 0;
-    }
-    let r = if x >= 0.0 { x + 0.5 } else { x - 0.5 };
-    r as i32
 }
 
 fn tick(b: &Block) -> u32 {
@@ -1312,62 +1303,13 @@ pub fn refine_contact<R: pts::Real>(
 /// The firmware's integer path fit on a segmented request with the contact point and the
 /// path-fit configuration given by the caller (the host's per-recording identification),
 /// instead of the controller's defaults and back-dating. `table` must be built for the
-/// caller's configuration and the request's period; `l2_m` (the finger's distal length, m)
-/// grades σ as the controller's estimate does. Returns the result with σ(k2,c) (m) of a
-/// distal answer; a proximal path is reported as [`Located::Proximal`](crate::Located).
+/// caller's configuration and the request's period; σ is graded against the table's l2 as the
+/// controller's estimate does. Returns the result with σ(k2,c) (m) of a distal answer; a proximal path is reported as [`Located::Proximal`](crate::Located).
 pub fn path_fit_with(
     table: &pts::pathfit::q::PathTable,
     req: &EstimateRequest,
     theta_a_c_rad: f64,
     ta_c_nm: f64,
-    l2_m: f64,
 ) -> Result<(crate::EstimateResult, Option<f64>), pts::pathfit::PathFitError> {
-    use crate::{EstReal, EstimateResult, Located, Quality};
-    use pts::pathfit::{q::RawSample, PathFitError};
-    use pts::Real as _;
-    let conv = |v: f64| EstReal::try_from_f64(v).ok_or(PathFitError::Model(PtsError::OutOfRange));
-    let kt = req.contact.tick;
-    let samples = req
-        .pre
-        .iter()
-        .filter(move |s| s.tick > kt)
-        .chain(req.path.iter())
-        .map(|s| RawSample {
-            tick: s.tick,
-            theta_a_urad: s.theta_a_urad,
-            torque_unm: s.torque_unm,
-        });
-    let fit =
-        pts::pathfit::q::fit_path_q(table, conv(theta_a_c_rad)?, Some(conv(ta_c_nm)?), samples);
-    let base = EstimateResult {
-        located: Located::Proximal,
-        k2_um: None,
-        kc_hat_unm_per_rad: 0,
-        kc_proximal_unm_per_rad: 0,
-        kc_tip_unm_per_rad: 0,
-        delta_ta_unm: micro(f64::from(req.end.torque_unm) * 1e-6 - ta_c_nm),
-        delta_theta_a_urad: micro(f64::from(req.end.theta_a_urad) * 1e-6 - theta_a_c_rad),
-        theta_a_c_urad: micro(theta_a_c_rad),
-        ta_c_unm: micro(ta_c_nm),
-        quality: Quality::Ambiguous,
-    };
-    let fit = match fit {
-        Ok(f) => f,
-        Err(PathFitError::ProximalContact) => return Ok((base, None)),
-        Err(e) => return Err(e),
-    };
-    let sigma = fit.sigma_k2_m.to_f64();
-    let r = EstimateResult {
-        located: Located::Distal,
-        k2_um: Some(micro(fit.k2_contact_m.to_f64())),
-        kc_hat_unm_per_rad: micro(fit.kc_contact.to_f64()),
-        theta_a_c_urad: micro(fit.theta_a_c_rad.to_f64()),
-        quality: if sigma > 0.05 * l2_m {
-            Quality::LowSignal
-        } else {
-            Quality::Good
-        },
-        ..base
-    };
-    Ok((r, Some(sigma)))
+    crate::estimate::path_fit_q_at(table, req, theta_a_c_rad, ta_c_nm)
 }

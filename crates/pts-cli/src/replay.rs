@@ -555,7 +555,7 @@ fn foreign_path_fit(
     let res = pts::pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
         .map_err(|e| err(grasp::EstimateError::Model(e)))
         .and_then(|table| {
-            path_fit_with(&table, &seg.request, contact.0, contact.1, finger.finger.l2)
+            path_fit_with(&table, &seg.request, contact.0, contact.1)
                 .map_err(|e| err(grasp::EstimateError::PathFit(e)))
         });
     (res, id.map(|i| (i, (contact.2, contact.0, contact.1))))
