@@ -32,7 +32,14 @@ pub static SUP_WORK_MAX: AtomicU32 = AtomicU32::new(0);
 /// (it takes that input in the same run; nothing is lost unless the link overflows).
 pub static SUP_BUSY: AtomicU32 = AtomicU32::new(0);
 
-defmt::timestamp!("{=u32}", TICKS.load(Ordering::Relaxed));
+/// The sampling period, µs (the 10 kHz control loop counts [`TICKS`]).
+pub const TICK_US: u64 = 100;
+
+// `:us` lets probe-rs and the host decoder print seconds instead of bare tick counts.
+defmt::timestamp!(
+    "{=u64:us}",
+    u64::from(TICKS.load(Ordering::Relaxed)) * TICK_US
+);
 
 /// A plant event (simulated board only), in integers.
 #[derive(Clone, Copy, Debug)]

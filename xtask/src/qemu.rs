@@ -123,12 +123,25 @@ pub fn build_with(scene: &str, inject: Option<&str>) -> Res<PathBuf> {
 /// One decoded defmt frame.
 #[derive(Clone, Debug)]
 pub struct Frame {
-    /// Timestamp (control ticks, ms at 1 kHz), when the frame has one.
+    /// Timestamp in control ticks (100 µs each), when the frame has one.
     pub ts: Option<u64>,
     /// Level (`INFO`, `ERROR`, ...).
     pub level: String,
     /// The formatted message.
     pub msg: String,
+}
+
+/// The firmware's control period, µs (src/telemetry.rs `TICK_US`).
+const TICK_US: u64 = 100;
+
+/// The firmware's `{=u64:us}` timestamp as decoded ("12.345600" s) back into control ticks.
+fn ticks_from_seconds(text: &str) -> Option<u64> {
+    let (whole, frac) = text.split_once('.')?;
+    if frac.len() != 6 {
+        return None;
+    }
+    let us = whole.parse::<u64>().ok()?.checked_mul(1_000_000)? + frac.parse::<u64>().ok()?;
+    Some(us / TICK_US)
 }
 
 /// A finished QEMU run.
@@ -206,7 +219,7 @@ pub fn run(elf: &Path, live: &mut dyn FnMut(&Frame)) -> Res<Run> {
                     let f = Frame {
                         ts: frame
                             .display_timestamp()
-                            .and_then(|t| t.to_string().trim().parse().ok()),
+                            .and_then(|t| ticks_from_seconds(t.to_string().trim())),
                         level: frame
                             .level()
                             .map(|l| l.as_str().to_uppercase())
@@ -244,4 +257,19 @@ pub fn run(elf: &Path, live: &mut dyn FnMut(&Frame)) -> Res<Run> {
         status: status.code().unwrap_or(-1),
         wall: start.elapsed(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn us_timestamps_map_back_to_ticks() {
+        // What defmt-decoder prints for `{=u64:us}` of 123 456 700 µs: 1 234 567 ticks.
+        assert_eq!(ticks_from_seconds("123.456700"), Some(1_234_567));
+        assert_eq!(ticks_from_seconds("0.000100"), Some(1));
+        assert_eq!(ticks_from_seconds("42"), None);
+        assert_eq!(ticks_from_seconds("1.5"), None);
+        assert_eq!(ticks_from_seconds("x.000100"), None);
+    }
 }
