@@ -20,7 +20,7 @@ pub fn is_panic(sym: &str) -> bool {
     WORDS.iter().any(|w| s.contains(w))
 }
 
-/// True for a Thumb branch mnemonic that can leave the function: b, bl, blx, b<cond>, with
+/// True for a Thumb branch mnemonic that can leave the function: b, bl, blx, `b<cond>`, with
 /// an optional .w/.n width (not bfc, bfi, bic, bkpt, ...).
 pub fn is_branch(op: &str) -> bool {
     let op = op

@@ -525,7 +525,7 @@ pub struct Table {
     pub rows: Vec<f64>,
     /// Column values.
     pub cols: Vec<f64>,
-    /// cells[row][col]; `None` = no estimate (fault).
+    /// `cells[row][col]`; `None` = no estimate (fault).
     pub cells: Vec<Vec<Option<f64>>>,
     /// What a cell holds (colour bar label).
     pub value_name: String,
