@@ -141,6 +141,15 @@ pub fn run(
         tr.rows.first().map_or(0.0, |r| r.t_s),
         tr.rows.last().map_or(0.0, |r| r.t_s),
     );
+    let outcome = match (&rep.contact, &rep.estimate, fault) {
+        (_, Some(Ok(_)), _) => Ok(()),
+        (_, _, Some(f)) => Err(format!("the grasp ended in the fault {f}: no estimate")),
+        (None, _, None) => Err("no contact found: no estimate".to_string()),
+        (Some(_), Some(Err(e)), None) => {
+            Err(format!("the estimator refused the grasp: {}", e.kind))
+        }
+        (Some(_), None, None) => Err("the step did not settle: no estimate".to_string()),
+    };
     if json_out {
         let contacts: Vec<Value> = match (&rep.contact, &rep.estimate) {
             (None, _) => vec![],
@@ -176,7 +185,7 @@ pub fn run(
             "warnings": warnings,
         });
         crate::outln!("{out}");
-        return Ok(());
+        return outcome;
     }
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -217,7 +226,7 @@ pub fn run(
     if let Some(f) = fault {
         crate::outln!("  fault: {f}");
     }
-    Ok(())
+    outcome
 }
 
 /// `pts estimate` on a trace without the `# pts-sim` line: the offline segmenter finds each
@@ -252,6 +261,13 @@ fn run_segmented(
         tr.rows.first().map_or(0.0, |r| r.t_s),
         tr.rows.last().map_or(0.0, |r| r.t_s),
     );
+    let outcome = if seg.contacts.iter().any(|c| c.estimate.is_ok()) {
+        Ok(())
+    } else if seg.contacts.is_empty() {
+        Err("no contact found: no estimate".to_string())
+    } else {
+        Err("the estimator refused every contact: no estimate".to_string())
+    };
     if json_out {
         let contacts: Vec<Value> = seg
             .contacts
@@ -308,7 +324,7 @@ fn run_segmented(
             "warnings": warnings,
         });
         println!("{out}");
-        return Ok(());
+        return outcome;
     }
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -373,7 +389,7 @@ fn run_segmented(
             }
         );
     }
-    Ok(())
+    outcome
 }
 
 /// Runs `pts trace --from-defmt`.

@@ -51,6 +51,10 @@ enum Cmd {
     /// The CSV needs a header with at least t_s,theta_a_rad,torque_nm (or current_a instead of
     /// torque_nm); other columns are ignored. Prints the contact found: time, phalanx, k2,
     /// K̂c, ΔT_a, Δθa and any fault.
+    ///
+    /// Exit status: 0 when at least one contact produced an estimate; 1 when none did (no
+    /// contact found, every contact refused, a fault) or on a usage or input error. The report
+    /// (human or --json) is printed either way.
     Estimate {
         /// The recorded grasp (CSV).
         #[arg(long)]

@@ -174,16 +174,19 @@ fn broken_traces_give_clear_messages() {
 fn truncated_trace_still_replays_what_it_has() {
     let (csv, _) = recorded();
     let text = std::fs::read_to_string(csv).unwrap();
-    // Cut in the middle of a line, before the contact: no contact, a warning, exit 0.
+    // Cut in the middle of a line, before the contact: no contact, a warning, the report, and
+    // exit 1 because nothing was estimated.
     let cut = &text[..text.len() / 3 + 7];
     let p = dir().join("truncated.csv");
     std::fs::write(&p, cut).unwrap();
     let o = estimate(&p, &[]);
-    let rep = json_of(&o);
+    assert_eq!(o.status.code(), Some(1));
+    let rep: Value = serde_json::from_slice(&o.stdout).expect("the JSON report is still printed");
     assert_eq!(rep["contacts"].as_array().map(Vec::len), Some(0), "{rep}");
-    // Human output says so.
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no contact found"));
+    // Human output says so too.
     let o = pts(&["estimate", "--trace", p.to_str().unwrap()]);
-    assert!(o.status.success());
+    assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stdout).contains("no contact found"));
 }
 
