@@ -452,6 +452,12 @@ pub fn plot_signals(
             row.state = Some(st.clone());
         }
     }
+    // The plant's first contact (simulated traces), before the window cuts it away.
+    let truth = tr
+        .rows
+        .iter()
+        .find(|r| r.true_contact.as_deref() == Some("distal"))
+        .and_then(|r| r.true_k_m);
     let (from, to) = window;
     let rows: Vec<_> = tr
         .rows
@@ -461,17 +467,38 @@ pub fn plot_signals(
     if rows.len() < 2 {
         return Err("fewer than two rows in the time window".into());
     }
-    let kc_hat = match &rep.estimate {
-        Some(Ok(r)) => Some(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+    // The horizontal estimated-K_c line belongs to the two-point method only: the path fit does not
+    // estimate from that ratio.
+    let kc_hat = match (&rep.estimate, method) {
+        (Some(Ok(r)), Method::TwoPoint) => Some(f64::from(r.kc_hat_unm_per_rad) / 1e6),
         _ => None,
     };
     let sig = crate::sim_cmd::signals(&rows, rep.contact, kc_hat);
+    let l2_m = crate::load_finger(finger)?.finger.l2;
     let name = path.file_name().map_or_else(
         || path.display().to_string(),
         |n| n.to_string_lossy().into_owned(),
     );
+    let result = match &rep.estimate {
+        Some(Ok(r)) => match r.k2_um {
+            Some(k2) => {
+                let k2_mm = f64::from(k2) / 1e3;
+                match truth {
+                    Some(k) => format!(
+                        "estimated k2 = {k2_mm:.2} mm, truth at first contact {:.2} mm ({:+.1} % of l2)",
+                        k * 1e3,
+                        (k2_mm / 1e3 - k) / l2_m * 100.0
+                    ),
+                    None => format!("estimated k2 = {k2_mm:.2} mm"),
+                }
+            }
+            None => format!("contact on the {:?} phalanx", r.located).to_lowercase(),
+        },
+        Some(Err(e)) => format!("estimate refused: {}", e.kind),
+        None => "no estimate".into(),
+    };
     let title = format!(
-        "{name}: grasp replayed (ΔT_a = {dta} N·m, {} estimate)",
+        "{name}, {} estimate, ΔT_a = {dta} N·m: {result}",
         method.name()
     );
     crate::plot::signals(out, size, &title, &sig)?;

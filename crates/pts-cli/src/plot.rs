@@ -186,11 +186,11 @@ fn draw_kc<DB: DrawingBackend>(
         .margin(fs)
         .x_label_area_size(fs * 3)
         .y_label_area_size(fs * 4)
-        .build_cartesian_2d(0.0..l2_m * 100.0, (lo * 0.8..hi * 1.25).log_scale())
+        .build_cartesian_2d(0.0..l2_m * 1e3, (lo * 0.8..hi * 1.25).log_scale())
         .map_err(err)?;
     chart
         .configure_mesh()
-        .x_desc("contact location k2 from O2 (cm)")
+        .x_desc("contact location k2 from O2 (mm)")
         .y_desc("K_c at the actuator (N·m/rad), log scale")
         .y_labels(12)
         .y_label_formatter(&|v| format!("{v:.1}"))
@@ -203,7 +203,7 @@ fn draw_kc<DB: DrawingBackend>(
         let col = color(i);
         chart
             .draw_series(LineSeries::new(
-                c.points.iter().map(|&(k, v)| (k * 100.0, v)),
+                c.points.iter().map(|&(k, v)| (k * 1e3, v)),
                 col.stroke_width(3),
             ))
             .map_err(err)?
@@ -212,15 +212,15 @@ fn draw_kc<DB: DrawingBackend>(
         let dashed = |level: f64| {
             let n = 40;
             (0..n).filter(|j| j % 2 == 0).map(move |j| {
-                let a = l2_m * 100.0 * j as f64 / n as f64;
-                let b = l2_m * 100.0 * (j + 1) as f64 / n as f64;
+                let a = l2_m * 1e3 * j as f64 / n as f64;
+                let b = l2_m * 1e3 * (j + 1) as f64 / n as f64;
                 PathElement::new([(a, level), (b, level)], col.mix(0.7).stroke_width(1))
             })
         };
         chart.draw_series(dashed(c.kc_proximal)).map_err(err)?;
         chart.draw_series(dashed(c.kc_free)).map_err(err)?;
         if i == 0 {
-            let x = l2_m * 100.0 * 0.62;
+            let x = l2_m * 1e3 * 0.62;
             chart
                 .draw_series([
                     Text::new(
@@ -238,7 +238,7 @@ fn draw_kc<DB: DrawingBackend>(
         }
     }
     if let Some(m) = mark {
-        let k = m.k2 * 100.0;
+        let k = m.k2 * 1e3;
         let grey = RGBColor(90, 90, 90);
         chart
             .draw_series([PathElement::new(
@@ -251,8 +251,8 @@ fn draw_kc<DB: DrawingBackend>(
             .map_err(err)?;
         chart
             .draw_series([Text::new(
-                format!("measured Kc = {:.3} → k2 = {:.2} cm", m.kc, k),
-                (k + l2_m * 2.0, m.kc / 1.12),
+                format!("measured K_c = {:.3} N·m/rad → k2 = {:.1} mm", m.kc, k),
+                (k + l2_m * 20.0, m.kc / 1.12),
                 ("sans-serif", fs).into_font().color(&grey),
             )])
             .map_err(err)?;
@@ -388,12 +388,12 @@ fn draw_signals<DB: DrawingBackend>(
     }
     let mut kc: Series = vec![];
     if !kc_run.is_empty() {
-        kc.push(("ΔT_a/Δθa since contact", kc_run, color(2)));
+        kc.push(("two-point ratio ΔT_a/Δθ_a since contact", kc_run, color(2)));
     }
     let specs: [(&str, Series); 3] = [
-        ("θa (rad)", vec![("θa", pair(&s.theta_a_rad), color(0))]),
+        ("θ_a (rad)", vec![("θ_a", pair(&s.theta_a_rad), color(0))]),
         ("T_a (N·m)", torque),
-        ("Kc estimate (N·m/rad)", kc),
+        ("K_c (N·m/rad)", kc),
     ];
     for (i, (panel, (ylabel, series))) in panels.iter().zip(specs).enumerate() {
         let (lo, hi) = if series.is_empty() {
@@ -449,7 +449,7 @@ fn draw_signals<DB: DrawingBackend>(
                         .map(|(a, _, st)| {
                             Text::new(
                                 st.clone(),
-                                (*a + (t1 - t0) * 0.005, lo + (hi - lo) * 0.12),
+                                (*a + (t1 - t0) * 0.005, hi - (hi - lo) * 0.04),
                                 ("sans-serif", fs).into_font().color(&RGBColor(80, 80, 80)),
                             )
                         }),
@@ -479,7 +479,7 @@ fn draw_signals<DB: DrawingBackend>(
                 chart
                     .draw_series([Circle::new((tc, y), 5, BLACK.filled())])
                     .map_err(err)?
-                    .label("contact (θa,c, T_a,c)")
+                    .label("contact used (θ_a,c, T_a,c)")
                     .legend(|(x, y)| Circle::new((x + 10, y), 5, BLACK.filled()));
             }
         }
@@ -488,12 +488,18 @@ fn draw_signals<DB: DrawingBackend>(
             chart
                 .draw_series([PathElement::new([(t0, k), (t1, k)], col.stroke_width(2))])
                 .map_err(err)?
-                .label(format!("estimate Kc = {k:.3} N·m/rad"))
+                .label(format!("two-point estimated K_c = {k:.3} N·m/rad"))
                 .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], col.stroke_width(2)));
         }
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
+            // The state names sit along the top of the first panel; θa rises, so its lower
+            // right corner is free.
+            .position(if i == 0 {
+                SeriesLabelPosition::LowerRight
+            } else {
+                SeriesLabelPosition::UpperLeft
+            })
             .label_font(("sans-serif", fs))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
@@ -608,7 +614,7 @@ fn draw_heat<DB: DrawingBackend>(
     let mut chart = ChartBuilder::on(&main)
         .caption(title, ("sans-serif", fs + 6))
         .margin(fs)
-        .x_label_area_size(fs * 3)
+        .x_label_area_size(fs * 4)
         .y_label_area_size(fs * 5)
         .build_cartesian_2d(-0.5..nc as f64 - 0.5, -0.5..nr as f64 - 0.5)
         .map_err(err)?;
@@ -676,6 +682,31 @@ fn draw_heat<DB: DrawingBackend>(
                 .draw_series([Text::new(text, (x + 0.5, y + 0.5), style)])
                 .map_err(err)?;
         }
+    }
+    let partial = t.notes.iter().flatten().any(|n| !n.is_empty());
+    let missing = t
+        .cells
+        .iter()
+        .flatten()
+        .any(|c| !matches!(c, Some(v) if v.is_finite()));
+    if partial || missing {
+        let mut note =
+            String::from("each cell: the worst error over the runs that gave an estimate");
+        if partial {
+            note.push_str("; (n of m): n of its m runs gave one");
+        }
+        if missing {
+            note.push_str("; grey \"none\": no run did (fault or refused)");
+        }
+        let (_, h) = main.dim_in_pixel();
+        main.draw_text(
+            &note,
+            &("sans-serif", (fs * 4 / 5).max(10))
+                .into_font()
+                .color(&RGBColor(70, 70, 70)),
+            (fs as i32, h as i32 - fs as i32),
+        )
+        .map_err(err)?;
     }
     // Colour bar.
     let top = if max > 0.0 { max } else { 1.0 };

@@ -489,7 +489,7 @@ pub fn table(cells: &[SweepCell]) -> plot::Table {
         }
     } else {
         plot::Table {
-            row_name: "object radius (cm; 0 = vertex)".into(),
+            row_name: "object radius (mm; 0 = vertex)".into(),
             col_name: "torque step ΔT_a (N·m)".into(),
             cells: radii
                 .iter()
@@ -499,7 +499,8 @@ pub fn table(cells: &[SweepCell]) -> plot::Table {
                         .collect()
                 })
                 .collect(),
-            rows: radii.clone(),
+            // Figures use mm throughout; the sweep's own unit is cm.
+            rows: radii.iter().map(|r| r * 10.0).collect(),
             cols: dtas.clone(),
             notes: radii
                 .iter()
@@ -512,7 +513,7 @@ pub fn table(cells: &[SweepCell]) -> plot::Table {
                             if ok == n {
                                 String::new()
                             } else {
-                                format!("({ok}/{n})")
+                                format!("({ok} of {n})")
                             }
                         })
                         .collect()

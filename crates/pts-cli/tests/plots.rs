@@ -146,7 +146,8 @@ fn heat_map_png_and_svg() {
         (5.0, 50.0, 0.8, Some(20.7)),
     ];
     let t = pts_cli::sim_cmd::table(&cells);
-    assert_eq!(t.rows, vec![0.0, 5.0]);
+    // Radii come in cm (the sweep's unit) and are labelled in mm.
+    assert_eq!(t.rows, vec![0.0, 50.0]);
     assert_eq!(t.cols, vec![0.2, 0.8]);
     assert_eq!(t.cells[0], vec![Some(1.7), Some(8.5)]);
     assert_eq!(t.cells[1], vec![Some(5.8), Some(20.7)]);
