@@ -485,11 +485,11 @@ pub fn plot_signals(
                 let k2_mm = f64::from(k2) / 1e3;
                 match truth {
                     Some(k) => format!(
-                        "estimated k2 = {k2_mm:.2} mm, truth at first contact {:.2} mm ({:+.1} % of l2)",
+                        "k2 = {k2_mm:.2} mm vs {:.2} mm at first contact ({:+.1} % of l2)",
                         k * 1e3,
                         (k2_mm / 1e3 - k) / l2_m * 100.0
                     ),
-                    None => format!("estimated k2 = {k2_mm:.2} mm"),
+                    None => format!("k2 = {k2_mm:.2} mm"),
                 }
             }
             None => format!("contact on the {:?} phalanx", r.located).to_lowercase(),
@@ -497,10 +497,7 @@ pub fn plot_signals(
         Some(Err(e)) => format!("estimate refused: {}", e.kind),
         None => "no estimate".into(),
     };
-    let title = format!(
-        "{name}, {} estimate, ΔT_a = {dta} N·m: {result}",
-        method.name()
-    );
+    let title = format!("{name}, {}, ΔT_a {dta} N·m: {result}", method.name());
     crate::plot::signals(out, size, &title, &sig)?;
     eprintln!("wrote {}", out.display());
     Ok(())
