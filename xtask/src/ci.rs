@@ -582,6 +582,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run("cargo xtask bench --check", || {
         util::run(util::cargo().args(["run", "-q", "-p", "xtask", "--", "bench", "--check"]))
     });
+    st.run(
+        "documented figures are what the code draws now (cargo xtask figures --check)",
+        crate::figures::check_current,
+    );
     st.run("QEMU: injected panic -> bridge safe, exit 101", || {
         inject_check("panic", 3000, 101, "PANIC")
     });

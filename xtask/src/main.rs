@@ -6,6 +6,7 @@
 //! * `bench [--check] [--quick] [--no-criterion]`: solver cost against error.
 //! * `fuzz [--seconds N] [--target NAME]`: the cargo-fuzz targets.
 //! * `qemu ELF`: run a firmware ELF in QEMU and print its decoded defmt log.
+//! * `figures [--check]`: draw the documentation's figures (or check they are current).
 //!
 //! The overview, each command's `--help` and the dispatch all come from one table
 //! ([`COMMANDS`]), so a command cannot be added without its help.
@@ -14,6 +15,7 @@ mod bench;
 mod callgraph;
 mod ci;
 mod demo;
+mod figures;
 mod fuzz;
 mod log;
 mod panics;
@@ -89,6 +91,24 @@ options:
 exit status: 0 when every stage passed, 1 otherwise.
 ",
         run: ci::main,
+    },
+    Cmd {
+        name: "figures",
+        args: "[--check]",
+        summary: "draw the docs' figures (docs/figures/) or check they are current",
+        help: "\
+Builds the release `pts` and draws every figure the documentation shows (docs/figures/*.svg):
+K_c(k2), the Table 2 grasp with the two-point and the path-fit estimate, and the heat maps of
+the closed-loop sweeps. Each figure's recipe (the `pts` commands) is in xtask/src/figures.rs.
+
+options:
+  --check               draw into a scratch directory and compare with the committed files
+                        byte for byte (a stage of `cargo xtask test`)
+  -h, --help            print this help and exit
+
+exit status: 0 when drawn (or all current), 1 when a figure is stale or a step failed.
+",
+        run: figures::main,
     },
     Cmd {
         name: "size",
