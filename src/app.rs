@@ -74,12 +74,17 @@ mod app {
         #[cfg(not(feature = "qemu"))]
         let (board, cfg) = platform::init(cx.core, cx.device);
         defmt::info!(
-            "BOOT finger={=str} l2_um={=u32} scene={=str} board={=str} dt_us={=u32}",
+            "BOOT finger={=str} l2_um={=u32} scene={=str} board={=str} dt_us={=u32} estimator={=str} dta_unm={=i32}",
             crate::config::FINGER_NAME,
             (crate::config::FINGER.l2 * 1e6) as u32,
             crate::config::SCENE,
             platform::NAME,
-            (cfg.drive.dt_s * 1e6) as u32
+            (cfg.drive.dt_s * 1e6) as u32,
+            match ctl::ESTIMATOR {
+                grasp::Estimator::TwoPoint => "two-point",
+                grasp::Estimator::PathFit => "path-fit",
+            },
+            (ctl::DELTA_TA_NM * 1e6) as i32
         );
         // A fault that caused the last reset is latched: report it and do not move (the
         // encoder would be zeroed wherever the finger stopped). A power-on clears the latch.

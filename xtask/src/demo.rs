@@ -32,103 +32,381 @@ pub fn scene_from_args(args: &[String]) -> Res<String> {
     Ok(scene)
 }
 
-/// One frame as the live view shows it.
-fn live(f: &Frame) {
-    let m = &f.msg;
-    let t_ms = |ticks: Option<u64>| ticks.map(|t| t as f64 * 0.1).unwrap_or(0.0);
-    if m.starts_with("S ") {
-        let th = int(m, "theta_a_urad").unwrap_or(0) as f64 * 1e-6;
-        let ta = int(m, "torque_unm").unwrap_or(0) as f64 * 1e-6;
-        let tr = int(m, "ref_unm").unwrap_or(0) as f64 * 1e-6;
-        let st = word(m, "state").unwrap_or("?");
-        // A bar for θa between rest (−0.85) and +0.4 rad.
-        let pos = (((th + 0.85) / 1.25) * 40.0).clamp(0.0, 40.0) as usize;
-        let bar: String = (0..40).map(|i| if i < pos { '=' } else { ' ' }).collect();
-        println!(
-            "{:>8.1} ms  θa {:+.4} rad  T_a {:+.4} N·m (ref {:+.4})  |{bar}|  {st}",
-            t_ms(f.ts),
-            th,
-            ta,
-            tr
-        );
-    } else if m.starts_with("E ") || m.starts_with("P ") || m.starts_with("TRUTH") {
-        let who = if m.starts_with("P ") {
-            "plant"
-        } else if m.starts_with("E ") {
-            "grasp"
-        } else {
-            "truth"
-        };
-        println!(
-            "{:>8.1} ms  ** {who}: {}",
-            t_ms(f.ts),
-            m.get(2..).unwrap_or(m).trim_start_matches("UTH ")
-        );
-    } else {
-        println!("{}", log::show(f));
+/// Width of the live view (columns).
+const WIDTH: usize = 80;
+
+/// `text` wrapped to [`WIDTH`] columns, continuation lines indented by `indent` spaces.
+fn wrap(text: &str, indent: usize) -> String {
+    let body = text.trim_start_matches(' ');
+    let mut col = text.len() - body.len();
+    let mut out = " ".repeat(col);
+    let lead = col;
+    for word in body.split(' ') {
+        let w = word.chars().count();
+        if col > indent.max(lead) && col + 1 + w > WIDTH {
+            out.push('\n');
+            out.push_str(&" ".repeat(indent));
+            col = indent;
+        } else if col > lead {
+            out.push(' ');
+            col += 1;
+        }
+        out.push_str(word);
+        col += w;
+    }
+    out
+}
+
+/// The i-th identifier of a Rust Debug text (`Fault { tick: 1, reason: NoMotion { .. } }`:
+/// 0 → "Fault", 2 → "NoMotion").
+fn idents(msg: &str) -> Vec<&str> {
+    msg.split(|c: char| !c.is_ascii_alphanumeric() && c != '_')
+        .filter(|w| w.chars().next().is_some_and(|c| c.is_ascii_uppercase()))
+        .collect()
+}
+
+/// A fault in words: what happened, the likely cause, what to try.
+pub fn fault_words(name: &str) -> (&'static str, &'static str, &'static str) {
+    match name {
+        "EncoderJump" => (
+            "the encoder count jumped further in one period than the motor can turn",
+            "electrical noise on the encoder lines or a loose connector",
+            "check the encoder wiring and its ground; shield the cable",
+        ),
+        "EncoderMismatch" => (
+            "the encoder disagrees with the motor's back-EMF",
+            "a stuck or slipping encoder, or a disconnected channel",
+            "check the encoder cable and that its disc turns with the shaft",
+        ),
+        "AdcCode" | "AdcOffset" => (
+            "the current sensor reads an impossible value with the bridge off",
+            "a failed or unpowered current amplifier",
+            "check the shunt amplifier's supply and its output at zero current (mid-scale)",
+        ),
+        "AdcRail" => (
+            "the current reading sat at a rail while driving",
+            "current beyond the sensor's range, or a failed sensor",
+            "check the motor for a short; compare motor.max_current_a with the sensor's range",
+        ),
+        "OverCurrent" => (
+            "the motor current stayed above its limit",
+            "a shorted winding or a jammed gearhead",
+            "turn the motor by hand with the power off; measure the winding resistance",
+        ),
+        "Stall" => (
+            "the drive could not follow the torque reference (duty saturated)",
+            "a jammed transmission or a bus voltage too low for the motor",
+            "check the bus voltage and that the finger moves freely",
+        ),
+        "NoContact" => (
+            "the approach reached its torque ceiling or the end of travel without a contact",
+            "no object in reach",
+            "place an object within the finger's range (or choose a scene with one)",
+        ),
+        "SettleTimeout" => (
+            "the finger did not come to rest after the torque step",
+            "a contact that keeps sliding, or vibration",
+            "use a smaller ΔT_a or a firmer object",
+        ),
+        "EstimateTimeout" => (
+            "the estimate was not delivered in time",
+            "the estimate task was starved or stalled",
+            "report it: this is a firmware fault",
+        ),
+        "SecondContact" => (
+            "the stiffness became larger than any single contact allows",
+            "the object touches both phalanges (or the tip) and locks the finger",
+            "move the object so that it touches the distal phalanx only",
+        ),
+        "NoMotion" => (
+            "the torque step did not move the finger enough to measure a stiffness",
+            "ΔT_a inside the transmission's friction band",
+            "raise ΔT_a (FINGER_FW_DELTA_TA_NM, e.g. 0.8 N·m)",
+        ),
+        "LossOfContact" => (
+            "the finger moved further than a contact allows",
+            "the object slipped away or was removed",
+            "hold the object still, or grasp it nearer the phalanx's middle",
+        ),
+        "EstimateOutOfRange" => (
+            "the estimator refused the measurement",
+            "a stiffness no contact on this finger can produce (wrong finger file, or noise)",
+            "check the finger file against the finger; repeat with a larger ΔT_a",
+        ),
+        "SupervisorStalled" => (
+            "the control loop found its setpoint too old and stopped driving",
+            "the supervise task stalled",
+            "report it: this is a firmware fault",
+        ),
+        _ => ("an unknown fault", "unknown", "read the raw log line above"),
     }
 }
 
-/// Prints the final comparison: estimate vs truth.
-pub fn summary(frames: &[Frame], status: i32) {
-    println!("\n=== result ===");
-    if let Some(e) = log::last(frames, "E Estimated") {
-        let m = &e.msg;
-        let located = m
-            .split("located: ")
-            .nth(1)
-            .and_then(|r| r.split(',').next())
-            .unwrap_or("?");
-        println!("estimate : contact {located}");
-        if let Some(k2) = int(m, "k2_um") {
-            println!("           k̂2   = {:.2} mm from O2", k2 as f64 / 1000.0);
+fn mm(um: i64) -> String {
+    format!("{:.2} mm", um as f64 / 1000.0)
+}
+
+fn rad(urad: i64) -> String {
+    format!("{:+.4} rad", urad as f64 * 1e-6)
+}
+
+fn nm(unm: i64) -> String {
+    format!("{:.3} N·m", unm as f64 * 1e-6)
+}
+
+/// A controller event (`E …`) in words, or `None` for events the view leaves out.
+pub fn event_words(msg: &str) -> Option<String> {
+    let ids = idents(msg);
+    let v = |k: &str| int(msg, k).unwrap_or(0);
+    Some(match *ids.first()? {
+        "Calibrated" => "current sensor zeroed with the bridge off; approaching the object".into(),
+        "ContactDetected" => format!(
+            "contact: θa,c = {}, T_a,c = {}; raising the torque to {}",
+            rad(v("theta_a_urad")),
+            nm(v("torque_unm")),
+            nm(v("target_unm"))
+        ),
+        "Seated" => format!(
+            "{}: θa = {}, T_a = {}",
+            match v("stage") {
+                0 => "impact at rest",
+                1 => "first loading point",
+                _ => "second loading point",
+            },
+            rad(v("theta_a_urad")),
+            nm(v("torque_unm"))
+        ),
+        "StepDone" => "torque step complete; waiting for the finger to settle".into(),
+        "Settled" => format!(
+            "settled: θa = {}, T_a = {}; estimating from {} samples",
+            rad(v("theta_a_urad")),
+            nm(v("torque_unm")),
+            v("path_len")
+        ),
+        "Estimated" => {
+            let located = ids.get(2).copied().unwrap_or("?");
+            let quality = ids.last().copied().unwrap_or("?").to_lowercase();
+            match int(msg, "k2_um") {
+                Some(k2) => format!(
+                    "estimate: {} phalanx, k2 = {} from O2 (K_c = {:.3} N·m/rad, quality {quality})",
+                    located.to_lowercase(),
+                    mm(k2),
+                    v("kc_hat_unm_per_rad") as f64 * 1e-6
+                ),
+                None => format!(
+                    "estimate: contact on the {} phalanx (quality {quality})",
+                    located.to_lowercase()
+                ),
+            }
         }
-        if let Some(kc) = int(m, "kc_hat_unm_per_rad") {
-            println!("           K̂c   = {:.4} N·m/rad", kc as f64 * 1e-6);
+        "Holding" => "holding the object (bridge on)".into(),
+        "Releasing" => "releasing".into(),
+        "Released" => "released; bridge off".into(),
+        "Fault" => {
+            let name = ids.get(1).copied().unwrap_or("?");
+            let (what, cause, try_) = fault_words(name);
+            format!("FAULT, bridge off: {what}. Likely cause: {cause}. Try: {try_}.")
         }
-        if let (Some(d), Some(t)) = (int(m, "delta_ta_unm"), int(m, "delta_theta_a_urad")) {
+        _ => return None,
+    })
+}
+
+/// The live view: the build's settings, events in words, samples at a calm rate (one a second
+/// during the approach, five a second after contact, and at every change of state).
+#[derive(Default)]
+pub struct View {
+    last_sample: Option<u64>,
+    last_state: String,
+}
+
+impl View {
+    /// Prints what `f` adds to the view.
+    pub fn show(&mut self, f: &Frame) {
+        let m = &f.msg;
+        let t = |ticks: Option<u64>| format!("{:>7.3} s", ticks.unwrap_or(0) as f64 * 1e-4);
+        if m.starts_with("BOOT ") {
             println!(
-                "           ΔT_a = {:.4} N·m, Δθa = {:.5} rad",
-                d as f64 * 1e-6,
-                t as f64 * 1e-6
+                "finger     {} (l2 = {})",
+                m.split("finger=")
+                    .nth(1)
+                    .and_then(|r| r.split(" l2_um=").next())
+                    .unwrap_or("?"),
+                mm(int(m, "l2_um").unwrap_or(0))
+            );
+            println!(
+                "scene      {} (simulated inside the firmware)",
+                word(m, "scene").unwrap_or("?")
+            );
+            println!(
+                "build      {} estimator, ΔT_a = {}",
+                word(m, "estimator").unwrap_or("?"),
+                nm(int(m, "dta_unm").unwrap_or(0))
+            );
+            println!();
+        } else if m.starts_with("S ") {
+            let st = word(m, "state").unwrap_or("?");
+            let st = st.split('(').next().unwrap_or(st).to_string();
+            let tick = f.ts.unwrap_or(0);
+            let every = if st == "Approach" { 10_000 } else { 2_000 };
+            let due = self.last_sample.is_none_or(|l| tick >= l + every);
+            if st != self.last_state || due {
+                self.last_sample = Some(tick);
+                self.last_state = st.clone();
+                println!(
+                    "{}  {:<11} θa {}   T_a {} (ref {})",
+                    t(f.ts),
+                    st.to_lowercase(),
+                    rad(int(m, "theta_a_urad").unwrap_or(0)),
+                    nm(int(m, "torque_unm").unwrap_or(0)),
+                    nm(int(m, "ref_unm").unwrap_or(0))
+                );
+            }
+        } else if let Some(e) = m.strip_prefix("E ") {
+            if let Some(words) = event_words(e) {
+                println!("{}", wrap(&format!("{}  ** {words}", t(f.ts)), 14));
+            }
+        } else if let Some(p) = m.strip_prefix("P ") {
+            let kind = p.split(' ').next().unwrap_or("?").replace('_', " ");
+            let where_ = match word(m, "phalanx") {
+                Some(ph) if ph != "none" => format!(
+                    " on the {ph} phalanx at k = {}",
+                    mm(int(m, "k_um").unwrap_or(0))
+                ),
+                _ => String::new(),
+            };
+            println!(
+                "{}",
+                wrap(&format!("{}  (simulation: {kind}{where_})", t(f.ts)), 14)
+            );
+        } else if m.starts_with("TRUTH")
+            || ["CAL ", "INIT ", "WDG ", "STACK "]
+                .iter()
+                .any(|p| m.starts_with(p))
+        {
+            // In the summary, or bookkeeping for the checks.
+        } else if m.starts_with("RESET ") && word(m, "cause") == Some("power_on") {
+        } else if !m.starts_with("END ") {
+            println!("{}", log::show(f));
+        }
+    }
+}
+
+/// What the method's number means, for the summary.
+fn meaning(estimator: &str) -> &'static str {
+    if estimator == "path-fit" {
+        "the path fit models the contact's path from the first contact to the settled step \
+         and reports where the object first touched"
+    } else {
+        "the two-point method (the paper's) measures the stiffness between the contact and \
+         the settled step; a contact that slides outward reads between its first and final \
+         location (the paper's Table 2 shows the same bias); FINGER_FW_ESTIMATOR=path-fit \
+         estimates the first contact"
+    }
+}
+
+/// Prints the final comparison: estimate vs truth, what it means, how the run ended.
+pub fn summary(frames: &[Frame], status: i32) {
+    println!("\n{}", "=".repeat(WIDTH));
+    let boot = log::first(frames, "BOOT ");
+    let estimator = boot.and_then(|b| word(&b.msg, "estimator")).unwrap_or("?");
+    let l2_um = boot.and_then(|b| int(&b.msg, "l2_um")).unwrap_or(0);
+    let line = |label: &str, text: String| println!("{}", wrap(&format!("{label:<11}{text}"), 11));
+    let estimate = log::last(frames, "E Estimated");
+    let k2 = estimate.and_then(|e| int(&e.msg, "k2_um"));
+    match estimate.and_then(|e| e.msg.strip_prefix("E ").and_then(event_words)) {
+        Some(w) => line(
+            "estimate",
+            format!("{estimator}: {}", w.trim_start_matches("estimate: ")),
+        ),
+        None => line("estimate", "none".into()),
+    }
+    let first = log::first(frames, "P first_contact");
+    if let Some(c) = first {
+        let settled = log::first(frames, "TRUTH at=settled")
+            .map(|t| {
+                format!(
+                    "; at the settled step {}",
+                    mm(int(&t.msg, "k_um").unwrap_or(0))
+                )
+            })
+            .unwrap_or_default();
+        line(
+            "truth",
+            format!(
+                "first contact on the {} phalanx at {}{settled}",
+                word(&c.msg, "phalanx").unwrap_or("?"),
+                mm(int(&c.msg, "k_um").unwrap_or(0))
+            ),
+        );
+    }
+    if let (Some(k2), Some(k)) = (k2, first.and_then(|c| int(&c.msg, "k_um"))) {
+        let pct = if l2_um > 0 {
+            (k2 - k) as f64 / l2_um as f64 * 100.0
+        } else {
+            f64::NAN
+        };
+        line(
+            "error",
+            format!(
+                "{:+.2} mm = {pct:+.1} % of l2, against the first contact",
+                (k2 - k) as f64 / 1000.0
+            ),
+        );
+        line("meaning", meaning(estimator).into());
+    }
+    if let Some(f) = log::last(frames, "E Fault") {
+        if let Some(w) = f.msg.strip_prefix("E ").and_then(event_words) {
+            line(
+                "fault",
+                w.trim_start_matches("FAULT, bridge off: ").to_string(),
             );
         }
-    } else {
-        println!("estimate : none");
-    }
-    if let Some(c) = log::first(frames, "P first_contact") {
-        println!(
-            "truth    : first contact on the {} phalanx at k = {:.2} mm",
-            word(&c.msg, "phalanx").unwrap_or("?"),
-            int(&c.msg, "k_um").unwrap_or(0) as f64 / 1000.0
-        );
-    }
-    if let Some(t) = log::first(frames, "TRUTH at=settled") {
-        println!(
-            "           at the settled step: contact {} at k = {:.2} mm",
-            word(&t.msg, "contact").unwrap_or("?"),
-            int(&t.msg, "k_um").unwrap_or(0) as f64 / 1000.0
-        );
     }
     if let Some(e) = log::last(frames, "END") {
-        println!(
-            "end      : state {} , bridge safe {}, {} control ticks ({:.1} s simulated)",
-            word(&e.msg, "state").unwrap_or("?"),
-            word(&e.msg, "bridge_safe").unwrap_or("?"),
-            int(&e.msg, "ticks").unwrap_or(0),
-            int(&e.msg, "ticks").unwrap_or(0) as f64 * 1e-4
+        let safe = word(&e.msg, "bridge_safe") == Some("true");
+        line(
+            "motor",
+            if safe {
+                "bridge off (safe)".into()
+            } else {
+                format!(
+                    "bridge on, state {} (QEMU stops here; the board keeps holding until released)",
+                    word(&e.msg, "state").unwrap_or("?").to_lowercase()
+                )
+            },
+        );
+        let ticks = int(&e.msg, "ticks").unwrap_or(0);
+        line(
+            "firmware",
+            format!(
+                "exit {status} ({}), {:.1} s simulated",
+                match status {
+                    0 => "estimate delivered",
+                    2 => "the controller faulted and switched the bridge off",
+                    101 => "panic, bridge off",
+                    102 => "HardFault, bridge off",
+                    _ => "see the log",
+                },
+                ticks as f64 * 1e-4
+            ),
         );
     }
     if let (Some(e), Ok(per)) = (log::last(frames, "END"), crate::ci::instr_per_stamp(frames)) {
         let w = int(&e.msg, "work_max").unwrap_or(0) as f64 * per;
-        let m = int(&e.msg, "work_mean_x100").unwrap_or(0) as f64 * 0.01 * per;
         let est = int(&e.msg, "est_work_max").unwrap_or(0) as f64 * per;
-        let sup = int(&e.msg, "sup_work_max").unwrap_or(0) as f64 * per;
-        println!(
-            "work     : sampling task max {w:.0} / mean {m:.0} instructions per tick (Cortex-M4, ±40; of 10 000 per 100 µs at 100 MHz), state machine max {sup:.0} per run, estimate {est:.0} instructions"
+        let est = if est > 0.0 {
+            format!("; estimate task {est:.0}")
+        } else {
+            String::new()
+        };
+        line(
+            "work",
+            format!(
+                "sampling task ≤ {w:.0} of 10,000 instructions per 100 µs period at 100 MHz{est} \
+                 (Cortex-M4 instructions, counted by QEMU)"
+            ),
         );
     }
-    println!("firmware exit status {status}");
 }
 
 /// `cargo xtask demo`.
@@ -136,7 +414,8 @@ pub fn main(args: &[String]) -> Res<i32> {
     let scene = scene_from_args(args)?;
     qemu::ensure_qemu()?;
     let elf = qemu::build(&scene)?;
-    let run = qemu::run(&elf, &mut live)?;
+    let mut view = View::default();
+    let run = qemu::run(&elf, &mut |f| view.show(f))?;
     summary(&run.frames, run.status);
     println!("(QEMU wall time {:.1} s)", run.wall.as_secs_f64());
     Ok(run.status)
@@ -145,6 +424,47 @@ pub fn main(args: &[String]) -> Res<i32> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn events_read_in_words_within_80_columns() {
+        let est = "Estimated { tick: 68120, result: EstimateResult { located: Distal, k2_um: Some(41993), kc_hat_unm_per_rad: 10152486, kc_proximal_unm_per_rad: 2627086, kc_tip_unm_per_rad: 30403645, delta_ta_unm: 803311, delta_theta_a_urad: 79125, theta_a_c_urad: -220697, ta_c_unm: 425269, quality: Good } }";
+        let w = event_words(est).unwrap();
+        assert!(w.contains("distal phalanx, k2 = 41.99 mm"), "{w}");
+        assert!(
+            w.contains("K_c = 10.152 N·m/rad") && w.contains("quality good"),
+            "{w}"
+        );
+        let fault = "Fault { tick: 5, reason: NoMotion { travel_urad: 12 } }";
+        let w = event_words(fault).unwrap();
+        assert!(
+            w.starts_with("FAULT, bridge off") && w.contains("raise ΔT_a"),
+            "{w}"
+        );
+        for line in wrap(&format!("  6.814 s  ** {w}"), 14).lines() {
+            assert!(line.chars().count() <= WIDTH, "{line}");
+        }
+        assert_eq!(event_words("Unheard { tick: 1 }"), None);
+        // Every fault the controller names has its own words.
+        for name in [
+            "EncoderJump",
+            "EncoderMismatch",
+            "AdcCode",
+            "AdcOffset",
+            "AdcRail",
+            "OverCurrent",
+            "Stall",
+            "NoContact",
+            "SettleTimeout",
+            "EstimateTimeout",
+            "SecondContact",
+            "NoMotion",
+            "LossOfContact",
+            "EstimateOutOfRange",
+            "SupervisorStalled",
+        ] {
+            assert_ne!(fault_words(name).0, "an unknown fault", "{name}");
+        }
+    }
 
     #[test]
     fn scene_argument() {
