@@ -102,6 +102,9 @@ mod app {
             );
             platform::wait_latched();
         }
+        // The stored settings (issue 18): loaded once, the status logged; the build's
+        // defaults apply unless it is Loaded.
+        let _settings = crate::settings_flash::boot();
         let decimation = ctl::decimation(&cfg.drive);
         // Calibration of the work counter: `delay(n)` is n + 1 passes of `subs; bne`, i.e.
         // 200 002 instructions (QEMU icount: stamps × 40; board: CPU cycles of that loop).

@@ -218,6 +218,14 @@ fn scene_check(
             errs.push(format!("END line without {key}"));
         }
     }
+    // A fresh QEMU start is a power-on: the settings store's RAM "flash" comes erased.
+    match log::first(q, "SETTINGS") {
+        Some(f) if word(&f.msg, "status") == Some("empty") => {}
+        other => errs.push(format!(
+            "expected `SETTINGS status=empty` at the first boot, got {:?}",
+            other.map(|f| &f.msg)
+        )),
+    }
     let per = instr_per_stamp(q)?;
     match size::stack_check(q) {
         Ok(line) => println!("{scene}: {line}"),
@@ -429,6 +437,63 @@ fn latch_check() -> Res {
     }
 }
 
+/// The settings store's round trip in QEMU (FINGER_FW_INJECT=settings@0): the first boot
+/// finds the store empty, stores test settings through the RAM-backed flash and resets; the
+/// second boot loads exactly them (sequence 1) and the grasp runs as usual.
+fn settings_check() -> Res {
+    // The firmware's test payload (src/settings_flash.rs, INJECTED_PAYLOAD).
+    const PAYLOAD_LEN: i64 = "settings stored by the test command".len() as i64;
+    let elf = qemu::build_with("table2", Some("settings@0"))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if f.msg.starts_with("SETTINGS") || f.msg.starts_with("BOOT") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let q = &run.frames;
+    let lines: Vec<&str> = q
+        .iter()
+        .filter(|f| f.msg.starts_with("SETTINGS"))
+        .map(|f| f.msg.as_str())
+        .collect();
+    let mut errs = Vec::new();
+    let boots = q.iter().filter(|f| f.msg.starts_with("BOOT")).count();
+    if boots != 2 {
+        errs.push(format!("{boots} boots (expected 2: store, reset, load)"));
+    }
+    let has = |pred: &dyn Fn(&str) -> bool| lines.iter().any(|l| pred(l));
+    if lines.first().and_then(|l| word(l, "status")) != Some("empty") {
+        errs.push(format!("first boot did not find an empty store: {lines:?}"));
+    }
+    if !has(&|l| l.starts_with("SETTINGS stored") && int(l, "sequence") == Some(1)) {
+        errs.push(format!("no store of sequence 1: {lines:?}"));
+    }
+    if !has(&|l| {
+        word(l, "status") == Some("loaded")
+            && int(l, "sequence") == Some(1)
+            && int(l, "len") == Some(PAYLOAD_LEN)
+    }) {
+        errs.push(format!(
+            "second boot did not load sequence 1 with {PAYLOAD_LEN} bytes: {lines:?}"
+        ));
+    }
+    if !has(&|l| word(l, "payload_matches") == Some("true")) {
+        errs.push(format!(
+            "loaded payload differs from the stored one: {lines:?}"
+        ));
+    }
+    if run.status != 0 {
+        errs.push(format!(
+            "exit status {} (expected 0: the grasp ran)",
+            run.status
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
 /// Instructions per work stamp, from the firmware's calibration loop (CAL line); must agree
 /// with the icount arithmetic (1 ns per instruction, 40 ns per 25 MHz timer tick).
 pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
@@ -591,6 +656,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run(
         "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
         latch_check,
+    );
+    st.run(
+        "QEMU: settings stored, reset, loaded (RAM-backed flash)",
+        settings_check,
     );
 
     eprintln!(

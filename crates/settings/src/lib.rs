@@ -44,8 +44,9 @@ pub const HEADER_LEN: usize = 16;
 /// Bytes after the payload (its CRC-32).
 pub const TRAILER_LEN: usize = 4;
 
-/// The CRC of the records: CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32).
-const CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+/// The CRC of the records: CRC-32/ISO-HDLC (the zlib/Ethernet CRC-32), bitwise: a record is
+/// a few hundred bytes, and a lookup table would cost 1 KiB of the firmware's flash.
+const CRC: crc::Crc<u32, crc::NoTable> = crc::Crc::<u32, crc::NoTable>::new(&crc::CRC_32_ISO_HDLC);
 /// Staging buffer for reads and writes (bytes): writes and reads go through it in pieces.
 const CHUNK: usize = 64;
 /// First word of an erased slot.
