@@ -162,8 +162,8 @@ fn scene_file_const(path: &str) -> String {
     plant::toml_scene::to_rust_expr(&scene)
 }
 
-/// `FINGER_FW_INJECT=panic@TICK`, `hardfault@TICK` or `reset@TICK`: a fault injected by the
-/// test command to check the last-resort handlers; `settings@0`: init stores test settings
+/// `FINGER_FW_INJECT=panic@TICK`, `hardfault@TICK`, `reset@TICK` or `stackoverflow@TICK`: a
+/// fault injected by the test command to check the last-resort handlers; `settings@0`: init stores test settings
 /// and resets once (the store's round trip across a reset). Unset in every normal build.
 fn inject_consts(src: &mut String) {
     let inject = match env::var("FINGER_FW_INJECT") {
@@ -174,9 +174,12 @@ fn inject_consts(src: &mut String) {
             let at: u32 = at
                 .parse()
                 .unwrap_or_else(|_| fail(&format!("FINGER_FW_INJECT={v}: TICK must be a number")));
-            if !matches!(kind, "panic" | "hardfault" | "reset" | "settings") {
+            if !matches!(
+                kind,
+                "panic" | "hardfault" | "reset" | "stackoverflow" | "settings"
+            ) {
                 fail(&format!(
-                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault, reset or settings"
+                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault, reset, stackoverflow or settings"
                 ));
             }
             format!("Some(({kind:?}, {at}))")

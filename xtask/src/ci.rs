@@ -361,8 +361,8 @@ fn finger_check() -> Res {
 }
 
 /// A panic or HardFault injected into the QEMU firmware must reach the safe state, say so
-/// in the log and exit with its own status.
-fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
+/// in the log and exit with its own status. Returns the report line.
+fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res<String> {
     let elf = qemu::build_with("table2", Some(&format!("{kind}@{tick}")))?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -384,7 +384,7 @@ fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
         ));
     }
     if errs.is_empty() {
-        Ok(())
+        Ok(line.msg.clone())
     } else {
         Err(errs.join("\n"))
     }
@@ -648,11 +648,26 @@ pub fn main(args: &[String]) -> Res<i32> {
         util::run(util::cargo().args(["run", "-q", "-p", "xtask", "--", "bench", "--check"]))
     });
     st.run("QEMU: injected panic -> bridge safe, exit 101", || {
-        inject_check("panic", 3000, 101, "PANIC")
+        inject_check("panic", 3000, 101, "PANIC").map(|_| ())
     });
     st.run("QEMU: injected HardFault -> bridge safe, exit 102", || {
-        inject_check("hardfault", 3000, 102, "HARDFAULT")
+        inject_check("hardfault", 3000, 102, "HARDFAULT").map(|_| ())
     });
+    st.run(
+        "QEMU: injected stack overflow -> HardFault, bridge safe, exit 102",
+        || {
+            let line = inject_check("stackoverflow", 3000, 102, "HARDFAULT")?;
+            // Reported as the overflow it is (flip-link + the entry that re-seats the
+            // stack), not as some other HardFault.
+            if word(&line, "stack_overflow") == Some("true") {
+                Ok(())
+            } else {
+                Err(format!(
+                    "HardFault not reported as a stack overflow: {line}"
+                ))
+            }
+        },
+    );
     st.run(
         "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
         latch_check,
