@@ -437,6 +437,94 @@ fn latch_check() -> Res {
     }
 }
 
+/// Ticks the firmware's `telstall` injection holds the telemetry task (src/telemetry.rs).
+const TELEMETRY_STALL_TICKS: i64 = 70_000;
+/// Tick at which the telemetry task is stalled.
+const TELEMETRY_STALL_AT: i64 = 3000;
+/// The sampling task's worst work with the queue full may exceed the unstalled run's by this
+/// share (a failed `try_send` costs a few instructions; a blocked loop would cost periods).
+const STALL_WORK_TOL: f64 = 0.1;
+
+/// A full telemetry queue (FINGER_FW_INJECT=telstall@3000: the telemetry task stops taking
+/// messages mid-approach until after the run is over) blocks neither the 10 kHz loop nor the
+/// supervisor: the run ends at the same tick, in the same state and with the same status as
+/// the QEMU run without the stall, and the sampling task's worst work stays within
+/// [`STALL_WORK_TOL`] of it; every message that did not get through is counted (logged +
+/// dropped = what the host run of the same controller printed); the END report still gets
+/// out.
+fn telemetry_full_check() -> Res {
+    let elf = qemu::build_with("table2", Some(&format!("telstall@{TELEMETRY_STALL_AT}")))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if !f.msg.starts_with("S ") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let (host, _) = host_run("table2")?;
+    let normal = qemu::run(&qemu::build("table2")?, &mut |_| {})?;
+    let q = &run.frames;
+    let end = expect_end(q)?;
+    let host_end = expect_end(&host)?;
+    let normal_end = expect_end(&normal.frames)?;
+    let counted = |frames: &[Frame]| {
+        frames
+            .iter()
+            .filter(|f| {
+                f.msg.starts_with("E ") || f.msg.starts_with("P ") || f.msg.starts_with("TRUTH")
+            })
+            .count() as i64
+    };
+    let (logged, produced) = (counted(q), counted(&host));
+    let dropped = int(&end.msg, "dropped").ok_or("END without dropped")?;
+    let mut errs = Vec::new();
+    if log::first(q, "STALL").is_none() {
+        errs.push("the telemetry stall was not injected (no STALL line)".to_string());
+    }
+    if run.status != normal.status {
+        errs.push(format!(
+            "exit status {} (without the stall: {})",
+            run.status, normal.status
+        ));
+    }
+    for key in ["ticks", "status", "state"] {
+        if word(&end.msg, key) != word(&normal_end.msg, key) {
+            errs.push(format!(
+                "END {key} differs from the run without the stall: {} vs {}",
+                end.msg, normal_end.msg
+            ));
+        }
+    }
+    let work = |m: &str| int(m, "work_max").map(|w| w as f64);
+    match (work(&end.msg), work(&normal_end.msg)) {
+        (Some(w), Some(n)) if w <= n * (1.0 + STALL_WORK_TOL) => {}
+        other => errs.push(format!(
+            "sampling task's worst work (stalled, unstalled) = {other:?}: beyond {STALL_WORK_TOL} over"
+        )),
+    }
+    if dropped == 0 {
+        errs.push("nothing dropped: the queue never filled".to_string());
+    }
+    if logged + dropped != produced {
+        errs.push(format!(
+            "{logged} messages logged + {dropped} counted as dropped != {produced} the host run printed"
+        ));
+    }
+    let resumed = TELEMETRY_STALL_AT + TELEMETRY_STALL_TICKS;
+    let late = end.ts.map(|t| t as i64 - resumed);
+    println!(
+        "telemetry stalled at tick {TELEMETRY_STALL_AT} for {TELEMETRY_STALL_TICKS} ticks: run ended at tick {} (without the stall {}; host {}), work_max {} stamps (without {}), {logged} messages logged, {dropped} dropped, {produced} produced by the host run; END logged {late:?} ticks after the telemetry resumed",
+        int(&end.msg, "ticks").unwrap_or(-1),
+        int(&normal_end.msg, "ticks").unwrap_or(-1),
+        int(&host_end.msg, "ticks").unwrap_or(-1),
+        int(&end.msg, "work_max").unwrap_or(-1),
+        int(&normal_end.msg, "work_max").unwrap_or(-1),
+    );
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
 /// The settings store's round trip in QEMU (FINGER_FW_INJECT=settings@0): the first boot
 /// finds the store empty, stores test settings through the RAM-backed flash and resets; the
 /// second boot loads exactly them (sequence 1) and the grasp runs as usual.
@@ -671,6 +759,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run(
         "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
         latch_check,
+    );
+    st.run(
+        "QEMU: full telemetry queue -> loop and supervisor unaffected, drops counted",
+        telemetry_full_check,
     );
     st.run(
         "QEMU: settings stored, reset, loaded (RAM-backed flash)",
