@@ -227,8 +227,12 @@ mod imp {
             iwdg.kr().write(|w| unsafe { w.bits(0x5555) });
             iwdg.pr().write(|w| unsafe { w.bits(pr) });
             iwdg.rlr().write(|w| unsafe { w.bits(rlr) });
-            // PVU/RVU: the update reaches the watchdog's clock domain (a few LSI periods).
-            while iwdg.sr().read().bits() & 0b11 != 0 {}
+            // PVU/RVU: the update reaches the watchdog's clock domain (a few LSI periods,
+            // ~0.3 ms). Bounded: with the watchdog not started the LSI may be off.
+            let mut n = 0u32;
+            while iwdg.sr().read().bits() & 0b11 != 0 && n < 1_000_000 {
+                n += 1;
+            }
             iwdg.kr().write(|w| unsafe { w.bits(0xAAAA) });
         };
         set(6, 0xFFF);
