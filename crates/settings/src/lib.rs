@@ -182,7 +182,8 @@ pub enum StoreError {
         /// The alignment required: the erase size (bytes).
         align: u32,
     },
-    /// The slot length is zero or not a multiple of the erase size (bytes).
+    /// The slot length is shorter than an empty record (20 bytes) or not a multiple of the
+    /// erase size (bytes).
     SlotLength {
         /// The slot length given (bytes).
         len: u32,
@@ -318,7 +319,7 @@ impl Store {
                 });
             }
         }
-        if self.len == 0 || self.len as usize % align != 0 {
+        if (self.len as usize) < HEADER_LEN + TRAILER_LEN || self.len as usize % align != 0 {
             return Err(StoreError::SlotLength {
                 len: self.len,
                 erase_size: align as u32,

@@ -225,6 +225,14 @@ fn layout_and_size_errors_name_the_value_and_the_limit() {
             capacity: 1024
         })
     );
+    let s = Store::new(0, 16, 16).unwrap();
+    assert_eq!(
+        s.load(&mut f, &mut [0u8; 4]),
+        Err(StoreError::SlotLength {
+            len: 16,
+            erase_size: 1
+        })
+    );
     let s = Store::new(0, 256, 256).unwrap();
     let big = [0u8; 237];
     assert_eq!(
