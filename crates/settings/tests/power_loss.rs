@@ -27,6 +27,10 @@ fn every_base<const R: usize, const W: usize, const E: usize>() {
         n >= 3,
         "a store is at least an erase and two programs, got {n} steps"
     );
+    eprintln!(
+        "write size {W}: {n} steps per store, {} cut cases per base state",
+        n * TEARS.len() as u64
+    );
 
     // Older in A (1), old in B (2): the new record replaces the older one in A; the older
     // one must never come back.
