@@ -360,9 +360,64 @@ fn finger_check() -> Res {
     })
 }
 
+/// The function symbol of an ELF that contains `addr` (the Thumb bit ignored), and the
+/// first halfword of the instruction there.
+fn function_at(elf: &std::path::Path, addr: u64) -> Res<(Option<String>, Option<u16>)> {
+    use object::{Object, ObjectSection, ObjectSymbol, SymbolKind};
+    let bytes = std::fs::read(elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let file = object::File::parse(&*bytes).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let name = file
+        .symbols()
+        .filter(|s| s.kind() == SymbolKind::Text)
+        .find(|s| {
+            let a = s.address() & !1;
+            a <= addr && addr < a + s.size()
+        })
+        .and_then(|s| s.name().ok().map(str::to_string));
+    let half = file.sections().find_map(|sec| {
+        let a = sec.address();
+        if a > addr || addr + 2 > a + sec.size() {
+            return None;
+        }
+        let data = sec.data().ok()?;
+        let i = (addr - a) as usize;
+        Some(u16::from_le_bytes([*data.get(i)?, *data.get(i + 1)?]))
+    });
+    Ok((name, half))
+}
+
+/// The injected HardFault's report names the faulting instruction: its PC lies in the
+/// sampling task (`ADC`), where the injection's read from unmapped memory is inlined, and
+/// the instruction there is a load (Thumb LDR immediate, 16-bit `0x68xx`-`0x6Fxx` or 32-bit
+/// `0xF8Dx`). The PC comes from the exception frame the HardFault entry reads before it
+/// re-seats the stack, so this checks that entry's frame offset.
+fn hardfault_pc_check(line: &str, elf: &std::path::Path) -> Res {
+    let pc = word(line, "pc")
+        .and_then(|p| u64::from_str_radix(p.trim_start_matches("0x"), 16).ok())
+        .ok_or_else(|| format!("no pc in {line}"))?;
+    let (name, half) = function_at(elf, pc)?;
+    let is_load = half.is_some_and(|h| h & 0xF800 == 0x6800 || h & 0xFFF0 == 0xF8D0);
+    if name.as_deref() == Some("ADC") && is_load {
+        println!(
+            "HardFault pc {pc:#x} is a load ({:#06x}) in ADC (the sampling task, where it was injected)",
+            half.unwrap_or(0)
+        );
+        Ok(())
+    } else {
+        Err(format!(
+            "HardFault pc {pc:#x} is in {name:?} (instruction {half:x?}): not the injected load in the sampling task ADC"
+        ))
+    }
+}
+
 /// A panic or HardFault injected into the QEMU firmware must reach the safe state, say so
-/// in the log and exit with its own status. Returns the report line.
-fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res<String> {
+/// in the log and exit with its own status. Returns the report line and the ELF.
+fn inject_check(
+    kind: &str,
+    tick: u32,
+    status: i32,
+    tag: &str,
+) -> Res<(String, std::path::PathBuf)> {
     let elf = qemu::build_with("table2", Some(&format!("{kind}@{tick}")))?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -384,7 +439,7 @@ fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res<String> {
         ));
     }
     if errs.is_empty() {
-        Ok(line.msg.clone())
+        Ok((line.msg.clone(), elf))
     } else {
         Err(errs.join("\n"))
     }
@@ -739,12 +794,13 @@ pub fn main(args: &[String]) -> Res<i32> {
         inject_check("panic", 3000, 101, "PANIC").map(|_| ())
     });
     st.run("QEMU: injected HardFault -> bridge safe, exit 102", || {
-        inject_check("hardfault", 3000, 102, "HARDFAULT").map(|_| ())
+        let (line, elf) = inject_check("hardfault", 3000, 102, "HARDFAULT")?;
+        hardfault_pc_check(&line, &elf)
     });
     st.run(
         "QEMU: injected stack overflow -> HardFault, bridge safe, exit 102",
         || {
-            let line = inject_check("stackoverflow", 3000, 102, "HARDFAULT")?;
+            let (line, _) = inject_check("stackoverflow", 3000, 102, "HARDFAULT")?;
             // Reported as the overflow it is (flip-link + the entry that re-seats the
             // stack), not as some other HardFault.
             if word(&line, "stack_overflow") == Some("true") {
