@@ -33,13 +33,27 @@ fn ops() -> impl Strategy<Value = Vec<StoreOp>> {
 /// The model: the last payload known to be committed and how many commits there were. After
 /// every (possibly cut) store the load must be the committed payload or the new one, with the
 /// sequence number equal to the count of commits.
+///
+/// `start`: a record already in the flash (its sequence number, and whether it is in slot B),
+/// planted from the documented layout; the count of commits then starts at its sequence.
 fn run_model<const R: usize, const W: usize, const E: usize>(
     ops: &[StoreOp],
+    start: Option<(u32, bool)>,
 ) -> Result<(), TestCaseError> {
     let (store, cap) = layout(E as u32);
     let mut f = SimFlash::<R, W, E>::new(cap);
     let mut committed: Option<Vec<u8>> = None;
     let mut commits = 0u32;
+    if let Some((seq, in_b)) = start {
+        let initial = b"planted before the test".to_vec();
+        plant(
+            &mut f,
+            if in_b { 3 * E as u32 } else { E as u32 },
+            &encode(seq, 1, &initial),
+        );
+        committed = Some(initial);
+        commits = seq;
+    }
     for (payload, cut) in ops {
         f.power_on();
         if let Some((frac, tear)) = cut {
@@ -50,12 +64,15 @@ fn run_model<const R: usize, const W: usize, const E: usize>(
             prop_assert!(store.store(&mut f, payload).is_err());
             f.power_on();
         } else {
-            prop_assert_eq!(store.store(&mut f, payload).unwrap(), commits + 1);
+            prop_assert_eq!(
+                store.store(&mut f, payload).unwrap(),
+                commits.wrapping_add(1)
+            );
         }
         let (got, st) = loaded(&store, &mut f);
-        if got.as_deref() == Some(&payload[..]) && sequence(&st) == Some(commits + 1) {
+        if got.as_deref() == Some(&payload[..]) && sequence(&st) == Some(commits.wrapping_add(1)) {
             committed = Some(payload.clone());
-            commits += 1;
+            commits = commits.wrapping_add(1);
         } else {
             prop_assert_eq!(&got, &committed, "neither old nor new: {:?}", st);
             if committed.is_some() {
@@ -74,17 +91,28 @@ proptest! {
 
     #[test]
     fn random_stores_and_cuts_byte_flash(ops in ops()) {
-        run_model::<1, 1, 256>(&ops)?;
+        run_model::<1, 1, 256>(&ops, None)?;
     }
 
     #[test]
     fn random_stores_and_cuts_word_flash(ops in ops()) {
-        run_model::<4, 4, 512>(&ops)?;
+        run_model::<4, 4, 512>(&ops, None)?;
     }
 
     #[test]
     fn random_stores_and_cuts_row_flash(ops in ops()) {
-        run_model::<1, 16, 1024>(&ops)?;
+        run_model::<1, 16, 1024>(&ops, None)?;
+    }
+
+    /// The same from a record at any sequence number, most near the top so the counter wraps
+    /// during the run.
+    #[test]
+    fn random_stores_and_cuts_across_the_wrap(
+        ops in ops(),
+        seq in prop_oneof![any::<u32>(), (u32::MAX - 8)..=u32::MAX],
+        in_b in any::<bool>(),
+    ) {
+        run_model::<1, 1, 256>(&ops, Some((seq, in_b)))?;
     }
 
     /// A flash full of random bytes never panics and loads as Corrupt or Empty, and a store
