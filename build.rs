@@ -164,8 +164,8 @@ fn scene_file_const(path: &str) -> String {
 
 /// `FINGER_FW_INJECT=panic@TICK`, `hardfault@TICK`, `reset@TICK` or `stackoverflow@TICK`: a
 /// fault injected by the test command to check the last-resort handlers; `telstall@TICK`: the
-/// telemetry task stops taking messages at TICK for a while (src/telemetry.rs); `settings@0`: init stores test settings
-/// and resets once (the store's round trip across a reset). Unset in every normal build.
+/// telemetry task stops taking messages at TICK for a while (src/telemetry.rs); `settings@0` / `settings-corrupt@0`:
+/// init stores test settings / damages the store and resets once (the store across a reset). Unset in every normal build.
 fn inject_consts(src: &mut String) {
     let inject = match env::var("FINGER_FW_INJECT") {
         Ok(v) if !v.is_empty() => {
@@ -177,10 +177,16 @@ fn inject_consts(src: &mut String) {
                 .unwrap_or_else(|_| fail(&format!("FINGER_FW_INJECT={v}: TICK must be a number")));
             if !matches!(
                 kind,
-                "panic" | "hardfault" | "reset" | "stackoverflow" | "telstall" | "settings"
+                "panic"
+                    | "hardfault"
+                    | "reset"
+                    | "stackoverflow"
+                    | "telstall"
+                    | "settings"
+                    | "settings-corrupt"
             ) {
                 fail(&format!(
-                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault, reset, stackoverflow, telstall or settings"
+                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault, reset, stackoverflow, telstall, settings or settings-corrupt"
                 ));
             }
             format!("Some(({kind:?}, {at}))")

@@ -66,6 +66,8 @@ impl Settings {
 
 /// Test settings stored by the `settings@0` injection (test command only).
 pub const INJECTED_PAYLOAD: &[u8] = b"settings stored by the test command";
+/// The word the `settings-corrupt@0` injection programs at slot A (test command only).
+pub const INJECTED_DAMAGE: u32 = 0x1234_5678;
 
 /// Loads the store once at boot and logs what it found (`SETTINGS status=...`).
 pub fn boot() -> Boot {
@@ -104,18 +106,29 @@ pub fn boot() -> Boot {
         }
         Err(e) => defmt::error!("SETTINGS status=error (build defaults) {}", e),
     }
-    // The test command's round trip (FINGER_FW_INJECT=settings@0): a first boot that finds no
-    // settings stores test settings and resets; the next boot must load them.
-    if let (Some(("settings", _)), Ok(LoadStatus::Empty), Some(s)) =
+    // The test command's round trips: a first boot that finds no settings stores test
+    // settings (FINGER_FW_INJECT=settings@0) or damages the store (settings-corrupt@0) and
+    // resets; the next boot must load them, or fall back to the defaults and say why.
+    if let (Some((kind @ ("settings" | "settings-corrupt"), _)), Ok(LoadStatus::Empty), Some(s)) =
         (crate::config::INJECT, &status, &mut settings)
     {
-        match s.store(INJECTED_PAYLOAD) {
-            Ok(q) => defmt::info!(
-                "SETTINGS stored sequence={=u32} len={=usize}, resetting",
-                q,
-                INJECTED_PAYLOAD.len()
-            ),
-            Err(e) => defmt::error!("SETTINGS store failed {}", e),
+        if kind == "settings" {
+            match s.store(INJECTED_PAYLOAD) {
+                Ok(q) => defmt::info!(
+                    "SETTINGS stored sequence={=u32} len={=usize}, resetting",
+                    q,
+                    INJECTED_PAYLOAD.len()
+                ),
+                Err(e) => defmt::error!("SETTINGS store failed {}", e),
+            }
+        } else {
+            // Not a record: a word that is neither the magic nor erased, at slot A.
+            let r = s.flash.write(imp::SLOT_A, &INJECTED_DAMAGE.to_le_bytes());
+            defmt::info!(
+                "SETTINGS damaged ok={=bool} word={=u32:#x}, resetting",
+                r.is_ok(),
+                INJECTED_DAMAGE
+            );
         }
         cortex_m::peripheral::SCB::sys_reset();
     }

@@ -637,6 +637,54 @@ fn settings_check() -> Res {
     }
 }
 
+/// A damaged settings store in QEMU (FINGER_FW_INJECT=settings-corrupt@0): the first boot
+/// programs a word that is neither the magic nor erased at slot A and resets; the second
+/// boot reports the store corrupt with that word, falls back to the build's defaults, and
+/// the grasp runs as usual.
+fn settings_corrupt_check() -> Res {
+    // The firmware's damage word (src/settings_flash.rs, INJECTED_DAMAGE).
+    const DAMAGE: i64 = 0x1234_5678;
+    let elf = qemu::build_with("table2", Some("settings-corrupt@0"))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if f.msg.starts_with("SETTINGS") || f.msg.starts_with("BOOT") || f.msg.starts_with("END") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let q = &run.frames;
+    let lines: Vec<&str> = q
+        .iter()
+        .filter(|f| f.msg.starts_with("SETTINGS status"))
+        .map(|f| f.msg.as_str())
+        .collect();
+    let mut errs = Vec::new();
+    let statuses: Vec<Option<&str>> = lines.iter().map(|l| word(l, "status")).collect();
+    if statuses != [Some("empty"), Some("corrupt")] {
+        errs.push(format!(
+            "expected an empty then a corrupt store over two boots: {lines:?}"
+        ));
+    }
+    // defmt prints the found word in decimal inside the Corrupt status.
+    if !lines
+        .last()
+        .is_some_and(|l| l.contains("Magic") && l.contains(&DAMAGE.to_string()))
+    {
+        errs.push(format!(
+            "corrupt status does not name the damaged word {DAMAGE:#x}: {lines:?}"
+        ));
+    }
+    if run.status != 0 {
+        errs.push(format!(
+            "exit status {} (expected 0: the grasp ran on the defaults)",
+            run.status
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
 /// Instructions per work stamp, from the firmware's calibration loop (CAL line); must agree
 /// with the icount arithmetic (1 ns per instruction, 40 ns per 25 MHz timer tick).
 pub fn instr_per_stamp(frames: &[Frame]) -> Res<f64> {
@@ -823,6 +871,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run(
         "QEMU: settings stored, reset, loaded (RAM-backed flash)",
         settings_check,
+    );
+    st.run(
+        "QEMU: settings store damaged, reset -> corrupt, build defaults, grasp runs",
+        settings_corrupt_check,
     );
 
     eprintln!(

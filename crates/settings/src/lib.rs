@@ -230,6 +230,14 @@ pub enum StoreError {
     },
     /// The flash driver failed.
     Flash(FlashError),
+    /// The record read back after a store is not the one written (the flash did not take
+    /// the program): the previous settings stay the newest.
+    Verify {
+        /// The slot written.
+        slot: Slot,
+        /// What it holds instead.
+        found: SlotState,
+    },
 }
 
 /// Two slots on a NOR flash. Holds only the layout: the flash is passed to each call, so a
@@ -507,8 +515,9 @@ impl Store {
         Ok(())
     }
 
-    /// Stores `payload` as the new newest record and returns its sequence number. Power lost
-    /// at any point leaves the previous newest record (or none) or this one loadable.
+    /// Stores `payload` as the new newest record, reads it back, and returns its sequence
+    /// number. Power lost at any point leaves the previous newest record (or none) or this
+    /// one loadable.
     pub fn store<F: NorFlash>(&self, flash: &mut F, payload: &[u8]) -> Result<u32, StoreError> {
         self.check(
             flash.capacity(),
@@ -568,7 +577,18 @@ impl Store {
         flash
             .write(base, piece)
             .map_err(|e| StoreError::Flash(FlashError::of(e)))?;
-        Ok(sequence)
+        // Read back: a program the flash silently did not take must not pass for a store.
+        match self.inspect(flash, target)? {
+            SlotState::Valid { sequence: q, len }
+                if q == sequence && len as usize == payload.len() =>
+            {
+                Ok(sequence)
+            }
+            found => Err(StoreError::Verify {
+                slot: target,
+                found,
+            }),
+        }
     }
 }
 

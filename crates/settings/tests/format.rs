@@ -253,3 +253,64 @@ fn layout_and_size_errors_name_the_value_and_the_limit() {
     assert_eq!(s.max_payload::<SimFlash<1, 4, 256>>(), 236);
     s.store(&mut w, &big[..236]).unwrap();
 }
+
+/// A flash that silently ignores programs of one byte offset (a worn cell that stays 1).
+struct Worn {
+    inner: ByteFlash,
+    dead: u32,
+}
+
+impl embedded_storage::nor_flash::ErrorType for Worn {
+    type Error = settings::sim::SimError;
+}
+
+impl embedded_storage::nor_flash::ReadNorFlash for Worn {
+    const READ_SIZE: usize = 1;
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
+        self.inner.read(offset, bytes)
+    }
+    fn capacity(&self) -> usize {
+        self.inner.capacity()
+    }
+}
+
+impl embedded_storage::nor_flash::NorFlash for Worn {
+    const WRITE_SIZE: usize = 1;
+    const ERASE_SIZE: usize = 256;
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
+        self.inner.erase(from, to)
+    }
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
+        for (i, b) in bytes.iter().enumerate() {
+            let at = offset + i as u32;
+            if at != self.dead {
+                self.inner.write(at, &[*b])?;
+            }
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn a_program_the_flash_did_not_take_is_reported_and_the_old_settings_stay() {
+    let (store, cap) = layout(256);
+    let mut inner = ByteFlash::new(cap);
+    store.store(&mut inner, b"old").unwrap();
+    // The new record goes to slot B (768); its payload byte 2 never programs.
+    let mut f = Worn {
+        inner,
+        dead: 768 + 16 + 2,
+    };
+    let err = store.store(&mut f, b"new settings").unwrap_err();
+    assert!(
+        matches!(
+            err,
+            StoreError::Verify {
+                slot: Slot::B,
+                found: SlotState::Corrupt(Corruption::Crc { .. })
+            }
+        ),
+        "{err:?}"
+    );
+    assert_eq!(loaded(&store, &mut f.inner).0.as_deref(), Some(&b"old"[..]));
+}
