@@ -162,8 +162,10 @@ fn scene_file_const(path: &str) -> String {
     plant::toml_scene::to_rust_expr(&scene)
 }
 
-/// `FINGER_FW_INJECT=panic@TICK` or `hardfault@TICK`: a fault injected by the test command to
-/// check the last-resort handlers. Unset in every normal build.
+/// `FINGER_FW_INJECT=panic@TICK`, `hardfault@TICK`, `reset@TICK` or `stackoverflow@TICK`: a
+/// fault injected by the test command to check the last-resort handlers; `telstall@TICK`: the
+/// telemetry task stops taking messages at TICK for a while (src/telemetry.rs); `settings@0` / `settings-corrupt@0`:
+/// init stores test settings / damages the store and resets once (the store across a reset). Unset in every normal build.
 fn inject_consts(src: &mut String) {
     let inject = match env::var("FINGER_FW_INJECT") {
         Ok(v) if !v.is_empty() => {
@@ -173,9 +175,18 @@ fn inject_consts(src: &mut String) {
             let at: u32 = at
                 .parse()
                 .unwrap_or_else(|_| fail(&format!("FINGER_FW_INJECT={v}: TICK must be a number")));
-            if !matches!(kind, "panic" | "hardfault" | "reset") {
+            if !matches!(
+                kind,
+                "panic"
+                    | "hardfault"
+                    | "reset"
+                    | "stackoverflow"
+                    | "telstall"
+                    | "settings"
+                    | "settings-corrupt"
+            ) {
                 fail(&format!(
-                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault or reset"
+                    "FINGER_FW_INJECT={v}: KIND is panic, hardfault, reset, stackoverflow, telstall, settings or settings-corrupt"
                 ));
             }
             format!("Some(({kind:?}, {at}))")

@@ -107,6 +107,9 @@ mod app {
             );
             platform::wait_latched();
         }
+        // The stored settings (issue 18): loaded once, the status logged; the build's
+        // defaults apply unless it is Loaded.
+        let _settings = crate::settings_flash::boot();
         let decimation = ctl::decimation(&cfg.drive);
         // Calibration of the work counter: `delay(n)` is n + 1 passes of `subs; bne`, i.e.
         // 200 002 instructions (QEMU icount: stamps × 40; board: CPU cycles of that loop).
@@ -169,7 +172,7 @@ mod app {
         binds = ADC,
         priority = 4,
         shared = [link],
-        local = [lp, board, tel_tx, decimation, done: bool = false, last_state: State = State::Init, fed: bool = false]
+        local = [lp, board, tel_tx, decimation, done: bool = false, end: Option<Done> = None, last_state: State = State::Init, fed: bool = false]
     )]
     fn sample(cx: sample::Context) {
         let t0 = platform::stamp();
@@ -238,19 +241,22 @@ mod app {
         // task has logged it.
         let off_needed = matches!(state, State::Fault(_) | State::Done);
         if finished && !*cx.local.done && (!off_needed || board.is_safe()) {
-            *cx.local.done = true;
-            if let Some(t) = board.truth("end") {
-                send(tel, Msg::Truth(t));
-            }
-            send(
-                tel,
-                Msg::Done(Done {
+            // The END report gets out even through a full queue: made once (with the tick the
+            // run ended), then offered every tick until the telemetry task has room.
+            let end = cx.local.end.get_or_insert_with(|| {
+                if let Some(t) = board.truth("end") {
+                    send(tel, Msg::Truth(t));
+                }
+                Done {
                     status: ctl::status(state),
                     state,
                     bridge_safe: board.is_safe(),
                     ticks: tick,
-                }),
-            );
+                }
+            });
+            if tel.try_send(Msg::Done(*end)).is_ok() {
+                *cx.local.done = true;
+            }
         }
         platform::rearm_sampling();
         tm::PREEMPT.fetch_add(platform::stamp().wrapping_sub(t0), Ordering::Relaxed);

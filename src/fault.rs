@@ -40,22 +40,75 @@ fn panic(info: &PanicInfo) -> ! {
     platform::halt(STATUS_PANIC)
 }
 
-#[cortex_m_rt::exception]
-unsafe fn HardFault(frame: &cortex_m_rt::ExceptionFrame) -> ! {
+// The HardFault entry. With flip-link a stack overflow runs into the start of RAM, and the
+// exception frame itself cannot be stacked: a handler that pushed onto that stack (as
+// cortex-m-rt's trampoline + a Rust handler do) would fault again inside HardFault and lock
+// the core up with the bridge still driven. So this entry first takes the stacked PC while
+// the frame lies in RAM (else reports an overflow), then moves MSP to the top of the stack
+// (the handler never returns, so nothing below it is needed) and only then enters Rust.
+core::arch::global_asm!(
+    ".section .HardFault.user, \"ax\"",
+    ".global HardFault",
+    ".type HardFault,%function",
+    ".thumb_func",
+    "HardFault:",
+    "    mov r0, lr",
+    "    movs r1, #4",
+    "    tst r0, r1",
+    "    ite eq",
+    "    mrseq r0, MSP",
+    "    mrsne r0, PSP",
+    "    ldr r1, =_stack_end",
+    "    cmp r0, r1",
+    "    bhs 1f",
+    // The frame is below the stack's end: an overflow; no PC to read.
+    "    movs r0, #0",
+    "    movs r1, #1",
+    "    b 2f",
+    "1:",
+    "    ldr r0, [r0, #24]",
+    "    movs r1, #0",
+    "2:",
+    "    ldr r2, =_stack_start",
+    "    msr MSP, r2",
+    "    b finger_fw_hard_fault",
+    ".ltorg",
+    ".size HardFault, . - HardFault",
+);
+
+/// The HardFault handler proper, on a fresh stack: `pc` is the faulting instruction's
+/// address, or 0 with `overflow` = 1 when the stack overflowed (the frame was never stored).
+#[no_mangle]
+extern "C" fn finger_fw_hard_fault(pc: u32, overflow: u32) -> ! {
     platform::safe_state();
-    latch::set(latch::HARDFAULT, frame.pc());
+    let overflow = overflow != 0;
+    latch::set(
+        if overflow {
+            latch::STACK_OVERFLOW
+        } else {
+            latch::HARDFAULT
+        },
+        pc,
+    );
     if !REPORTING.swap(true, Ordering::SeqCst) {
-        defmt::error!(
-            "HARDFAULT pc={=u32:#x} bridge_safe={=bool}",
-            frame.pc(),
-            platform::bridge_safe_now()
-        );
+        if overflow {
+            defmt::error!(
+                "HARDFAULT stack_overflow=true bridge_safe={=bool}",
+                platform::bridge_safe_now()
+            );
+        } else {
+            defmt::error!(
+                "HARDFAULT pc={=u32:#x} bridge_safe={=bool}",
+                pc,
+                platform::bridge_safe_now()
+            );
+        }
     }
     platform::halt(STATUS_HARDFAULT)
 }
 
-/// Fault injection for the test command (`FINGER_FW_INJECT=panic|hardfault|reset@TICK` at build
-/// time; never set in a normal build): checks that the handlers above reach the safe state.
+/// Fault injection for the test command (`FINGER_FW_INJECT=panic|hardfault|reset|stackoverflow@TICK`
+/// at build time; never set in a normal build): checks that the handlers above reach the safe state.
 #[inline(always)]
 pub fn inject(tick: u32) {
     match crate::config::INJECT {
@@ -66,6 +119,10 @@ pub fn inject(tick: u32) {
             latch::set(latch::INJECTED, tick);
             cortex_m::peripheral::SCB::sys_reset();
         }
+        Some(("stackoverflow", at)) if at == tick => {
+            // Unbounded recursion: the stack runs into the start of RAM (flip-link).
+            core::hint::black_box(recurse(0));
+        }
         Some(("hardfault", at)) if at == tick => {
             // A read from unmapped memory: BusFault, escalated to HardFault (not enabled).
             // SAFETY: deliberately faulting; the handler never returns.
@@ -74,6 +131,17 @@ pub fn inject(tick: u32) {
         }
         _ => {}
     }
+}
+
+/// Recursion without a bound the compiler can see (256 bytes of stack per level): the
+/// stack-overflow injection.
+#[inline(never)]
+fn recurse(depth: u32) -> u32 {
+    let frame = core::hint::black_box([depth; 64]);
+    if core::hint::black_box(depth) == u32::MAX {
+        return 0;
+    }
+    recurse(depth + 1).wrapping_add(frame[(depth % 64) as usize])
 }
 
 /// The supervision chain's check-ins and the watchdog's window.
@@ -153,6 +221,8 @@ pub mod latch {
     pub const HARDFAULT: u32 = 2;
     /// A reset injected by the test command.
     pub const INJECTED: u32 = 3;
+    /// A stack overflow (HardFault with the stack below the start of RAM).
+    pub const STACK_OVERFLOW: u32 = 4;
 
     #[link_section = ".uninit.FAULT_LATCH"]
     static mut LATCH: MaybeUninit<[u32; 4]> = MaybeUninit::uninit();

@@ -24,6 +24,8 @@ mod board;
 mod ctl;
 #[cfg(target_os = "none")]
 mod fault;
+#[cfg(target_os = "none")]
+mod settings_flash;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 mod sim;
 #[cfg(target_os = "none")]

@@ -143,8 +143,29 @@ pub fn record_work(tick: u32, v: u32) {
     }
 }
 
+/// How long the `telstall` injection holds the telemetry task (control ticks): longer than
+/// a Table 2 grasp, so the queue is full when the run ends.
+pub const STALL_TICKS: u32 = 70_000;
+
+/// Telemetry stall (test command only, `FINGER_FW_INJECT=telstall@TICK`): the first message
+/// logged at or after TICK holds the telemetry task for [`STALL_TICKS`], so the queue fills
+/// and every producer meets it full.
+fn inject_stall() {
+    static STALLED: core::sync::atomic::AtomicBool = core::sync::atomic::AtomicBool::new(false);
+    if let Some(("telstall", at)) = crate::config::INJECT {
+        let now = TICKS.load(Ordering::Relaxed);
+        if now >= at && !STALLED.swap(true, Ordering::Relaxed) {
+            defmt::info!("STALL telemetry held for {=u32} ticks", STALL_TICKS);
+            while TICKS.load(Ordering::Relaxed).wrapping_sub(now) < STALL_TICKS {
+                core::hint::spin_loop();
+            }
+        }
+    }
+}
+
 /// Logs one message (runs in the telemetry task).
 pub fn log(msg: &Msg) {
+    inject_stall();
     match msg {
         Msg::Sample {
             tick,

@@ -218,6 +218,14 @@ fn scene_check(
             errs.push(format!("END line without {key}"));
         }
     }
+    // A fresh QEMU start is a power-on: the settings store's RAM "flash" comes erased.
+    match log::first(q, "SETTINGS") {
+        Some(f) if word(&f.msg, "status") == Some("empty") => {}
+        other => errs.push(format!(
+            "expected `SETTINGS status=empty` at the first boot, got {:?}",
+            other.map(|f| &f.msg)
+        )),
+    }
     let per = instr_per_stamp(q)?;
     match size::stack_check(q) {
         Ok(line) => println!("{scene}: {line}"),
@@ -352,9 +360,64 @@ fn finger_check() -> Res {
     })
 }
 
+/// The function symbol of an ELF that contains `addr` (the Thumb bit ignored), and the
+/// first halfword of the instruction there.
+fn function_at(elf: &std::path::Path, addr: u64) -> Res<(Option<String>, Option<u16>)> {
+    use object::{Object, ObjectSection, ObjectSymbol, SymbolKind};
+    let bytes = std::fs::read(elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let file = object::File::parse(&*bytes).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let name = file
+        .symbols()
+        .filter(|s| s.kind() == SymbolKind::Text)
+        .find(|s| {
+            let a = s.address() & !1;
+            a <= addr && addr < a + s.size()
+        })
+        .and_then(|s| s.name().ok().map(str::to_string));
+    let half = file.sections().find_map(|sec| {
+        let a = sec.address();
+        if a > addr || addr + 2 > a + sec.size() {
+            return None;
+        }
+        let data = sec.data().ok()?;
+        let i = (addr - a) as usize;
+        Some(u16::from_le_bytes([*data.get(i)?, *data.get(i + 1)?]))
+    });
+    Ok((name, half))
+}
+
+/// The injected HardFault's report names the faulting instruction: its PC lies in the
+/// sampling task (`ADC`), where the injection's read from unmapped memory is inlined, and
+/// the instruction there is a load (Thumb LDR immediate, 16-bit `0x68xx`-`0x6Fxx` or 32-bit
+/// `0xF8Dx`). The PC comes from the exception frame the HardFault entry reads before it
+/// re-seats the stack, so this checks that entry's frame offset.
+fn hardfault_pc_check(line: &str, elf: &std::path::Path) -> Res {
+    let pc = word(line, "pc")
+        .and_then(|p| u64::from_str_radix(p.trim_start_matches("0x"), 16).ok())
+        .ok_or_else(|| format!("no pc in {line}"))?;
+    let (name, half) = function_at(elf, pc)?;
+    let is_load = half.is_some_and(|h| h & 0xF800 == 0x6800 || h & 0xFFF0 == 0xF8D0);
+    if name.as_deref() == Some("ADC") && is_load {
+        println!(
+            "HardFault pc {pc:#x} is a load ({:#06x}) in ADC (the sampling task, where it was injected)",
+            half.unwrap_or(0)
+        );
+        Ok(())
+    } else {
+        Err(format!(
+            "HardFault pc {pc:#x} is in {name:?} (instruction {half:x?}): not the injected load in the sampling task ADC"
+        ))
+    }
+}
+
 /// A panic or HardFault injected into the QEMU firmware must reach the safe state, say so
-/// in the log and exit with its own status.
-fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
+/// in the log and exit with its own status. Returns the report line and the ELF.
+fn inject_check(
+    kind: &str,
+    tick: u32,
+    status: i32,
+    tag: &str,
+) -> Res<(String, std::path::PathBuf)> {
     let elf = qemu::build_with("table2", Some(&format!("{kind}@{tick}")))?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -376,7 +439,7 @@ fn inject_check(kind: &str, tick: u32, status: i32, tag: &str) -> Res {
         ));
     }
     if errs.is_empty() {
-        Ok(())
+        Ok((line.msg.clone(), elf))
     } else {
         Err(errs.join("\n"))
     }
@@ -420,6 +483,199 @@ fn latch_check() -> Res {
     if calibrations != 1 {
         errs.push(format!(
             "{calibrations} calibrations (a second grasp started)"
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
+/// Ticks the firmware's `telstall` injection holds the telemetry task (src/telemetry.rs).
+const TELEMETRY_STALL_TICKS: i64 = 70_000;
+/// Tick at which the telemetry task is stalled.
+const TELEMETRY_STALL_AT: i64 = 3000;
+/// The sampling task's worst work with the queue full may exceed the unstalled run's by this
+/// share (a failed `try_send` costs a few instructions; a blocked loop would cost periods).
+const STALL_WORK_TOL: f64 = 0.1;
+
+/// A full telemetry queue (FINGER_FW_INJECT=telstall@3000: the telemetry task stops taking
+/// messages mid-approach until after the run is over) blocks neither the 10 kHz loop nor the
+/// supervisor: the run ends at the same tick, in the same state and with the same status as
+/// the QEMU run without the stall, and the sampling task's worst work stays within
+/// [`STALL_WORK_TOL`] of it; every message that did not get through is counted (logged +
+/// dropped = what the host run of the same controller printed); the END report still gets
+/// out.
+fn telemetry_full_check() -> Res {
+    let elf = qemu::build_with("table2", Some(&format!("telstall@{TELEMETRY_STALL_AT}")))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if !f.msg.starts_with("S ") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let (host, _) = host_run("table2")?;
+    let normal = qemu::run(&qemu::build("table2")?, &mut |_| {})?;
+    let q = &run.frames;
+    let end = expect_end(q)?;
+    let host_end = expect_end(&host)?;
+    let normal_end = expect_end(&normal.frames)?;
+    let counted = |frames: &[Frame]| {
+        frames
+            .iter()
+            .filter(|f| {
+                f.msg.starts_with("E ") || f.msg.starts_with("P ") || f.msg.starts_with("TRUTH")
+            })
+            .count() as i64
+    };
+    let (logged, produced) = (counted(q), counted(&host));
+    let dropped = int(&end.msg, "dropped").ok_or("END without dropped")?;
+    let mut errs = Vec::new();
+    if log::first(q, "STALL").is_none() {
+        errs.push("the telemetry stall was not injected (no STALL line)".to_string());
+    }
+    if run.status != normal.status {
+        errs.push(format!(
+            "exit status {} (without the stall: {})",
+            run.status, normal.status
+        ));
+    }
+    for key in ["ticks", "status", "state"] {
+        if word(&end.msg, key) != word(&normal_end.msg, key) {
+            errs.push(format!(
+                "END {key} differs from the run without the stall: {} vs {}",
+                end.msg, normal_end.msg
+            ));
+        }
+    }
+    let work = |m: &str| int(m, "work_max").map(|w| w as f64);
+    match (work(&end.msg), work(&normal_end.msg)) {
+        (Some(w), Some(n)) if w <= n * (1.0 + STALL_WORK_TOL) => {}
+        other => errs.push(format!(
+            "sampling task's worst work (stalled, unstalled) = {other:?}: beyond {STALL_WORK_TOL} over"
+        )),
+    }
+    if dropped == 0 {
+        errs.push("nothing dropped: the queue never filled".to_string());
+    }
+    if logged + dropped != produced {
+        errs.push(format!(
+            "{logged} messages logged + {dropped} counted as dropped != {produced} the host run printed"
+        ));
+    }
+    let resumed = TELEMETRY_STALL_AT + TELEMETRY_STALL_TICKS;
+    let late = end.ts.map(|t| t as i64 - resumed);
+    println!(
+        "telemetry stalled at tick {TELEMETRY_STALL_AT} for {TELEMETRY_STALL_TICKS} ticks: run ended at tick {} (without the stall {}; host {}), work_max {} stamps (without {}), {logged} messages logged, {dropped} dropped, {produced} produced by the host run; END logged {late:?} ticks after the telemetry resumed",
+        int(&end.msg, "ticks").unwrap_or(-1),
+        int(&normal_end.msg, "ticks").unwrap_or(-1),
+        int(&host_end.msg, "ticks").unwrap_or(-1),
+        int(&end.msg, "work_max").unwrap_or(-1),
+        int(&normal_end.msg, "work_max").unwrap_or(-1),
+    );
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
+/// The settings store's round trip in QEMU (FINGER_FW_INJECT=settings@0): the first boot
+/// finds the store empty, stores test settings through the RAM-backed flash and resets; the
+/// second boot loads exactly them (sequence 1) and the grasp runs as usual.
+fn settings_check() -> Res {
+    // The firmware's test payload (src/settings_flash.rs, INJECTED_PAYLOAD).
+    const PAYLOAD_LEN: i64 = "settings stored by the test command".len() as i64;
+    let elf = qemu::build_with("table2", Some("settings@0"))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if f.msg.starts_with("SETTINGS") || f.msg.starts_with("BOOT") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let q = &run.frames;
+    let lines: Vec<&str> = q
+        .iter()
+        .filter(|f| f.msg.starts_with("SETTINGS"))
+        .map(|f| f.msg.as_str())
+        .collect();
+    let mut errs = Vec::new();
+    let boots = q.iter().filter(|f| f.msg.starts_with("BOOT")).count();
+    if boots != 2 {
+        errs.push(format!("{boots} boots (expected 2: store, reset, load)"));
+    }
+    let has = |pred: &dyn Fn(&str) -> bool| lines.iter().any(|l| pred(l));
+    if lines.first().and_then(|l| word(l, "status")) != Some("empty") {
+        errs.push(format!("first boot did not find an empty store: {lines:?}"));
+    }
+    if !has(&|l| l.starts_with("SETTINGS stored") && int(l, "sequence") == Some(1)) {
+        errs.push(format!("no store of sequence 1: {lines:?}"));
+    }
+    if !has(&|l| {
+        word(l, "status") == Some("loaded")
+            && int(l, "sequence") == Some(1)
+            && int(l, "len") == Some(PAYLOAD_LEN)
+    }) {
+        errs.push(format!(
+            "second boot did not load sequence 1 with {PAYLOAD_LEN} bytes: {lines:?}"
+        ));
+    }
+    if !has(&|l| word(l, "payload_matches") == Some("true")) {
+        errs.push(format!(
+            "loaded payload differs from the stored one: {lines:?}"
+        ));
+    }
+    if run.status != 0 {
+        errs.push(format!(
+            "exit status {} (expected 0: the grasp ran)",
+            run.status
+        ));
+    }
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
+/// A damaged settings store in QEMU (FINGER_FW_INJECT=settings-corrupt@0): the first boot
+/// programs a word that is neither the magic nor erased at slot A and resets; the second
+/// boot reports the store corrupt with that word, falls back to the build's defaults, and
+/// the grasp runs as usual.
+fn settings_corrupt_check() -> Res {
+    // The firmware's damage word (src/settings_flash.rs, INJECTED_DAMAGE).
+    const DAMAGE: i64 = 0x1234_5678;
+    let elf = qemu::build_with("table2", Some("settings-corrupt@0"))?;
+    let run = qemu::run(&elf, &mut |f| {
+        if f.msg.starts_with("SETTINGS") || f.msg.starts_with("BOOT") || f.msg.starts_with("END") {
+            println!("{}", log::show(f))
+        }
+    })?;
+    let q = &run.frames;
+    let lines: Vec<&str> = q
+        .iter()
+        .filter(|f| f.msg.starts_with("SETTINGS status"))
+        .map(|f| f.msg.as_str())
+        .collect();
+    let mut errs = Vec::new();
+    let statuses: Vec<Option<&str>> = lines.iter().map(|l| word(l, "status")).collect();
+    if statuses != [Some("empty"), Some("corrupt")] {
+        errs.push(format!(
+            "expected an empty then a corrupt store over two boots: {lines:?}"
+        ));
+    }
+    // defmt prints the found word in decimal inside the Corrupt status.
+    if !lines
+        .last()
+        .is_some_and(|l| l.contains("Magic") && l.contains(&DAMAGE.to_string()))
+    {
+        errs.push(format!(
+            "corrupt status does not name the damaged word {DAMAGE:#x}: {lines:?}"
+        ));
+    }
+    if run.status != 0 {
+        errs.push(format!(
+            "exit status {} (expected 0: the grasp ran on the defaults)",
+            run.status
         ));
     }
     if errs.is_empty() {
@@ -587,14 +843,42 @@ pub fn main(args: &[String]) -> Res<i32> {
         crate::figures::check_current,
     );
     st.run("QEMU: injected panic -> bridge safe, exit 101", || {
-        inject_check("panic", 3000, 101, "PANIC")
+        inject_check("panic", 3000, 101, "PANIC").map(|_| ())
     });
     st.run("QEMU: injected HardFault -> bridge safe, exit 102", || {
-        inject_check("hardfault", 3000, 102, "HARDFAULT")
+        let (line, elf) = inject_check("hardfault", 3000, 102, "HARDFAULT")?;
+        hardfault_pc_check(&line, &elf)
     });
+    st.run(
+        "QEMU: injected stack overflow -> HardFault, bridge safe, exit 102",
+        || {
+            let (line, _) = inject_check("stackoverflow", 3000, 102, "HARDFAULT")?;
+            // Reported as the overflow it is (flip-link + the entry that re-seats the
+            // stack), not as some other HardFault.
+            if word(&line, "stack_overflow") == Some("true") {
+                Ok(())
+            } else {
+                Err(format!(
+                    "HardFault not reported as a stack overflow: {line}"
+                ))
+            }
+        },
+    );
     st.run(
         "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
         latch_check,
+    );
+    st.run(
+        "QEMU: full telemetry queue -> loop and supervisor unaffected, drops counted",
+        telemetry_full_check,
+    );
+    st.run(
+        "QEMU: settings stored, reset, loaded (RAM-backed flash)",
+        settings_check,
+    );
+    st.run(
+        "QEMU: settings store damaged, reset -> corrupt, build defaults, grasp runs",
+        settings_corrupt_check,
     );
 
     eprintln!(
