@@ -19,12 +19,14 @@
 //! either: springs and friction come out in the units of the measured torque, which is what
 //! the estimator needs (its k2 does not change when all torques scale together).
 
-use crate::sweep::Post;
+use crate::sweep::{DistalPost, Post};
 use crate::trace::TraceRow;
 use pts::config::FingerFile;
 use pts::{Finger, Model};
 use serde_json::{json, Value};
 use std::fmt;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
 
 /// Why a sweep was refused.
 #[derive(Clone, Debug, PartialEq)]
@@ -217,6 +219,8 @@ struct Prepared {
     post: Option<Post>,
 }
 
+/// σ of the prior on θ0,2 (rad): 5°, a drawing's tolerance on a spring's rest angle.
+pub const THETA02_PRIOR_RAD: f64 = 5.0 * core::f64::consts::PI / 180.0;
 /// Half-width of the Savitzky–Golay window (samples).
 const SG_HALF: usize = 25;
 /// Least number of moving samples per direction.
@@ -402,11 +406,114 @@ impl StaticMap {
     }
 }
 
-/// Identified parameter vector: the statics first, then ρ, F_c, b, J, T_off.
-const NAMES: [&str; 9] = [
-    "k1", "k2", "theta01", "theta02", "rho", "fc", "b", "j", "off",
-];
+/// Encoder angle Δθa (rad, backlash included) at which the free finger with these statics
+/// first meets the distal post, or `None` if it does not below 1.5 N·m.
+fn tip_contact_predicted(map: &StaticMap, post: DistalPost, half_backlash: f64) -> Option<f64> {
+    let f = &map.model.finger;
+    let gap = |ta: f64| -> Option<(f64, f64, f64)> {
+        let c = map.model.free_from_torque(ta).ok()?;
+        let (o2x, o2y) = (f.l1 * c.theta1.cos(), f.l1 * c.theta1.sin());
+        let ang = c.theta1 + c.theta2;
+        let (ux, uy) = (ang.cos(), ang.sin());
+        let (dx, dy) = (post.x_m - o2x, post.y_m - o2y);
+        // Left normal distance (positive while the post is ahead) and the place along the
+        // phalanx.
+        Some((ux * dy - uy * dx, ux * dx + uy * dy, c.theta_a))
+    };
+    let mut lo = 0.0;
+    let (g0, _, _) = gap(lo)?;
+    if g0 <= 0.0 {
+        return None;
+    }
+    let mut hi = None;
+    let mut t = 0.0;
+    while t < 1.5 {
+        t += 0.01;
+        let (g, k, _) = gap(t)?;
+        if g <= 0.0 {
+            if !(0.0..=f.l2).contains(&k) {
+                return None;
+            }
+            hi = Some(t);
+            break;
+        }
+        lo = t;
+    }
+    let mut hi = hi?;
+    for _ in 0..50 {
+        let mid = 0.5 * (lo + hi);
+        if gap(mid)?.0 > 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let (_, _, ta) = gap(0.5 * (lo + hi))?;
+    Some(ta - map.rest + half_backlash)
+}
 
+/// Encoder angle Δθa (rad) at which the closing finger met the distal post, and its σ: where
+/// the torque first exceeds the free-motion model (the fit's statics and drive terms) by more
+/// than the noise, extrapolated back to zero excess along the stiff contact.
+fn tip_contact_measured(
+    rec: &Prepared,
+    map: &StaticMap,
+    p: &[f64; 9],
+    half_backlash: f64,
+    noise: f64,
+    dt: f64,
+) -> Result<(f64, f64), CalibError> {
+    let closing: Vec<usize> = rec
+        .used
+        .iter()
+        .copied()
+        .filter(|&j| rec.v[j] > 0.0)
+        .collect();
+    let excess: Vec<f64> = closing
+        .iter()
+        .map(|&j| {
+            let l = map
+                .torque(rec.dth[j] - half_backlash, None)
+                .unwrap_or(f64::NAN);
+            rec.t[j] - (l + p[5] + p[6] * rec.v[j] + p[7] * rec.a[j] + p[8])
+        })
+        .collect();
+    let thr = (6.0 * noise).max(0.02);
+    let q = (1..excess.len())
+        .find(|&i| excess[i] > thr && excess.get(i + 1).is_none_or(|e| *e > thr))
+        .ok_or(CalibError::TooShort {
+            what: "excess torque over free motion on the tip touch (N·m)",
+            found: excess.iter().copied().fold(0.0, f64::max),
+            min: thr,
+        })?;
+    // Line through the excess against θa from the detection on (contact stiffness), back to
+    // zero excess.
+    let pts: Vec<(f64, f64)> = (q.saturating_sub(3)..excess.len())
+        .take(30)
+        .filter(|&i| excess[i] > 0.5 * thr && excess[i] < 0.3)
+        .map(|i| (rec.dth[closing[i]], excess[i]))
+        .collect();
+    let fallback = rec.dth[closing[q - 1]];
+    let bracket = (rec.dth[closing[q]] - fallback).abs();
+    let smear = 0.5 * rec.v[closing[q]].abs() * SG_HALF as f64 * dt;
+    let mut at = fallback;
+    if pts.len() >= 3 {
+        let n = pts.len() as f64;
+        let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
+        let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
+        let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        if sxx > 0.0 && sxy > 0.0 {
+            let x0 = mx - my * sxx / sxy;
+            if (x0 - fallback).abs() < 0.05 {
+                at = x0;
+            }
+        }
+    }
+    Ok((at, (bracket * bracket + smear * smear).sqrt().max(1e-4)))
+}
+
+/// A fit of the parameter vector [K1, K2, θ0,1, θ0,2, ρ, F_c, b, J, T_off].
 struct Fit {
     p: [f64; 9],
     free: [bool; 9],
@@ -416,11 +523,16 @@ struct Fit {
     samples: usize,
 }
 
+/// A prior on one parameter: (index, value, weight = residual σ / prior σ), one more row of
+/// the least squares.
+type Prior = Option<(usize, f64, f64)>;
+
 fn residuals(
     recs: &[Prepared],
     base: &Finger,
     p: &[f64; 9],
     half_backlash: f64,
+    prior: Prior,
 ) -> Result<Vec<f64>, String> {
     let map = StaticMap::new(
         base,
@@ -440,6 +552,9 @@ fn residuals(
             let model = l * scale + p[5] * s + p[6] * rec.v[j] + p[7] * rec.a[j] + p[8];
             r.push(rec.t[j] - model);
         }
+    }
+    if let Some((i, v, w)) = prior {
+        r.push(w * (v - p[i]));
     }
     Ok(r)
 }
@@ -483,6 +598,7 @@ fn fit(
     p0: [f64; 9],
     free: [bool; 9],
     half_backlash: f64,
+    prior: Prior,
 ) -> Result<Fit, CalibError> {
     let idx: Vec<usize> = (0..9).filter(|&i| free[i]).collect();
     let mut p = p0;
@@ -492,7 +608,7 @@ fn fit(
         1e-5,
         1e-5,
     ];
-    let mut r = residuals(recs, base, &p, half_backlash).map_err(CalibError::NoFit)?;
+    let mut r = residuals(recs, base, &p, half_backlash, prior).map_err(CalibError::NoFit)?;
     let mut jac: Vec<Vec<f64>> = vec![];
     for _iter in 0..30 {
         // Jacobian of the model (= −∂r/∂p).
@@ -503,8 +619,10 @@ fn fit(
                 let mut pm = p;
                 pp[i] += steps[i];
                 pm[i] -= steps[i];
-                let rp = residuals(recs, base, &pp, half_backlash).map_err(CalibError::NoFit)?;
-                let rm = residuals(recs, base, &pm, half_backlash).map_err(CalibError::NoFit)?;
+                let rp =
+                    residuals(recs, base, &pp, half_backlash, prior).map_err(CalibError::NoFit)?;
+                let rm =
+                    residuals(recs, base, &pm, half_backlash, prior).map_err(CalibError::NoFit)?;
                 jac.push(
                     rp.iter()
                         .zip(&rm)
@@ -514,7 +632,8 @@ fn fit(
             } else {
                 let mut pp = p;
                 pp[i] += 1.0;
-                let rp = residuals(recs, base, &pp, half_backlash).map_err(CalibError::NoFit)?;
+                let rp =
+                    residuals(recs, base, &pp, half_backlash, prior).map_err(CalibError::NoFit)?;
                 jac.push(r.iter().zip(&rp).map(|(a, b)| a - b).collect());
             }
         }
@@ -542,7 +661,7 @@ fn fit(
             for (a, &i) in idx.iter().enumerate() {
                 pn[i] += lambda * delta[a];
             }
-            if let Ok(rn) = residuals(recs, base, &pn, half_backlash) {
+            if let Ok(rn) = residuals(recs, base, &pn, half_backlash, prior) {
                 let cost: f64 = rn.iter().map(|x| x * x).sum();
                 if cost <= cost0 {
                     let rel = (cost0 - cost) / cost0.max(1e-300);
@@ -732,6 +851,18 @@ pub fn identify(
     touch: Option<(&[TraceRow], Post)>,
     nominal: &FingerFile,
 ) -> Result<Calibration, CalibError> {
+    identify_with(sweep, touch, None, nominal)
+}
+
+/// [`identify`] with a third recording, the free finger closing onto a [`DistalPost`]: the
+/// angle at which it meets the post fixes θ0,2 (with K1, K2 and θ0,1 from the other two),
+/// which neither the free sweep nor the proximal post can.
+pub fn identify_with(
+    sweep: &[TraceRow],
+    touch: Option<(&[TraceRow], Post)>,
+    tip: Option<(&[TraceRow], DistalPost)>,
+    nominal: &FingerFile,
+) -> Result<Calibration, CalibError> {
     let base = nominal.finger;
     let map0 = StaticMap::new(
         &base,
@@ -779,24 +910,117 @@ pub fn identify(
         nominal.drive.inertia_kgm2,
         0.0,
     ];
+    // The free sweep first (θ0,1 does not enter it); with the touch, from there over a few
+    // starting θ0,1 (the contact with the post makes the cost non-convex in θ0,1).
     let mut free_mask = [true; 9];
-    free_mask[2] = with_touch;
-    let f = fit(&recs, &base, p0, free_mask, half_backlash)?;
+    free_mask[2] = false;
+    // θ0,2 enters the torque only through the slow change of x2 (and cancels to first order
+    // after contact with the post too): the fit takes the file's value as a prior of σ
+    // THETA02_PRIOR_RAD, the tolerance of a rest angle on a drawing, so that a sweep that
+    // cannot see it does not move it far.
+    let pre = fit(&recs[..1], &base, p0, free_mask, half_backlash, None)?;
+    let prior: Prior = Some((
+        3,
+        base.theta02,
+        pre.rms * pre.corr_factor / THETA02_PRIOR_RAD,
+    ));
+    let mut f = fit(&recs[..1], &base, pre.p, free_mask, half_backlash, prior)?;
+    if with_touch {
+        free_mask[2] = true;
+        let mut best: Option<Fit> = None;
+        for d_deg in [0.0, -2.5, 2.5, -5.0, 5.0] {
+            let mut start = f.p;
+            start[2] = base.theta01 + f64::to_radians(d_deg);
+            if let Ok(g) = fit(&recs, &base, start, free_mask, half_backlash, prior) {
+                if best.as_ref().is_none_or(|b| g.rms < b.rms) {
+                    best = Some(g);
+                }
+            }
+        }
+        f = best.ok_or_else(|| CalibError::NoFit("no start converged with the touch".into()))?;
+    }
     // Refusals that need the fit.
     let range: f64 = recs
         .iter()
         .flat_map(|r| r.used.iter().map(|&j| r.t[j]))
         .fold(0.0, |m, x| m.max(x.abs()));
     let limit = (0.05 * range).max(0.01);
+    check_free(&recs[0], &base, &f.p)?;
     if f.rms > limit {
         return Err(CalibError::TooNoisy {
             rms_nm: f.rms,
             limit_nm: limit,
         });
     }
-    check_free(&recs[0], &base, &f.p)?;
     let st = stiction(&recs, &base, &f.p, half_backlash);
-    let sig = |i: usize| f.free[i].then(|| f.cov[i][i].max(0.0).sqrt());
+    let mut theta02_sigma = None;
+    if let Some((rows, post)) = tip {
+        if !with_touch {
+            return Err(CalibError::BadTrace(
+                "the tip touch needs the proximal touch too (K1, K2 and θ0,1 come from it)".into(),
+            ));
+        }
+        let rec = prepare(rows, rest_nominal, None)?;
+        let dt = (rows[rows.len() - 1].t_s - rows[0].t_s) / (rows.len() - 1) as f64;
+        let statics = |p: &[f64; 9]| {
+            StaticMap::new(
+                &base,
+                Statics {
+                    k1: p[0],
+                    k2: p[1],
+                    theta01: p[2],
+                    theta02: p[3],
+                },
+            )
+            .map_err(CalibError::Finger)
+        };
+        let map = statics(&f.p)?;
+        let (meas, meas_sigma) =
+            tip_contact_measured(&rec, &map, &f.p, half_backlash, f.rms * f.corr_factor, dt)?;
+        let pred = |p: &[f64; 9]| -> Result<f64, CalibError> {
+            tip_contact_predicted(&statics(p)?, post, half_backlash).ok_or_else(|| {
+                CalibError::NoFit("the model finger does not meet the distal post".into())
+            })
+        };
+        // θ0,2 by Newton on the contact angle; σ from the angle's and the other statics'.
+        let h = 1e-4;
+        let slope = |p: &[f64; 9], i: usize, step: f64| -> Result<f64, CalibError> {
+            let (mut a, mut b) = (*p, *p);
+            a[i] += step;
+            b[i] -= step;
+            Ok((pred(&a)? - pred(&b)?) / (2.0 * step))
+        };
+        let mut p = f.p;
+        for _ in 0..20 {
+            let d = slope(&p, 3, h)?;
+            if d.abs() < 1e-6 {
+                return Err(CalibError::NoFit(
+                    "the distal post does not see θ0,2".into(),
+                ));
+            }
+            let step = (meas - pred(&p)?) / d;
+            p[3] += step.clamp(-0.1, 0.1);
+            if step.abs() < 1e-9 {
+                break;
+            }
+        }
+        let d = slope(&p, 3, h)?;
+        let mut var = (meas_sigma / d).powi(2);
+        for i in 0..3 {
+            let s = f.cov[i][i].max(0.0).sqrt();
+            if s > 0.0 {
+                var += (slope(&p, i, 0.5 * s)? * s / d).powi(2);
+            }
+        }
+        f.p[3] = p[3];
+        theta02_sigma = Some(var.sqrt());
+    }
+    let sig = |i: usize| {
+        if i == 3 && theta02_sigma.is_some() {
+            return theta02_sigma;
+        }
+        f.free[i].then(|| f.cov[i][i].max(0.0).sqrt())
+    };
     let mut notes = vec![];
     if !with_touch {
         notes.push(
@@ -928,4 +1152,182 @@ pub fn identify(
         notes,
         file: checked,
     })
+}
+
+/// The options of `pts calibrate`.
+#[derive(Clone, Debug)]
+pub struct Args {
+    /// The free sweep (CSV): read, or written with `simulate`.
+    pub trace: PathBuf,
+    /// The touch against the post (CSV): read, or written with `simulate`.
+    pub touch: Option<PathBuf>,
+    /// The closing onto the distal post (CSV): read, or written with `simulate`.
+    pub tip_touch: Option<PathBuf>,
+    /// θ1 of the post (rad); default: the touch trace's `# pts-calibrate` line.
+    pub post_theta1_rad: Option<f64>,
+    /// Distance of the post from O1 (m); default: the touch trace's line, else 0.7·l1.
+    pub post_k1_m: Option<f64>,
+    /// The nominal finger file the sweep was recorded with.
+    pub finger: Option<PathBuf>,
+    /// Where to write the calibrated finger file.
+    pub out: Option<PathBuf>,
+    /// JSON output.
+    pub json: bool,
+    /// Record the sweep(s) on the plant instead of identifying.
+    pub simulate: bool,
+    /// The plant's perturbation from the file (with `simulate`).
+    pub perturb: String,
+    /// Largest torque of the sweep (N·m, with `simulate`).
+    pub safe_torque_nm: f64,
+    /// Where to write the perturbed finger's true file (with `simulate`).
+    pub truth_out: Option<PathBuf>,
+}
+
+const POST_LINE: &str = "# pts-calibrate";
+
+fn meta(text: &str, key: &str) -> Option<f64> {
+    let line = text.lines().take(5).find(|l| l.starts_with(POST_LINE))?;
+    line.split_whitespace()
+        .find_map(|w| w.strip_prefix(key)?.strip_prefix('='))
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|v| v.is_finite())
+}
+
+fn post_from_text(text: &str) -> (Option<f64>, Option<f64>) {
+    let Some(line) = text.lines().take(5).find(|l| l.starts_with(POST_LINE)) else {
+        return (None, None);
+    };
+    let get = |k: &str| {
+        line.split_whitespace()
+            .find_map(|w| w.strip_prefix(k)?.strip_prefix('='))
+            .and_then(|v| v.parse::<f64>().ok())
+            .filter(|v| v.is_finite())
+    };
+    (get("post_theta1_rad"), get("post_k1_m"))
+}
+
+fn write_rows(path: &Path, head: Option<String>, rows: &[TraceRow]) -> Result<(), String> {
+    let file = std::fs::File::create(path)
+        .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    let r = match head {
+        Some(h) => writeln!(w, "{h}"),
+        None => Ok(()),
+    };
+    r.and_then(|()| crate::trace::write_csv(rows, &mut w))
+        .and_then(|()| w.flush())
+        .map_err(|e| format!("writing {}: {e}", path.display()))
+}
+
+fn read_rows(path: &Path, file: &FingerFile) -> Result<(String, Vec<TraceRow>), String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let conv = |i: f64| file.torque_from_current(i);
+    let tr =
+        crate::trace::read_csv(&text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok((text, tr.rows))
+}
+
+/// Runs `pts calibrate`.
+pub fn run(a: &Args) -> Result<(), String> {
+    let nominal = crate::load_finger(a.finger.as_deref())?;
+    let default_post = Post {
+        theta1_rad: nominal.finger.theta01 + 0.45,
+        k1_m: 0.7 * nominal.finger.l1,
+    };
+    if a.simulate {
+        let pert = crate::sweep::Perturbation::parse(&a.perturb)?;
+        let scene = pert.scene(plant::Scene::DEFAULT, &nominal)?;
+        let plan = crate::sweep::SweepPlan {
+            safe_torque_nm: a.safe_torque_nm,
+            ..crate::sweep::SweepPlan::DEFAULT
+        };
+        let rows = crate::sweep::record(&scene, &nominal, &plan, None)?;
+        write_rows(&a.trace, None, &rows)?;
+        eprintln!("wrote {} ({} rows)", a.trace.display(), rows.len());
+        if let Some(path) = &a.touch {
+            let post = Post {
+                theta1_rad: a.post_theta1_rad.unwrap_or(default_post.theta1_rad),
+                k1_m: a.post_k1_m.unwrap_or(default_post.k1_m),
+            };
+            let rows = crate::sweep::record(&scene, &nominal, &plan, Some(post))?;
+            let head = format!(
+                "{POST_LINE} post_theta1_rad={} post_k1_m={}",
+                post.theta1_rad, post.k1_m
+            );
+            write_rows(path, Some(head), &rows)?;
+            eprintln!("wrote {} ({} rows)", path.display(), rows.len());
+        }
+        if let Some(path) = &a.tip_touch {
+            let dp = DistalPost::for_file(&nominal, nominal.finger.theta01 + 0.35, 0.5)?;
+            let rows = crate::sweep::record_object(&scene, &nominal, &plan, Some(dp.object()))?;
+            let head = format!(
+                "{POST_LINE} tip_post_x_m={} tip_post_y_m={}",
+                dp.x_m, dp.y_m
+            );
+            write_rows(path, Some(head), &rows)?;
+            eprintln!("wrote {} ({} rows)", path.display(), rows.len());
+        }
+        if let Some(path) = &a.truth_out {
+            let mut truth = pert.apply_to_file(&nominal);
+            truth.name = format!("{} (plant truth: {})", nominal.name, a.perturb);
+            std::fs::write(path, truth.to_toml_string())
+                .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+            eprintln!("wrote {}", path.display());
+        }
+        return Ok(());
+    }
+    let (_, sweep) = read_rows(&a.trace, &nominal)?;
+    let touch = match &a.touch {
+        None => None,
+        Some(path) => {
+            let (text, rows) = read_rows(path, &nominal)?;
+            let (t1, k1) = post_from_text(&text);
+            let theta1_rad = a.post_theta1_rad.or(t1).ok_or_else(|| {
+                format!(
+                    "{}: no `{POST_LINE} post_theta1_rad=…` line: give --post-theta1-rad",
+                    path.display()
+                )
+            })?;
+            let k1_m = a.post_k1_m.or(k1).unwrap_or(default_post.k1_m);
+            Some((rows, Post { theta1_rad, k1_m }))
+        }
+    };
+    let tip = match &a.tip_touch {
+        None => None,
+        Some(path) => {
+            let (text, rows) = read_rows(path, &nominal)?;
+            let (Some(x_m), Some(y_m)) = (meta(&text, "tip_post_x_m"), meta(&text, "tip_post_y_m"))
+            else {
+                return Err(format!(
+                    "{}: no `{POST_LINE} tip_post_x_m=… tip_post_y_m=…` line",
+                    path.display()
+                ));
+            };
+            Some((rows, DistalPost { x_m, y_m }))
+        }
+    };
+    let cal = identify_with(
+        &sweep,
+        touch.as_ref().map(|(r, p)| (r.as_slice(), *p)),
+        tip.as_ref().map(|(r, p)| (r.as_slice(), *p)),
+        &nominal,
+    )
+    .map_err(|e| format!("{}: {e}", a.trace.display()))?;
+    if let Some(path) = &a.out {
+        let mut text = format!(
+            "# Calibrated by `pts calibrate` from {} (residual RMS {:.5} N·m).\n",
+            a.trace.display(),
+            cal.residual_rms_nm
+        );
+        text += &cal.file.to_toml_string();
+        std::fs::write(path, text).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        eprintln!("wrote {}", path.display());
+    }
+    if a.json {
+        crate::outln!("{}", cal.to_json());
+    } else {
+        crate::outln!("{}", cal.to_string().trim_end());
+    }
+    Ok(())
 }

@@ -129,6 +129,43 @@ impl Post {
     }
 }
 
+/// A fixed post the distal phalanx meets while the finger closes freely: a point at
+/// (`x_m`, `y_m`) in the world frame at O1, known from the calibration fixture.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DistalPost {
+    /// x (m).
+    pub x_m: f64,
+    /// y (m).
+    pub y_m: f64,
+}
+
+impl DistalPost {
+    /// Where the nominal finger's distal phalanx, closing freely, meets a point at
+    /// `k_frac`·l2 from O2 when θ1 = `theta1_rad`.
+    pub fn for_file(file: &FingerFile, theta1_rad: f64, k_frac: f64) -> Result<DistalPost, String> {
+        let f = &file.finger;
+        let m = pts::Model::<f64>::new(f).map_err(|e| format!("{e:?}"))?;
+        let cfg = m
+            .free_from_torque(f.k1 * (theta1_rad - f.theta01))
+            .map_err(|e| format!("{e:?}"))?;
+        let (t1, t2) = (cfg.theta1, cfg.theta1 + cfg.theta2);
+        let k = k_frac * f.l2;
+        Ok(DistalPost {
+            x_m: f.l1 * t1.cos() + k * t2.cos(),
+            y_m: f.l1 * t1.sin() + k * t2.sin(),
+        })
+    }
+
+    /// The object the plant puts there (a vertex).
+    pub fn object(&self) -> Object {
+        Object {
+            x_m: self.x_m,
+            y_m: self.y_m,
+            radius_m: 0.0,
+        }
+    }
+}
+
 /// The sweep's command: a torque triangle 0 → `safe_torque_nm` → 0 with a small sinusoidal
 /// dither (it makes the inertia and the viscous term visible).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -232,10 +269,20 @@ pub fn record(
     plan: &SweepPlan,
     post: Option<Post>,
 ) -> Result<Vec<TraceRow>, String> {
+    record_object(scene, nominal, plan, post.map(|p| p.object()))
+}
+
+/// [`record`] with any fixed object (e.g. a [`DistalPost`]), or none.
+pub fn record_object(
+    scene: &Scene,
+    nominal: &FingerFile,
+    plan: &SweepPlan,
+    object: Option<Object>,
+) -> Result<Vec<TraceRow>, String> {
     plan.check()?;
     let mut scene = *scene;
-    scene.object = match post {
-        Some(p) => ObjectSpec::At(p.object()),
+    scene.object = match object {
+        Some(o) => ObjectSpec::At(o),
         None => ObjectSpec::None,
     };
     scene.duration_s = plan.duration_s();
@@ -273,7 +320,7 @@ pub fn record(
                 torque_nm: nominal.torque_from_current((f64::from(code) - zero) * apc),
                 torque_ref_nm: Some(torque_ref),
                 duty: None,
-                state: Some(if post.is_some() { "touch" } else { "sweep" }.into()),
+                state: Some(if object.is_some() { "touch" } else { "sweep" }.into()),
                 encoder_count: Some(plant.encoder_count()),
                 current_code: Some(code),
                 true_theta_a_rad: Some(truth.theta_a_rad),
