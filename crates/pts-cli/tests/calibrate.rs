@@ -190,6 +190,7 @@ fn calibration_acceptance_on_the_plant() {
     let nominal = nominal();
     let mut sums = [[0.0f64; 3]; 2];
     let mut counts = [0usize; 2];
+    let mut nominal_counts = [0usize; 2];
     let mut failures = vec![];
     eprintln!("| finger (K1, K2, Δθ01, Δθ02) | grasp (θ1c, k2c/l2, R) | method | nominal % | calibrated % | true % |");
     eprintln!("|---|---|---|---|---|---|");
@@ -216,20 +217,30 @@ fn calibration_acceptance_on_the_plant() {
                     cell(e[1]),
                     cell(e[2])
                 );
-                if let [Some(a), Some(b), Some(c)] = e[..] {
-                    sums[mi][0] += a;
+                // The criterion compares the calibrated and the true file on the grasps both
+                // answered; the nominal file's mean is over the grasps it answered.
+                if let [_, Some(b), Some(c)] = e[..] {
                     sums[mi][1] += b;
                     sums[mi][2] += c;
                     counts[mi] += 1;
+                }
+                if let Some(a) = e[0] {
+                    sums[mi][0] += a;
+                    nominal_counts[mi] += 1;
                 }
             }
         }
     }
     for (mi, name) in ["two-point", "pathfit"].iter().enumerate() {
         let n = counts[mi].max(1) as f64;
-        let [a, b, c] = sums[mi].map(|s| s / n);
-        eprintln!("mean |error| % of l2, {name} over {} grasps: nominal {a:.2}, calibrated {b:.2}, true {c:.2}", counts[mi]);
-        assert!(counts[mi] > 0, "{name}: no grasp gave three estimates");
+        let a = sums[mi][0] / nominal_counts[mi].max(1) as f64;
+        let (b, c) = (sums[mi][1] / n, sums[mi][2] / n);
+        eprintln!(
+            "mean |error| % of l2, {name}: nominal {a:.2} ({} grasps), calibrated {b:.2} and \
+             true {c:.2} ({} grasps both answered)",
+            nominal_counts[mi], counts[mi]
+        );
+        assert!(counts[mi] > 0, "{name}: no grasp answered with both files");
         if b > 1.25 * c {
             failures.push(format!(
                 "{name}: calibrated mean error {b:.3} % > 1.25 × true-file {c:.3} %"
@@ -354,4 +365,167 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
     assert_eq!(back.finger, cal.file.finger);
     assert_eq!(back.current_sense, cal.file.current_sense);
     assert_eq!(back.drive, cal.file.drive);
+}
+
+/// A sweep on the independent rapier2d finger (crates/dynsim: the paper's springs and rest
+/// angles as its own constants, a Stribeck drive friction, the drive inertia on the crank): the
+/// same torque command, θa from the crank angle quantised to the file's encoder counts from
+/// the rest, T_a the motor torque with a seeded noise.
+fn dynsim_sweep(
+    nominal: &FingerFile,
+    params: dynsim::sim::FingerParams,
+    plan: &SweepPlan,
+    object: dynsim::sim::Object,
+) -> Vec<pts_cli::trace::TraceRow> {
+    let engine = dynsim::sim::EngineSettings::default();
+    let mut f = dynsim::sim::Finger::new(params, object, engine);
+    let rest_nominal = pts::Model::<f64>::new(&nominal.finger)
+        .unwrap()
+        .theta_a(nominal.finger.theta01, nominal.finger.theta02)
+        .unwrap();
+    let th0 = f.theta_a_rad();
+    let rpc = nominal.rad_per_count();
+    let dt = engine.dt_s;
+    let steps = (plan.duration_s() / dt).ceil() as u64;
+    let mut rows = vec![];
+    let mut done_at: Option<f64> = None;
+    let mut s = 0x9E37_79B9_7F4A_7C15_u64;
+    for n in 0..steps {
+        let t = n as f64 * dt;
+        let dth = f.theta_a_rad() - th0;
+        if done_at.is_none() && t > plan.pause_s + plan.ramp_s && dth < 0.03 {
+            done_at = Some(t);
+        }
+        if done_at.is_some_and(|d| t > d + plan.pause_s) {
+            break;
+        }
+        f.step(plan.torque_at(t, done_at.is_some()));
+        if n % u64::from(plan.decimate) == 0 {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let u = (s >> 11) as f64 / (1u64 << 53) as f64;
+            let counts = ((f.theta_a_rad() - th0) / rpc).round();
+            rows.push(pts_cli::trace::TraceRow {
+                t_s: t + dt,
+                theta_a_rad: rest_nominal + counts * rpc,
+                torque_nm: f.motor_nm() + (u - 0.5) * 0.002 * 12f64.sqrt(),
+                torque_ref_nm: None,
+                duty: None,
+                state: None,
+                encoder_count: None,
+                current_code: None,
+                true_theta_a_rad: Some(f.theta_a_rad()),
+                true_torque_nm: None,
+                true_contact: None,
+                true_k_m: None,
+            });
+        }
+    }
+    rows
+}
+
+/// The same identification on the engine-based finger, whose springs and rest angles are its
+/// own constants (the paper's): the *file* is the perturbed one here (springs ±25 %, rest
+/// angles ±3°), with the engine's drive friction ×2 and drive inertia ×3.
+#[test]
+fn calibration_on_the_engine_finger() {
+    use dynsim::linkage as L;
+    let truth = nominal();
+    let pert = Perturbation {
+        k1_factor: 0.8,
+        k2_factor: 1.25,
+        theta01_deg: -3.0,
+        theta02_deg: 3.0,
+        ..Perturbation::NONE
+    };
+    let nominal = pert.apply_to_file(&truth);
+    let fr = dynsim::sim::DriveFriction::REALISTIC;
+    let params = dynsim::sim::FingerParams {
+        drive_inertia_kgm2: 3.0 * 5.0e-4,
+        friction: dynsim::sim::DriveFriction {
+            coulomb_nm: 2.0 * fr.coulomb_nm,
+            stiction_nm: 2.0 * fr.stiction_nm,
+            viscous_nm_s_per_rad: 2.0 * fr.viscous_nm_s_per_rad,
+            ..fr
+        },
+        contact_mu: 0.3,
+        torque_lag_s: 0.0,
+    };
+    let plan = SweepPlan {
+        ramp_s: 4.0,
+        ..SweepPlan::DEFAULT
+    };
+    // The engine has no backlash: the file says so.
+    let mut nominal = nominal;
+    nominal.drive.backlash_rad = 0.0;
+    let ball = |x: f64, y: f64, normal_angle: f64| {
+        // The vertex is a ball of VERTEX_RADIUS_M: its centre sits that far on the phalanx's
+        // left normal from the point the line meets.
+        let r = dynsim::sim::VERTEX_RADIUS_M;
+        let n = normal_angle + std::f64::consts::FRAC_PI_2;
+        dynsim::sim::Object::Ball {
+            center_m: [x + r * n.cos(), y + r * n.sin()],
+            radius_m: r,
+        }
+    };
+    let p = post(&nominal);
+    let dp = tip_post(&nominal);
+    // The distal phalanx's angle where the nominal finger meets the tip post (θ1 + θ2).
+    let m = pts::Model::<f64>::new(&nominal.finger).unwrap();
+    let c = m
+        .free_from_torque(nominal.finger.k1 * 0.35)
+        .expect("nominal configuration");
+    let t0 = std::time::Instant::now();
+    let sweep = dynsim_sweep(&nominal, params, &plan, dynsim::sim::Object::None);
+    let touch = dynsim_sweep(
+        &nominal,
+        params,
+        &plan,
+        ball(
+            p.k1_m * p.theta1_rad.cos(),
+            p.k1_m * p.theta1_rad.sin(),
+            p.theta1_rad,
+        ),
+    );
+    let tip = dynsim_sweep(
+        &nominal,
+        params,
+        &plan,
+        ball(dp.x_m, dp.y_m, c.theta1 + c.theta2),
+    );
+    eprintln!("engine sweeps: {:?}", t0.elapsed());
+    let cal = identify_with(&sweep, Some((&touch, p)), Some((&tip, dp)), &nominal)
+        .expect("identification");
+    eprintln!("{cal}");
+    // The engine's own constants, and its drive: no back-driving loss (ρ = 1), no torque
+    // offset. Its friction is a Stribeck curve (above Coulomb at the slow speeds of the sweep,
+    // a shape the identified model does not have), the links add their own inertia and the
+    // joints a structural damping: the Coulomb, stiction, inertia and viscous terms have no
+    // single engine value to compare with and are printed only.
+    let expect = [
+        ("k1", L::K1_NM_PER_RAD),
+        ("k2", L::K2_NM_PER_RAD),
+        ("theta01", L::THETA01_RAD),
+        ("theta02", L::THETA02_RAD),
+        ("backdrive_ratio", 1.0),
+        ("torque_offset", 0.0),
+    ];
+    let mut bad = vec![];
+    for (name, t) in expect {
+        let q = cal.get(name).expect("parameter");
+        let s = q.sigma.expect("identified");
+        let z = (q.value - t) / s;
+        eprintln!(
+            "  {name:<16} {:>12.6} ± {:<10.3e} engine {:>12.6}  z = {z:+.2}",
+            q.value, s, t
+        );
+        if z.is_nan() || z.abs() > 3.0 {
+            bad.push(format!(
+                "{name}: {} ± {s:.3e} vs engine {t} (z = {z:.2})",
+                q.value
+            ));
+        }
+    }
+    assert!(bad.is_empty(), "{bad:#?}");
 }
