@@ -353,3 +353,82 @@ pub fn drive_truth(scene: &Scene, nominal: &FingerFile) -> [f64; 6] {
         nominal.torque_from_current(offset_a),
     ]
 }
+
+/// Runs the firmware's calibration sweep ([`grasp::calibrate::Sweep`]) against the plant of
+/// `scene` with the firmware's encoder, current sensing (its offset calibrated with the bridge
+/// off first, as at boot) and torque loop, all configured from `nominal`; the rows it records
+/// (its decimation) as [`record`] writes them. `object` is a fixed object, or none. Ends with
+/// the sweep's final phase.
+pub fn record_firmware(
+    scene: &Scene,
+    nominal: &FingerFile,
+    cfg: grasp::calibrate::SweepConfig,
+    object: Option<Object>,
+) -> Result<(Vec<TraceRow>, grasp::calibrate::Phase), String> {
+    use grasp::calibrate::{Phase, Sweep};
+    use grasp::sensors::{CurrentSense, Encoder};
+    let mut scene = *scene;
+    scene.object = match object {
+        Some(o) => ObjectSpec::At(o),
+        None => ObjectSpec::None,
+    };
+    let ctl = crate::replay::controller_config(nominal, scene.dt_s)?;
+    let p = ctl
+        .params()
+        .map_err(|e| format!("controller parameters: {e:?}"))?;
+    let rest_nominal = ctl.drive.theta_a_rest_rad;
+    let mut plant = Plant::new(&scene).map_err(|e| format!("sweep plant: {e}"))?;
+    let mut sweep = Sweep::new(cfg).map_err(|e| format!("calibration sweep: {e:?}"))?;
+    let mut current = CurrentSense::new(&p);
+    for _ in 0..256 {
+        plant.step_off();
+        current.calib_add(plant.current_adc());
+    }
+    current
+        .calib_finish(&p)
+        .map_err(|o| format!("current offset {o}/256 codes out of range"))?;
+    let mut enc = Encoder::new(plant.encoder_count());
+    let mut tl = grasp::torque_loop::TorqueLoop::new();
+    let rad_per_count = nominal.rad_per_count();
+    let zero = f64::from(nominal.current_sense.zero_count);
+    let apc = nominal.current_sense.amps_per_count;
+    let t_start = plant.truth().t_s;
+    sweep
+        .start(false)
+        .map_err(|e| format!("calibration sweep: {e:?}"))?;
+    let mut rows = vec![];
+    let mut fault = false;
+    loop {
+        let code = plant.current_adc();
+        if enc.update(plant.encoder_count(), 2000).is_err() {
+            fault = true;
+        }
+        let meas = current.torque_unm(code, &p);
+        let dth = grasp::sensors::counts_to_urad(enc.counts(), &p)
+            .saturating_sub(grasp::sensors::counts_to_urad(0, &p));
+        let st = sweep.tick(dth, fault || plant.solver_failed());
+        if matches!(st.phase, Phase::Done | Phase::Aborted(_)) {
+            plant.step_off();
+            return Ok((rows, st.phase));
+        }
+        let duty = tl.update(st.torque_ref_unm, meas, &p);
+        plant.step(f64::from(duty) / f64::from(grasp::DUTY_MAX));
+        if st.record {
+            let truth = plant.truth();
+            rows.push(TraceRow {
+                t_s: truth.t_s - t_start,
+                theta_a_rad: rest_nominal + f64::from(enc.counts()) * rad_per_count,
+                torque_nm: nominal.torque_from_current((f64::from(code) - zero) * apc),
+                torque_ref_nm: Some(f64::from(st.torque_ref_unm) / 1e6),
+                duty: Some(f64::from(duty) / f64::from(grasp::DUTY_MAX)),
+                state: Some("calibrate".into()),
+                encoder_count: Some(plant.encoder_count()),
+                current_code: Some(code),
+                true_theta_a_rad: Some(truth.theta_a_rad),
+                true_torque_nm: Some(truth.torque_a_nm),
+                true_contact: Some(truth.contact.name().to_string()),
+                true_k_m: Some(truth.k_m),
+            });
+        }
+    }
+}

@@ -529,3 +529,50 @@ fn calibration_on_the_engine_finger() {
     }
     assert!(bad.is_empty(), "{bad:#?}");
 }
+
+/// The firmware's sweep (grasp::calibrate with the firmware's sensors and torque loop, run by
+/// the host against the plant) records what the identification needs: the same parameters,
+/// within 3σ of the plant's truth.
+#[test]
+fn the_firmware_sweep_calibrates_the_plant_finger() {
+    use grasp::calibrate::{Phase, SweepConfig};
+    use pts_cli::sweep::record_firmware;
+    let nominal = nominal();
+    let pert = fingers()[1];
+    let scene = pert
+        .scene(Scene::DEFAULT, &nominal)
+        .expect("perturbed scene");
+    let cfg = SweepConfig::DEFAULT;
+    let run = |object| {
+        let (rows, phase) = record_firmware(&scene, &nominal, cfg, object).expect("firmware sweep");
+        assert_eq!(phase, Phase::Done, "the sweep must finish in time");
+        rows
+    };
+    let p = post(&nominal);
+    let dp = tip_post(&nominal);
+    let free = run(None);
+    let touch = run(Some(p.object()));
+    let tip = run(Some(dp.object()));
+    // Never beyond the safe torque, never past the angle limit.
+    for r in free.iter().chain(&touch).chain(&tip) {
+        let rf = r.torque_ref_nm.unwrap();
+        assert!(rf.abs() <= f64::from(cfg.safe_torque_unm) / 1e6 + 1e-12);
+        assert!(r.theta_a_rad - free[0].theta_a_rad <= f64::from(cfg.max_dtheta_urad) / 1e6);
+    }
+    let cal = identify_with(&free, Some((&touch, p)), Some((&tip, dp)), &nominal)
+        .expect("identification");
+    eprintln!("{cal}");
+    let bad = check_params(&pert, &scene, &nominal, &cal);
+    assert!(bad.is_empty(), "{bad:#?}");
+}
+
+#[test]
+fn the_firmware_sweep_refuses_to_start_on_a_bad_configuration() {
+    let nominal = nominal();
+    let cfg = grasp::calibrate::SweepConfig {
+        safe_torque_unm: 3_000_000,
+        ..grasp::calibrate::SweepConfig::DEFAULT
+    };
+    let e = pts_cli::sweep::record_firmware(&Scene::DEFAULT, &nominal, cfg, None).unwrap_err();
+    assert!(e.contains("safe_torque_unm"), "{e}");
+}
