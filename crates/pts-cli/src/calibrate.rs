@@ -1181,6 +1181,9 @@ pub struct Args {
     pub safe_torque_nm: f64,
     /// Where to write the perturbed finger's true file (with `simulate`).
     pub truth_out: Option<PathBuf>,
+    /// With `simulate`: run the firmware's sweep (`grasp::calibrate` with the firmware's
+    /// sensors and torque loop) instead of the plant's ideal current ramp with dither.
+    pub firmware: bool,
 }
 
 const POST_LINE: &str = "# pts-calibrate";
@@ -1242,7 +1245,23 @@ pub fn run(a: &Args) -> Result<(), String> {
             safe_torque_nm: a.safe_torque_nm,
             ..crate::sweep::SweepPlan::DEFAULT
         };
-        let rows = crate::sweep::record(&scene, &nominal, &plan, None)?;
+        let fw_cfg = grasp::calibrate::SweepConfig {
+            safe_torque_unm: (a.safe_torque_nm * 1e6).round().clamp(0.0, 2e6) as i32,
+            ..grasp::calibrate::SweepConfig::DEFAULT
+        };
+        let rec = |object: Option<plant::Object>| -> Result<Vec<TraceRow>, String> {
+            if a.firmware {
+                let (rows, phase) =
+                    crate::sweep::record_firmware(&scene, &nominal, fw_cfg, object)?;
+                if phase != grasp::calibrate::Phase::Done {
+                    return Err(format!("the firmware's sweep ended {phase:?}"));
+                }
+                Ok(rows)
+            } else {
+                crate::sweep::record_object(&scene, &nominal, &plan, object)
+            }
+        };
+        let rows = rec(None)?;
         write_rows(&a.trace, None, &rows)?;
         eprintln!("wrote {} ({} rows)", a.trace.display(), rows.len());
         if let Some(path) = &a.touch {
@@ -1250,7 +1269,7 @@ pub fn run(a: &Args) -> Result<(), String> {
                 theta1_rad: a.post_theta1_rad.unwrap_or(default_post.theta1_rad),
                 k1_m: a.post_k1_m.unwrap_or(default_post.k1_m),
             };
-            let rows = crate::sweep::record(&scene, &nominal, &plan, Some(post))?;
+            let rows = rec(Some(post.object()))?;
             let head = format!(
                 "{POST_LINE} post_theta1_rad={} post_k1_m={}",
                 post.theta1_rad, post.k1_m
@@ -1260,7 +1279,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         }
         if let Some(path) = &a.tip_touch {
             let dp = DistalPost::for_file(&nominal, nominal.finger.theta01 + 0.35, 0.5)?;
-            let rows = crate::sweep::record_object(&scene, &nominal, &plan, Some(dp.object()))?;
+            let rows = rec(Some(dp.object()))?;
             let head = format!(
                 "{POST_LINE} tip_post_x_m={} tip_post_y_m={}",
                 dp.x_m, dp.y_m

@@ -198,6 +198,10 @@ struct CalibrateArgs {
     /// With --simulate: write the plant's true finger file here.
     #[arg(long)]
     truth_out: Option<PathBuf>,
+    /// With --simulate: run the firmware's sweep (grasp::calibrate, the firmware's sensors and
+    /// torque loop) instead of the plant's ideal current ramp.
+    #[arg(long)]
+    firmware: bool,
 }
 
 #[derive(Subcommand)]
@@ -302,6 +306,7 @@ fn main() -> ExitCode {
             perturb: c.perturb,
             safe_torque_nm: c.safe_torque,
             truth_out: c.truth_out,
+            firmware: c.firmware,
         }),
         Cmd::Finger { finger } => pts_cli::load_finger(finger.as_deref())
             .map(|f| pts_cli::outln!("{}", f.to_toml_string().trim_end())),

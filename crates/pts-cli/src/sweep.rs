@@ -93,11 +93,8 @@ impl Perturbation {
     /// sensor model (offset, gain error, noise) stays.
     pub fn scene(&self, base: Scene, nominal: &FingerFile) -> Result<Scene, String> {
         let truth = self.apply_to_file(nominal);
+        // (The plant's extension stops follow the rest angles: `sim_board::scene_for_finger`.)
         let (mut scene, _) = crate::sim::finger_scene(base, &truth)?;
-        // The extension stops follow the rest angles (the plant's rest pose sits 0.05 rad
-        // above each).
-        scene.finger.theta1_min_rad += self.theta01_deg.to_radians();
-        scene.finger.theta2_min_rad += self.theta02_deg.to_radians();
         let d = &mut scene.drive;
         d.coulomb_nm *= self.friction_factor;
         d.stiction_nm *= self.friction_factor;

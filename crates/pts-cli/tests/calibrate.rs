@@ -353,7 +353,9 @@ fn a_noisy_sweep_is_refused() {
 #[test]
 fn the_calibrated_file_is_accepted_by_every_consumer() {
     let nominal = nominal();
-    let pert = Perturbation::parse("k1=0.8,k2=1.2,theta01_deg=2,friction=2").unwrap();
+    // θ0,2 below the plant's default θ2 stop: the plant built from the file must follow.
+    let pert =
+        Perturbation::parse("k1=0.8,k2=1.2,theta01_deg=2,theta02_deg=-4,friction=2").unwrap();
     let (_, cal) = calibrate(&pert, &nominal);
     let text = cal.file.to_toml_string();
     let path = std::env::temp_dir().join(format!("pts-calibrated-{}.toml", std::process::id()));
@@ -365,6 +367,19 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
     assert_eq!(back.finger, cal.file.finger);
     assert_eq!(back.current_sense, cal.file.current_sense);
     assert_eq!(back.drive, cal.file.drive);
+    // `pts sim --finger`: the plant and the controller built from it run a grasp.
+    let (scene, imax) = pts_cli::sim::finger_scene(plant::scenes::table2(), &back).expect("scene");
+    let rep = run(&SimOptions {
+        scene,
+        delta_ta_nm: 0.8,
+        max_s: 10.0,
+        extra_s: 0.2,
+        record: false,
+        method: Method::TwoPoint,
+        overcurrent_a: Some(imax),
+    })
+    .expect("pts sim --finger");
+    assert!(rep.k2_hat_m().is_some(), "{:?}", rep.state);
 }
 
 /// A sweep on the independent rapier2d finger (crates/dynsim: the paper's springs and rest
