@@ -542,6 +542,92 @@ fn calibration_on_the_engine_finger() {
             ));
         }
     }
+    // Grasps on the engine (its CI grid's distal cases, realistic level, with this drive),
+    // read as a board's log with each file and scored against the engine's first contact.
+    // A firmware adds its file's rest angle to the encoder: the trace's θa is re-based.
+    let mut true_file = truth.clone();
+    true_file.drive.backlash_rad = 0.0;
+    let files = [
+        (&nominal, "nominal"),
+        (&cal.file, "calibrated"),
+        (&true_file, "true"),
+    ];
+    let rest_of = |f: &FingerFile| {
+        pts::Model::<f64>::new(&f.finger)
+            .unwrap()
+            .theta_a(f.finger.theta01, f.finger.theta02)
+            .unwrap()
+    };
+    let axes = dynsim::grid::Axes {
+        radii_m: &[0.0, 0.01],
+        k2_frac: &[0.35, 0.65],
+        delta_ta_nm: &[0.5],
+        mu: &[0.3],
+        inertia_kgm2: &[5.0e-4],
+    };
+    let mut sums = [0.0f64; 3];
+    let mut n = 0usize;
+    eprintln!("| engine grasp | nominal % | calibrated % | true % |");
+    eprintln!("|---|---|---|---|");
+    for mut c in dynsim::grid::cases(&axes) {
+        if c.level != "default" {
+            continue;
+        }
+        c.spec.finger = params;
+        let Some(rec) = dynsim::grasp::run(&c.spec) else {
+            continue;
+        };
+        let Some(k_true) = (rec.truth.phalanx == "distal")
+            .then_some(rec.truth.k_c_m)
+            .flatten()
+        else {
+            continue;
+        };
+        if rec.truth.both_phalanges {
+            continue;
+        }
+        let csv = dynsim::grasp::to_csv(&rec, &c.sensor);
+        let errs: Vec<Option<f64>> = files
+            .iter()
+            .map(|(f, _)| {
+                let mut tr = pts_cli::trace::read_csv(&csv, &|i| f.torque_from_current(i)).ok()?;
+                let shift = rest_of(f) - rest_of(&truth);
+                for r in &mut tr.rows {
+                    r.theta_a_rad += shift;
+                }
+                let seg = pts_cli::replay::segment(&tr, f, Method::Pathfit).ok()?;
+                let est = seg.contacts.first()?.estimate.as_ref().ok()?;
+                let k = f64::from(est.k2_um?) * 1e-6;
+                Some(((k - k_true) / dynsim::linkage::L2_M * 100.0).abs())
+            })
+            .collect();
+        let cell = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{v:.2}"));
+        eprintln!(
+            "| {} | {} | {} | {} |",
+            c.id,
+            cell(errs[0]),
+            cell(errs[1]),
+            cell(errs[2])
+        );
+        if let [Some(a), Some(b), Some(c)] = errs[..] {
+            sums[0] += a;
+            sums[1] += b;
+            sums[2] += c;
+            n += 1;
+        }
+    }
+    let m = sums.map(|s| s / n.max(1) as f64);
+    eprintln!(
+        "engine, path fit, mean |error| % of l2 over {n} grasps: nominal {:.2}, calibrated {:.2}, true {:.2}",
+        m[0], m[1], m[2]
+    );
+    assert!(n > 0, "no engine grasp answered with all three files");
+    if m[1] > 1.25 * m[2] {
+        bad.push(format!(
+            "engine: calibrated {:.3} % > 1.25 × true {:.3} %",
+            m[1], m[2]
+        ));
+    }
     assert!(bad.is_empty(), "{bad:#?}");
 }
 
