@@ -677,3 +677,52 @@ fn the_firmware_sweep_refuses_to_start_on_a_bad_configuration() {
     let e = pts_cli::sweep::record_firmware(&Scene::DEFAULT, &nominal, cfg, None).unwrap_err();
     assert!(e.contains("safe_torque_unm"), "{e}");
 }
+
+/// The command end to end: `pts calibrate --simulate` writes the three recordings and the true
+/// file, `pts calibrate` reads them back (the posts from the recordings' comment lines) and
+/// writes a finger file `pts finger` accepts, with the springs near the true file's.
+#[test]
+fn the_command_records_identifies_and_writes_a_finger_file() {
+    use pts_cli::calibrate::{run as calibrate_cmd, Args};
+    let dir = std::env::temp_dir().join(format!("pts-calibrate-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = |n: &str| dir.join(n);
+    let args = Args {
+        trace: path("free.csv"),
+        touch: Some(path("touch.csv")),
+        tip_touch: Some(path("tip.csv")),
+        post_theta1_rad: None,
+        post_k1_m: None,
+        finger: None,
+        out: Some(path("calibrated.toml")),
+        json: true,
+        simulate: true,
+        perturb: "k1=1.2,k2=0.8,theta01_deg=2,theta02_deg=2".into(),
+        safe_torque_nm: 0.6,
+        truth_out: Some(path("true.toml")),
+        firmware: true,
+    };
+    calibrate_cmd(&args).expect("simulate");
+    calibrate_cmd(&Args {
+        simulate: false,
+        ..args.clone()
+    })
+    .expect("identify");
+    let cal = pts_cli::load_finger(Some(&path("calibrated.toml"))).expect("pts finger accepts it");
+    let truth = pts_cli::load_finger(Some(&path("true.toml"))).expect("true file");
+    for (a, b) in [
+        (cal.finger.k1, truth.finger.k1),
+        (cal.finger.k2, truth.finger.k2),
+    ] {
+        assert!((a / b - 1.0).abs() < 0.05, "{a} vs {b}");
+    }
+    assert!((cal.finger.theta01 - truth.finger.theta01).abs() < 0.01);
+    // A bad value is an error naming it, not a panic.
+    let e = calibrate_cmd(&Args {
+        safe_torque_nm: f64::NAN,
+        ..args.clone()
+    })
+    .unwrap_err();
+    assert!(e.contains("safe_torque_unm"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
