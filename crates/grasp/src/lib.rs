@@ -57,6 +57,7 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod calibrate;
 pub mod config;
 pub mod control_loop;
 pub mod controller;

@@ -13,6 +13,7 @@ macro_rules! outln {
     }};
 }
 
+pub mod calibrate;
 pub mod estimate_cmd;
 pub mod eval;
 pub mod method;
@@ -21,6 +22,7 @@ pub mod plot;
 pub mod replay;
 pub mod sim;
 pub mod sim_cmd;
+pub mod sweep;
 pub mod trace;
 
 use pts::config::FingerFile;

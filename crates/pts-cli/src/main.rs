@@ -97,6 +97,14 @@ enum Cmd {
         #[command(subcommand)]
         what: PlotCmd,
     },
+    /// Identify a finger's springs, rest angles, friction, inertia and torque offset from a
+    /// calibration sweep; print each with its σ and the residual, and write the calibrated
+    /// finger file. With --simulate, record the sweep(s) on the simulated finger instead.
+    ///
+    /// A free sweep alone cannot separate K1 from K2 nor see θ0,1: add --touch, a second
+    /// sweep against a fixed post on the proximal phalanx at a known θ1; θ0,2 needs
+    /// --tip-touch, the free finger closing onto a known point that the distal phalanx meets.
+    Calibrate(CalibrateArgs),
     /// Print the finger description (every key), e.g. as a template for a new finger.
     Finger {
         /// Finger description to check and print; default: the paper's prototype.
@@ -149,6 +157,55 @@ struct SimArgs {
     /// it (geometry, springs, drive constants, current limit); default: the scene's finger.
     #[arg(long)]
     finger: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct CalibrateArgs {
+    /// The free close-and-open sweep (CSV; written with --simulate).
+    #[arg(long)]
+    trace: PathBuf,
+    /// The sweep against the post (CSV; written with --simulate).
+    #[arg(long)]
+    touch: Option<PathBuf>,
+    /// The free finger closing onto a post that the distal phalanx meets (CSV, with a
+    /// `# pts-calibrate tip_post_x_m=… tip_post_y_m=…` line; written with --simulate):
+    /// identifies θ0,2, which the other two recordings cannot.
+    #[arg(long)]
+    tip_touch: Option<PathBuf>,
+    /// θ1 at which the proximal phalanx reaches the post (rad); default: the touch trace's
+    /// `# pts-calibrate` line (with --simulate: θ0,1 + 0.45 of the file).
+    #[arg(long)]
+    post_theta1_rad: Option<f64>,
+    /// Distance of the post from O1 (m); default: the touch trace's line, else 0.7·l1.
+    #[arg(long)]
+    post_k1_m: Option<f64>,
+    /// The nominal finger file the sweep was recorded with; default: the paper's prototype.
+    #[arg(long)]
+    finger: Option<PathBuf>,
+    /// Write the calibrated finger file here.
+    #[arg(long, short)]
+    out: Option<PathBuf>,
+    /// Machine-readable output (one JSON object).
+    #[arg(long)]
+    json: bool,
+    /// Record the sweep(s) on the simulated finger (built from --finger and --perturb) and
+    /// write them to --trace (and --touch) instead of identifying.
+    #[arg(long)]
+    simulate: bool,
+    /// With --simulate: the plant's difference from the file, e.g.
+    /// k1=1.25,k2=0.75,theta01_deg=3,theta02_deg=-3,friction=2,inertia=3.
+    #[arg(long, default_value = "")]
+    perturb: String,
+    /// With --simulate: the sweep's largest torque (N·m), in (0, 1.5].
+    #[arg(long, default_value = "0.6")]
+    safe_torque: f64,
+    /// With --simulate: write the plant's true finger file here.
+    #[arg(long)]
+    truth_out: Option<PathBuf>,
+    /// With --simulate: run the firmware's sweep (grasp::calibrate, the firmware's sensors and
+    /// torque loop) instead of the plant's ideal current ramp.
+    #[arg(long)]
+    firmware: bool,
 }
 
 #[derive(Subcommand)]
@@ -240,6 +297,21 @@ fn main() -> ExitCode {
             pts_cli::estimate_cmd::from_defmt(&from_defmt, out.as_deref(), finger.as_deref(), dt_s)
         }
         Cmd::Plot { what } => run_plot(what),
+        Cmd::Calibrate(c) => pts_cli::calibrate::run(&pts_cli::calibrate::Args {
+            trace: c.trace,
+            touch: c.touch,
+            tip_touch: c.tip_touch,
+            post_theta1_rad: c.post_theta1_rad,
+            post_k1_m: c.post_k1_m,
+            finger: c.finger,
+            out: c.out,
+            json: c.json,
+            simulate: c.simulate,
+            perturb: c.perturb,
+            safe_torque_nm: c.safe_torque,
+            truth_out: c.truth_out,
+            firmware: c.firmware,
+        }),
         Cmd::Finger { finger } => pts_cli::load_finger(finger.as_deref())
             .map(|f| pts_cli::outln!("{}", f.to_toml_string().trim_end())),
     };

@@ -101,6 +101,11 @@ pub fn scene_for_finger(mut scene: Scene, finger: &pts::Finger, drive: &DriveCon
     g.b_m = finger.b;
     g.c_m = finger.c;
     g.phi2_rad = finger.phi2;
+    // The extension stops keep their place relative to the rest angles (a finger file has no
+    // stops; the plant's rest pose sits above each), so that any rest angle the file may hold
+    // builds a plant.
+    g.theta1_min_rad += finger.theta01 - g.theta01_rad;
+    g.theta2_min_rad += finger.theta02 - g.theta02_rad;
     g.theta01_rad = finger.theta01;
     g.theta02_rad = finger.theta02;
     g.k1_nm_per_rad = finger.k1;
