@@ -127,12 +127,29 @@ pub fn main(args: &[String]) -> Result<i32, String> {
     if quick {
         cmd.arg("--quick");
     }
+    cmd.arg("--requests").args(request_cases(&root)?);
     let st = cmd.status().map_err(|e| format!("{script:?}: {e}"))?;
     let path_fit = pathfit_check(&root)?;
     Ok(match st.code() {
         Some(0) => path_fit,
         other => other.unwrap_or(1),
     })
+}
+
+/// The committed estimate requests (`crates/pts/benches/thumb/requests/*.req`, written by
+/// `tests/estimate_cases.rs`), sorted.
+fn request_cases(root: &Path) -> Result<Vec<PathBuf>, String> {
+    let dir = root.join("crates/pts/benches/thumb/requests");
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "req"))
+        .collect();
+    v.sort();
+    if v.is_empty() {
+        return Err(format!("no request cases in {}", dir.display()));
+    }
+    Ok(v)
 }
 
 /// Issue 7's gate: the firmware's integer path fit on the committed cases within its

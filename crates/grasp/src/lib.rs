@@ -71,8 +71,9 @@ pub use control_loop::{
 };
 pub use controller::{Controller, Event, FaultReason, State, Supervisor, TickOutput};
 pub use estimate::{
-    path_table, run_estimate, run_estimate_fw, run_estimate_with, EstReal, EstimateError,
-    EstimateRequest, EstimateResult, Located, Quality, Sample, PATH_CAPACITY,
+    path_fit_fw, path_table, run_estimate, run_estimate_fw, run_estimate_with, two_point_fw,
+    two_point_table, EstNum, EstReal, EstimateError, EstimateRequest, EstimateResult, Located,
+    Quality, Sample, TwoPointTable, PATH_CAPACITY,
 };
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),

@@ -112,6 +112,7 @@ impl TableReal for crate::fixed::Fx32 {
     }
 }
 
+#[cfg(feature = "bench-variants")]
 impl TableReal for crate::fixed::Fx16 {
     fn split_index(self) -> Option<(usize, Self)> {
         let b = self.to_bits();
@@ -122,6 +123,7 @@ impl TableReal for crate::fixed::Fx16 {
     }
 }
 
+#[cfg(feature = "bench-variants")]
 impl TableReal for crate::fixed::Fx24 {
     fn split_index(self) -> Option<(usize, Self)> {
         let b = self.to_bits();
@@ -276,6 +278,23 @@ impl<R: TableReal> FreeTable<R> {
             dx2: self.field(s, 3, u),
         };
         Ok((cfg, self.field(s, 4, u)))
+    }
+
+    /// The free-motion torque T_a = K1(θ1 − θ01) (N·m) at θa (rad): one cubic inside the
+    /// table, the model's Newton solve outside it.
+    pub fn free_torque(&self, theta_a: R) -> Result<R, PtsError> {
+        if !theta_a.is_finite() || theta_a.is_saturated() {
+            return Err(PtsError::NonFinite);
+        }
+        let theta1 = match self.locate(theta_a) {
+            Some((s, u)) => self.field(s, 1, u),
+            None => return Ok(self.model.free_from_theta_a(theta_a)?.ta),
+        };
+        let ta = self.k1 * (theta1 - self.theta01);
+        if ta.is_saturated() {
+            return Err(PtsError::Overflow);
+        }
+        Ok(ta)
     }
 
     /// The paper's two-point estimate ([`Model::estimate_two_point`]) with the contact
