@@ -179,6 +179,10 @@ pub trait EstNum: Real {
     fn from_micro(v: i32) -> Self;
     /// A sample count n as a value.
     fn from_count(n: u32) -> Self;
+    /// self/n for a sample count n ≥ 1 (a mean).
+    fn per_count(self, n: u32) -> Self {
+        self / Self::from_count(n)
+    }
     /// round(self·10⁶) (rad → µrad, N·m → µN·m), saturated to the i32 range; 0 for a
     /// non-finite value.
     fn micro(self) -> i32;
@@ -221,10 +225,29 @@ impl EstNum for Fx32 {
         Fx32::from_bits(i64::from(n) << 32)
     }
     #[inline]
+    fn per_count(self, n: u32) -> Self {
+        // Up to FIT_SAMPLES: a product with ⌊2^32/n⌉ (relative error < 2^-31) instead of a
+        // division.
+        const RECIP: [i64; FIT_SAMPLES + 1] = {
+            let mut r = [0i64; FIT_SAMPLES + 1];
+            let mut n = 1;
+            while n <= FIT_SAMPLES {
+                r[n] = ((1i64 << 32) + n as i64 / 2) / n as i64;
+                n += 1;
+            }
+            r
+        };
+        match RECIP.get(n as usize) {
+            Some(&r) if r > 0 => self * Fx32::from_bits(r),
+            _ => self / Self::from_count(n),
+        }
+    }
+    #[inline]
     fn micro(self) -> i32 {
-        // ×10^6 saturates at the type's limit (±2^31), then round to nearest.
-        let x = (self * Fx32::from_bits(1_000_000 << 32)).to_bits();
-        (x.saturating_add(1 << 31) >> 32).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+        // Integer word ×10^6 plus the fraction ×10^6 rounded (two 32×32 products), saturated.
+        let b = self.to_bits();
+        let frac = ((b & 0xFFFF_FFFF) * 1_000_000 + (1 << 31)) >> 32;
+        ((b >> 32) * 1_000_000 + frac).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
     }
 }
 
@@ -504,16 +527,18 @@ fn two_point_result<R: EstNum>(
 }
 
 /// The last [`FIT_SAMPLES`] samples of the approach, up to the contact detection (half a
-/// sample period of guard): the free motion before the impact.
+/// sample period of guard): the free motion before the impact. `pre` is in tick order, so
+/// they are the slice before the last sample within the guard.
 fn approach_samples(req: &EstimateRequest) -> impl Iterator<Item = &Sample> + Clone {
     let guard = u64::from(req.sample_ticks.max(1));
-    let kt = u64::from(req.contact.tick);
-    let before = req
+    let limit = u64::from(req.contact.tick) + guard / 2;
+    let end = req
         .pre
         .iter()
-        .filter(move |s| u64::from(s.tick) <= kt + guard / 2);
-    let n_before = before.clone().count();
-    before.skip(n_before.saturating_sub(FIT_SAMPLES))
+        .rposition(|s| u64::from(s.tick) <= limit)
+        .map_or(0, |i| i + 1);
+    let start = end.saturating_sub(FIT_SAMPLES);
+    req.pre.get(start..end).unwrap_or(&[]).iter()
 }
 
 /// Free-motion samples used before the impact (samples).
@@ -568,7 +593,7 @@ fn path_parabola<R: EstNum>(req: &EstimateRequest) -> Option<impl Fn(R) -> R> {
     let s1b = (thb - th1) / (tb - t1);
     let sb2 = (th2 - thb) / (t2 - tb);
     let c2 = (sb2 - s1b) / (t2 - t1);
-    Some(move |t: R| th1 + s1b * (t - t1) + c2 * (t - t1) * (t - tb))
+    Some(move |t: R| th1 + (t - t1) * (s1b + c2 * (t - tb)))
 }
 
 /// The contact point (θa,c rad, T_a,c N·m) from the model's free-motion curve, in f64 (the
@@ -648,20 +673,24 @@ pub fn contact_point_with<R: EstNum>(
 }
 
 /// The mean of measured minus free-motion torque (N·m) over the approach's last samples:
-/// the transmission friction while moving and the current-gain error. `None` with fewer than
-/// three samples or a failed query.
+/// the transmission friction while moving and the current-gain error. T_free is taken at the
+/// samples' mean angle: over the approach's few mrad it is linear to within ½·T_free″·var(θa),
+/// far below a µN·m. `None` with fewer than three samples or a failed query.
 fn friction_offset<R: EstNum>(
     req: &EstimateRequest,
     t_free: &impl Fn(R) -> Option<R>,
 ) -> Option<R> {
-    let mut sum = R::zero();
+    let (mut sum_t, mut sum_th) = (R::zero(), R::zero());
     let mut n = 0u32;
     for s in approach_samples(req) {
-        let tf = t_free(R::from_micro(s.theta_a_urad))?;
-        sum = sum + (R::from_micro(s.torque_unm) - tf);
+        sum_t = sum_t + R::from_micro(s.torque_unm);
+        sum_th = sum_th + R::from_micro(s.theta_a_urad);
         n += 1;
     }
-    (n >= 3).then(|| sum / R::from_count(n))
+    if n < 3 {
+        return None;
+    }
+    Some(sum_t.per_count(n) - t_free(sum_th.per_count(n))?)
 }
 
 /// Where the path θa = q(T) meets the free-motion curve shifted by the friction `offset`:
@@ -676,8 +705,19 @@ pub(crate) fn meet_free_curve<R: EstNum>(
     iters: usize,
 ) -> Option<(R, R)> {
     let h = |t: R| -> Option<R> { Some(t - offset - t_free(q(t))?) };
-    let (mut a, mut b) = (t1, t1 - R::from_f64(0.01));
-    let (mut ha, mut hb) = (h(a)?, h(b)?);
+    // The second point one unit-slope step below the seated point: h′ = 1 − T_free′·q′ is
+    // near 1 where the contact is much stiffer than free motion (a fixed 0.01 N·m when h(t1)
+    // is not a plausible step).
+    let a = t1;
+    let ha = h(a)?;
+    let first = if ha > R::zero() && ha < R::from_f64(0.2) {
+        ha
+    } else {
+        R::from_f64(0.01)
+    };
+    let b = t1 - first;
+    let hb = h(b)?;
+    let (mut a, mut b, mut ha, mut hb) = (a, b, ha, hb);
     for _ in 0..iters {
         let d = hb - ha;
         if !(d.abs() > R::from_f64(1e-15)) {
@@ -804,4 +844,88 @@ pub(crate) fn to_micro(v: f64) -> i32 {
     }
     let r = if x >= 0.0 { x + 0.5 } else { x - 0.5 };
     r as i32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The Q32.32 conversions against f64 over the request's ranges (µrad, µN·m, counts).
+    #[test]
+    fn fixed_point_micro_conversions_match_f64() {
+        let ulp = 1.0 / 4294967296.0;
+        let mut v: i64 = -2_147_483_648;
+        while v <= 2_147_483_647 {
+            let m = v as i32;
+            let x = Fx32::from_micro(m).to_f64();
+            let want = f64::from(m) * 1e-6;
+            assert!((x - want).abs() <= 1.5 * ulp, "{m}: {x} vs {want}");
+            assert!(
+                (Fx32::from_micro(m).micro() - m).abs() <= 1,
+                "{m} round trip"
+            );
+            v += 9_973_421;
+        }
+        for x in [
+            0.0,
+            1e-7,
+            0.4999e-6,
+            -0.5001e-6,
+            0.425_269,
+            -1.234_567_8,
+            1e4,
+            -2e3,
+        ] {
+            assert_eq!(Fx32::from_f64(x).micro(), to_micro(x), "{x}");
+        }
+        // Beyond the i32 range: saturated, never wrapped.
+        assert_eq!(Fx32::from_f64(5e3).micro(), i32::MAX);
+        assert_eq!(Fx32::from_f64(-5e3).micro(), i32::MIN);
+        for n in 1..=20u32 {
+            let s = Fx32::from_f64(3.217_5);
+            let got = s.per_count(n).to_f64();
+            assert!(
+                (got - 3.217_5 / f64::from(n)).abs() < 4.0 * ulp,
+                "mean of {n}"
+            );
+        }
+    }
+
+    /// The secant on a known curve: the path θ = q(T) = 0.1·T and the free-motion torque
+    /// T_free(θ) = 2·θ² + 0.3 (offset 0) meet where T = 0.02·T² + 0.3, T* = (1 − √(1 − 0.024))/0.04.
+    #[test]
+    fn meet_free_curve_finds_the_crossing_in_both_back_ends() {
+        let exact = (1.0 - (1.0f64 - 0.024).sqrt()) / 0.04;
+        let (th, t) = meet_free_curve(
+            &|t: f64| 0.1 * t,
+            &|th: f64| Some(2.0 * th * th + 0.3),
+            0.0,
+            (0.35, 0.035),
+            12,
+        )
+        .unwrap();
+        assert!(
+            (th - 0.1 * exact).abs() < 1e-9 && (t - exact).abs() < 1e-9,
+            "{t} {th}"
+        );
+        let c = |v: f64| Fx32::from_f64(v);
+        let (th, t) = meet_free_curve(
+            &|t: Fx32| t * c(0.1),
+            &|th: Fx32| Some(c(2.0) * th * th + c(0.3)),
+            Fx32::zero(),
+            (c(0.35), c(0.035)),
+            12,
+        )
+        .unwrap();
+        assert!((th.to_f64() - 0.1 * exact).abs() < 1e-7 && (t.to_f64() - exact).abs() < 1e-7);
+        // A crossing above the seated torque is not a contact before the seat: refused.
+        assert!(meet_free_curve(
+            &|t: f64| 0.1 * t,
+            &|th: f64| Some(2.0 * th * th + 0.3),
+            0.0,
+            (0.2, 0.02),
+            12
+        )
+        .is_none());
+    }
 }

@@ -567,11 +567,17 @@ impl<R: Real> Model<R> {
         // κ ≤ MAX_CONDITION and, with Δθa, κ·δθ/Δθa ≤ MAX_K2_NOISE: the smaller bound,
         // min(MAX_CONDITION, C·Δθa) with C = MAX_K2_NOISE/δθ, ordered so that no product
         // underflows in Q16.16. C·Δθa is the smaller only for Δθa below MAX_CONDITION/C (C
-        // as the back end holds it: Q8.24 saturates it), which folds to a constant.
+        // as the back end holds it: Q8.24 saturates it); a constant unless C saturates (no
+        // floating point at run time).
         let q = one_s * one_s * slope;
         let c_noise = R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD);
+        let dth_max = if c_noise.is_saturated() {
+            R::from_f64(MAX_CONDITION) / c_noise
+        } else {
+            R::from_f64(MAX_CONDITION * THETA_A_NOISE_RAD / MAX_K2_NOISE)
+        };
         let rhs = match dtheta_a {
-            Some(dth) if dth < R::from_f64(MAX_CONDITION / c_noise.to_f64()) => c_noise * dth * q,
+            Some(dth) if dth < dth_max => c_noise * dth * q,
             _ => times_const(q, MAX_CONDITION),
         };
         if !(slope > R::zero()) || !(lhs <= rhs) || lhs.is_saturated() || rhs.is_saturated() {
