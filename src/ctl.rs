@@ -31,14 +31,16 @@ pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
     None => 0.8,
 };
 
-/// The table this build's estimate runs on, built once at init for the build's finger: the
-/// path fit's (`cfg(fw_path_fit)`), or the two-point method's free-motion table.
+/// The table this build's estimate runs on, for the build's finger: the path fit's
+/// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
+/// build time, a constant in flash: `config::FREE_TABLE`).
 #[cfg(fw_path_fit)]
 pub type EstimatorTable = pts::pathfit::q::PathTable;
-/// The table this build's estimate runs on, built once at init for the build's finger: the
-/// path fit's (`cfg(fw_path_fit)`), or the two-point method's free-motion table.
+/// The table this build's estimate runs on, for the build's finger: the path fit's
+/// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
+/// build time, a constant in flash: `config::FREE_TABLE`).
 #[cfg(not(fw_path_fit))]
-pub type EstimatorTable = grasp::estimate::TwoPointTable;
+pub type EstimatorTable = &'static grasp::estimate::TwoPointTable;
 
 /// Where `init` keeps the estimator's table: a C-like enum whose empty state is all zero
 /// bits, so the slot lands in .bss (an `Option` would use a niche and go to .data, costing
@@ -74,16 +76,16 @@ impl TableSlot {
 // The table and the estimator agree.
 const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFit));
 
-/// The estimator's table for a finger and a control period `dt_s` (s), built at init (f64
-/// arithmetic, once); `None` when the finger is outside the table's formats (the estimate
-/// then reports that error).
+/// The estimator's table for a finger and a control period `dt_s` (s): the path fit's, built
+/// at init (f64 arithmetic, once), or the build-time two-point table (the build's finger);
+/// `None` when the finger is outside the table's formats (the estimate then reports that error).
 pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<EstimatorTable> {
     #[cfg(fw_path_fit)]
     return grasp::path_table(finger, (dt_s * 1e9) as u32).ok();
     #[cfg(not(fw_path_fit))]
     {
-        let _ = dt_s;
-        grasp::estimate::two_point_table(finger).ok()
+        let _ = (finger, dt_s);
+        crate::config::FREE_TABLE.as_ref()
     }
 }
 
@@ -214,6 +216,18 @@ mod tests {
         assert_eq!(status(State::Fault(grasp::FaultReason::Stall)), 2);
         assert!(finished(State::Done) && finished(State::Holding));
         assert!(!finished(State::Approach) && !finished(State::Estimating));
+    }
+
+    /// The build-time two-point table is the one the f64 model gives for the build's finger
+    /// (bit for bit) and answers like it.
+    #[test]
+    fn the_build_time_table_is_the_finger_s_table() {
+        let built = pts::table::FreeTable::<pts::fixed::Fx32>::new(&crate::config::FINGER).unwrap();
+        let fixed = crate::config::FREE_TABLE.as_ref().unwrap();
+        assert_eq!(fixed.to_raw(), built.to_raw());
+        assert_eq!(fixed.model().finger, crate::config::FINGER);
+        let th = pts::fixed::Fx32::from_bits(-(1 << 30));
+        assert_eq!(fixed.free_torque(th), built.free_torque(th));
     }
 
     /// The simulated board's controller sees the scene's nominal drive: one encoder count

@@ -322,16 +322,18 @@ pub fn two_point_fw(
     two_point_table_est(table, req).map_err(EstimateError::Model)
 }
 
-/// [`two_point_fw`] on any back end the table supports.
+/// [`two_point_fw`] on any back end the table supports. Inside the table only (its torque
+/// range, [`pts::table::TABLE_TA_MIN_NM`] to [`pts::table::TABLE_TA_MAX_NM`]): a contact
+/// outside it is refused with [`PtsError::OutOfRange`].
 pub fn two_point_table_est<R: EstNum + TableReal>(
     table: &FreeTable<R>,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, PtsError> {
-    let (theta_c, ta_c) = contact_point_with(req, |th: R| table.free_torque(th).ok())
+    let (theta_c, ta_c) = contact_point_with(req, |th: R| table.free_torque_in_table(th).ok())
         .unwrap_or_else(|| contact_point(req));
     let th2 = R::from_micro(req.end.theta_a_urad);
     let t2 = R::from_micro(req.end.torque_unm);
-    let est = table.estimate_two_point(theta_c, ta_c, th2, t2)?;
+    let est = table.estimate_two_point_in_table(theta_c, ta_c, th2, t2)?;
     two_point_result(&est, theta_c, ta_c)
 }
 

@@ -684,6 +684,56 @@ impl<R: Real> Model<R> {
     }
 }
 
+/// Number of Q32.32 words in [`Model::to_raw`].
+pub const MODEL_RAW_WORDS: usize = 14;
+
+impl Model<crate::fixed::Fx32> {
+    /// The model's precomputed constants as raw Q32.32 bits (with the finger, everything
+    /// [`Model::from_raw`] needs): for generating a model at build time.
+    pub fn to_raw(&self) -> [i64; MODEL_RAW_WORDS] {
+        [
+            self.l1,
+            self.l2,
+            self.phi2_minus_pi,
+            self.theta01,
+            self.theta02,
+            self.k1,
+            self.k2,
+            self.z1,
+            self.z2,
+            self.z3,
+            self.cos_scale,
+            self.two_l2,
+            self.k1_half,
+            self.k1_quarter,
+        ]
+        .map(|v| v.to_bits())
+    }
+
+    /// The model from the finger and the words of [`Model::to_raw`] (a build-time constant:
+    /// no floating point).
+    pub const fn from_raw(finger: Finger, w: &[i64; MODEL_RAW_WORDS]) -> Self {
+        use crate::fixed::Fx32;
+        Self {
+            finger,
+            l1: Fx32::from_bits(w[0]),
+            l2: Fx32::from_bits(w[1]),
+            phi2_minus_pi: Fx32::from_bits(w[2]),
+            theta01: Fx32::from_bits(w[3]),
+            theta02: Fx32::from_bits(w[4]),
+            k1: Fx32::from_bits(w[5]),
+            k2: Fx32::from_bits(w[6]),
+            z1: Fx32::from_bits(w[7]),
+            z2: Fx32::from_bits(w[8]),
+            z3: Fx32::from_bits(w[9]),
+            cos_scale: Fx32::from_bits(w[10]),
+            two_l2: Fx32::from_bits(w[11]),
+            k1_half: Fx32::from_bits(w[12]),
+            k1_quarter: Fx32::from_bits(w[13]),
+        }
+    }
+}
+
 /// k·x for a constant k, as an addition when k = 2.
 #[inline(always)]
 fn times_const<R: Real>(x: R, k: f64) -> R {
