@@ -261,33 +261,6 @@ fn request_cases(root: &Path) -> Result<Vec<PathBuf>, String> {
     Ok(v)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A planted firmware: the sampling interrupt, a dispatcher calling an entry that uses
-    /// f64 through a helper, another dispatcher that does not reach it.
-    const ASM: &str = "ADC:\n\tbl loop_tick\n\tbx lr\nloop_tick:\n\tbx lr\n\
-SPI2:\n\tbl _ZN5grasp8estimate12two_point_fw17h0123456789abcdefE\n\tbx lr\n\
-SPI3:\n\tbl telemetry\n\tbx lr\ntelemetry:\n\tbx lr\n\
-_ZN5grasp8estimate12two_point_fw17h0123456789abcdefE:\n\tbl helper\n\tbx lr\n\
-helper:\n\tbl __aeabi_dmul\n\tbx lr\n";
-
-    #[test]
-    fn the_entry_check_finds_the_task_and_the_soft_float_it_reaches() {
-        let f = entry_facts(ASM, ENTRIES[0].1, &["ADC", "SPI2", "SPI3"]).unwrap();
-        assert_eq!(f.roots, ["SPI2"]);
-        assert_eq!(f.soft_float_in_entry, ["__aeabi_dmul"]);
-        assert_eq!(f.soft_float_in_task, ["__aeabi_dmul"]);
-        // Not in the program: an error, not a pass.
-        assert!(entry_facts(ASM, ENTRIES[1].1, &["SPI2"]).is_err());
-        // Without the f64 helper the entry is clean.
-        let clean = ASM.replace("\tbl __aeabi_dmul\n", "");
-        let f = entry_facts(&clean, ENTRIES[0].1, &["ADC", "SPI2", "SPI3"]).unwrap();
-        assert!(f.soft_float_in_entry.is_empty() && f.soft_float_in_task.is_empty());
-    }
-}
-
 /// Issue 7's gate: the firmware's integer path fit on the committed cases within its
 /// instruction budget on thumbv7em and within σ/2 of the FPU fit (`benches/pathfit/check.py`).
 fn pathfit_check(root: &Path) -> Result<i32, String> {
@@ -325,4 +298,31 @@ fn pathfit_check(root: &Path) -> Result<i32, String> {
         .status()
         .map_err(|e| format!("check.py: {e}"))?;
     Ok(st.code().unwrap_or(1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A planted firmware: the sampling interrupt, a dispatcher calling an entry that uses
+    /// f64 through a helper, another dispatcher that does not reach it.
+    const ASM: &str = "ADC:\n\tbl loop_tick\n\tbx lr\nloop_tick:\n\tbx lr\n\
+SPI2:\n\tbl _ZN5grasp8estimate12two_point_fw17h0123456789abcdefE\n\tbx lr\n\
+SPI3:\n\tbl telemetry\n\tbx lr\ntelemetry:\n\tbx lr\n\
+_ZN5grasp8estimate12two_point_fw17h0123456789abcdefE:\n\tbl helper\n\tbx lr\n\
+helper:\n\tbl __aeabi_dmul\n\tbx lr\n";
+
+    #[test]
+    fn the_entry_check_finds_the_task_and_the_soft_float_it_reaches() {
+        let f = entry_facts(ASM, ENTRIES[0].1, &["ADC", "SPI2", "SPI3"]).unwrap();
+        assert_eq!(f.roots, ["SPI2"]);
+        assert_eq!(f.soft_float_in_entry, ["__aeabi_dmul"]);
+        assert_eq!(f.soft_float_in_task, ["__aeabi_dmul"]);
+        // Not in the program: an error, not a pass.
+        assert!(entry_facts(ASM, ENTRIES[1].1, &["SPI2"]).is_err());
+        // Without the f64 helper the entry is clean.
+        let clean = ASM.replace("\tbl __aeabi_dmul\n", "");
+        let f = entry_facts(&clean, ENTRIES[0].1, &["ADC", "SPI2", "SPI3"]).unwrap();
+        assert!(f.soft_float_in_entry.is_empty() && f.soft_float_in_task.is_empty());
+    }
 }
