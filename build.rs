@@ -6,8 +6,8 @@
 //!   `OUT_DIR/fw-memory.x`, which `memory.x` includes; the QEMU build also gets the
 //!   `device.x` of its small interrupt table (src/sim/pac.rs).
 //! * The finger description becomes `const` data (`OUT_DIR/fw_config.rs`): the TOML file named
-//!   by `FINGER_TOML` (parsed with `pts::config`), else the paper's prototype. The target does no
-//!   parsing. The QEMU scene is chosen by `FINGER_FW_SCENE` (a scene name or a TOML file), set by
+//!   by `FINGER_TOML` (parsed with `pts::config`), else the paper's prototype, with the two-point
+//!   estimate's free-motion table for it. The target does no parsing. The QEMU scene is chosen by `FINGER_FW_SCENE` (a scene name or a TOML file), set by
 //!   `cargo xtask demo --scene`; default `table2`.
 use std::{env, fmt::Write as _, fs, path::PathBuf};
 
@@ -144,6 +144,27 @@ fn finger_consts(src: &mut String) {
         "/// θa at the finger's rest pose (rad), where the encoder is zeroed.\n\
          pub const FINGER_THETA_A_REST_RAD: f64 = {:?};",
         cfg.drive.theta_a_rest_rad
+    );
+    free_table_const(src, &f);
+}
+
+/// The two-point estimate's free-motion table for the finger (`pts::table::FreeTable`, Q32.32,
+/// built here from the f64 model) as a constant: in flash, and the firmware links neither
+/// the table's builder nor the f64 model. `None` when the finger is outside the table.
+fn free_table_const(src: &mut String, f: &pts::Finger) {
+    let table = pts::table::FreeTable::<pts::fixed::Fx32>::new(f).ok();
+    let expr = match table.map(|t| t.to_raw()) {
+        Some(r) => format!(
+            "Some(pts::table::FreeTable::from_raw(&pts::table::FreeTableRaw {{ finger: FINGER, \
+             model: {:?}, scalars: {:?}, small: {:?}, seg: {:?} }}))",
+            r.model, r.scalars, r.small, r.seg
+        ),
+        None => "None".to_string(),
+    };
+    let _ = writeln!(
+        src,
+        "/// The two-point estimate's free-motion table for [`FINGER`] (built at build time).\n\
+         pub static FREE_TABLE: Option<pts::table::FreeTable<pts::fixed::Fx32>> = {expr};"
     );
 }
 

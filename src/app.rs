@@ -58,8 +58,8 @@ mod app {
         tel_tx: Sender<'static, Msg, QUEUE>,
         sup_tx: Sender<'static, Msg, QUEUE>,
         est_tx: Sender<'static, Msg, QUEUE>,
-        /// The path fit's table (built in `init`; `None` in a two-point build).
-        table: Option<&'static ctl::PathTable>,
+        /// The estimator's table (built in `init`; `None` when the finger is outside its formats).
+        table: Option<&'static ctl::EstimatorTable>,
         /// The finger the estimate inverts (the controller's).
         finger: pts::Finger,
         decimation: u32,

@@ -10,13 +10,13 @@
 
 pub use grasp::{ControllerConfig, DriveConfig, State};
 use grasp::{EstimateError, EstimateRequest, EstimateResult, Estimator};
-pub use pts::pathfit::q::PathTable;
 use pts::pathfit::PathFitError;
+use pts::PtsError;
 
 /// The estimator of this build, fixed at build time (`FINGER_FW_ESTIMATOR=two-point|path-fit`,
 /// default: the controller's default). `grasp::run_estimate` picks it at run time from the
 /// request, which links both; choosing here lets the linker drop the other one: the path fit
-/// is ~65 KB of fixed-point code, the two-point method fits the 64 KiB flash budget.
+/// is much larger fixed-point code, the two-point method fits the 64 KiB flash budget.
 pub const ESTIMATOR: Estimator = match crate::config::ESTIMATOR {
     Some(e) => e,
     None => ControllerConfig::DEFAULT.estimator,
@@ -31,84 +31,83 @@ pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
     None => 0.8,
 };
 
-/// Where `init` keeps the path fit's table (a path-fit build, `cfg(fw_path_fit)`): a C-like
-/// enum whose empty state is all zero bits, so the 3.6 KB slot lands in .bss (an `Option`
-/// would use a niche and go to .data, costing the same again in flash). In a two-point build
-/// the slot is empty and takes no memory.
+/// The table this build's estimate runs on, for the build's finger: the path fit's
+/// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
+/// build time, a constant in flash: `config::FREE_TABLE`).
 #[cfg(fw_path_fit)]
+pub type EstimatorTable = pts::pathfit::q::PathTable;
+/// The table this build's estimate runs on, for the build's finger: the path fit's
+/// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
+/// build time, a constant in flash: `config::FREE_TABLE`).
+#[cfg(not(fw_path_fit))]
+pub type EstimatorTable = &'static grasp::estimate::TwoPointTable;
+
+/// Where `init` keeps the estimator's table: a C-like enum whose empty state is all zero
+/// bits, so the slot lands in .bss (an `Option` would use a niche and go to .data, costing
+/// the same again in flash).
 #[repr(u8)]
 #[cfg_attr(not(target_os = "none"), allow(dead_code))]
 #[allow(clippy::large_enum_variant)] // a static slot: no allocator, the size is the point
 pub enum TableSlot {
-    /// No table (not built yet, or the finger is outside the kernel's formats).
+    /// No table (not built yet, or the finger is outside the table's formats).
     Empty = 0,
     /// The table.
-    Built(PathTable),
-}
-
-/// The two-point build's slot: nothing to keep.
-#[cfg(not(fw_path_fit))]
-#[cfg_attr(not(target_os = "none"), allow(dead_code))]
-pub enum TableSlot {
-    /// Always empty.
-    Empty,
+    Built(EstimatorTable),
 }
 
 #[cfg_attr(not(target_os = "none"), allow(dead_code))]
 impl TableSlot {
-    /// Keeps the table built at init (a two-point build has none).
-    pub fn fill(&mut self, table: Option<PathTable>) {
-        #[cfg(fw_path_fit)]
+    /// Keeps the table built at init.
+    pub fn fill(&mut self, table: Option<EstimatorTable>) {
         if let Some(t) = table {
             *self = TableSlot::Built(t);
         }
-        #[cfg(not(fw_path_fit))]
-        let _ = table;
     }
 
     /// The table, if built.
-    pub fn get(&self) -> Option<&PathTable> {
+    pub fn get(&self) -> Option<&EstimatorTable> {
         match self {
-            #[cfg(fw_path_fit)]
             TableSlot::Built(t) => Some(t),
             TableSlot::Empty => None,
         }
     }
 }
 
-// The slot and the estimator agree: a path-fit build has a slot for its table.
+// The table and the estimator agree.
 const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFit));
 
-/// The path fit's table for a control period `dt_s` (s), built at init when this build's
-/// estimator is the path fit (f64 arithmetic, once); `None` otherwise, or when the finger
-/// is outside the kernel's formats (the estimate then reports that error).
-pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<PathTable> {
-    match ESTIMATOR {
-        Estimator::PathFit => grasp::path_table(finger, (dt_s * 1e9) as u32).ok(),
-        Estimator::TwoPoint => None,
+/// The estimator's table for a finger and a control period `dt_s` (s): the path fit's, built
+/// at init (f64 arithmetic, once), or the build-time two-point table (the build's finger);
+/// `None` when the finger is outside the table's formats (the estimate then reports that error).
+pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<EstimatorTable> {
+    #[cfg(fw_path_fit)]
+    return grasp::path_table(finger, (dt_s * 1e9) as u32).ok();
+    #[cfg(not(fw_path_fit))]
+    {
+        let _ = (finger, dt_s);
+        crate::config::FREE_TABLE.as_ref()
     }
 }
 
-/// The estimate for a settled step with the build's estimator and the controller's finger
-/// (same numbers as `grasp::run_estimate_fw` for a request that names it): the two-point
-/// method, or the path fit on the integer kernel with the table from [`estimator_table`].
+/// The estimate task's work for a settled step: the build's estimator on the table from
+/// [`estimator_table`] (`grasp::estimate::two_point_fw` or `path_fit_fw`, the functions
+/// `cargo xtask bench` counts; same numbers as `grasp::run_estimate` for the controller's
+/// finger). `_finger` is the controller's finger, which the table was built for.
 pub fn run_estimate(
-    finger: &pts::Finger,
+    _finger: &pts::Finger,
     req: &EstimateRequest,
-    table: Option<&PathTable>,
+    table: Option<&EstimatorTable>,
 ) -> Result<EstimateResult, EstimateError> {
-    match ESTIMATOR {
-        Estimator::TwoPoint => {
-            let model = pts::Model::<grasp::EstReal>::new(finger)?;
-            grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
-        }
-        Estimator::PathFit => match table {
-            Some(t) => grasp::estimate::path_fit_q(t, req).map_err(EstimateError::PathFit),
-            None => Err(EstimateError::PathFit(PathFitError::Model(
-                pts::PtsError::OutOfRange,
-            ))),
-        },
-    }
+    let Some(t) = table else {
+        return Err(match ESTIMATOR {
+            Estimator::PathFit => EstimateError::PathFit(PathFitError::Model(PtsError::OutOfRange)),
+            Estimator::TwoPoint => EstimateError::Model(PtsError::OutOfRange),
+        });
+    };
+    #[cfg(fw_path_fit)]
+    return grasp::estimate::path_fit_fw(t, req);
+    #[cfg(not(fw_path_fit))]
+    grasp::estimate::two_point_fw(t, req)
 }
 
 /// True once the grasp has nothing left to do: estimate delivered (holding or released) or
@@ -217,6 +216,18 @@ mod tests {
         assert_eq!(status(State::Fault(grasp::FaultReason::Stall)), 2);
         assert!(finished(State::Done) && finished(State::Holding));
         assert!(!finished(State::Approach) && !finished(State::Estimating));
+    }
+
+    /// The build-time two-point table is the one the f64 model gives for the build's finger
+    /// (bit for bit) and answers like it.
+    #[test]
+    fn the_build_time_table_is_the_finger_s_table() {
+        let built = pts::table::FreeTable::<pts::fixed::Fx32>::new(&crate::config::FINGER).unwrap();
+        let fixed = crate::config::FREE_TABLE.as_ref().unwrap();
+        assert_eq!(fixed.to_raw(), built.to_raw());
+        assert_eq!(fixed.model().finger, crate::config::FINGER);
+        let th = pts::fixed::Fx32::from_bits(-(1 << 30));
+        assert_eq!(fixed.free_torque(th), built.free_torque(th));
     }
 
     /// The simulated board's controller sees the scene's nominal drive: one encoder count

@@ -20,6 +20,48 @@ pub fn is_panic(sym: &str) -> bool {
     WORDS.iter().any(|w| s.contains(w))
 }
 
+/// Whether a symbol is a soft-float routine of compiler-builtins: the ARM EABI helpers
+/// (`__aeabi_fadd`, `__aeabi_dmul`, `__aeabi_i2f`, `__aeabi_f2d`, `__aeabi_l2d`, …) and the
+/// generic names (`__addsf3`, `__muldf3`, `__floatsisf`, `__fixdfsi`, `__extendsfdf2`, …).
+pub fn is_soft_float(sym: &str) -> bool {
+    let s = sym.trim_start_matches('_');
+    if let Some(rest) = sym.strip_prefix("__aeabi_") {
+        return rest.starts_with('f')
+            || rest.starts_with('d')
+            || rest.contains("2f")
+            || rest.contains("2d");
+    }
+    s.ends_with("sf3")
+        || s.ends_with("df3")
+        || s.ends_with("sf2")
+        || s.ends_with("df2")
+        || s.starts_with("float")
+        || s.starts_with("fix")
+        || s.starts_with("extendsfdf")
+        || s.starts_with("truncdfsf")
+}
+
+/// Every function reachable from `root` through direct calls, `root` included.
+pub fn reachable(g: &BTreeMap<String, BTreeSet<String>>, root: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut stack = vec![root.to_string()];
+    while let Some(f) = stack.pop() {
+        if seen.insert(f.clone()) {
+            stack.extend(g.get(&f).into_iter().flatten().cloned());
+        }
+    }
+    seen
+}
+
+/// A legacy-mangled Rust symbol without its hash (`_ZN5grasp8estimate12two_point_fw17h…E`
+/// → `_ZN5grasp8estimate12two_point_fw`): the same function's name in two builds.
+pub fn without_hash(sym: &str) -> &str {
+    match sym.rfind("17h") {
+        Some(i) if sym.ends_with('E') && sym.len() == i + 3 + 16 + 1 => &sym[..i],
+        _ => sym,
+    }
+}
+
 /// True for a Thumb branch mnemonic that can leave the function: b, bl, blx, `b<cond>`, with
 /// an optional .w/.n width (not bfc, bfi, bic, bkpt, ...).
 pub fn is_branch(op: &str) -> bool {

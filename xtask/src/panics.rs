@@ -26,7 +26,7 @@ const BUILDS: &[(&str, &[&str], &str)] = &[
 ];
 
 /// The board's task entry points: the sampling interrupt and the three dispatchers.
-const BOARD_ROOTS: &[&str] = &["ADC", "SPI2", "SPI3", "SPI4"];
+pub const BOARD_ROOTS: &[&str] = &["ADC", "SPI2", "SPI3", "SPI4"];
 
 /// The panic paths reachable from `root`: every call from a reachable function into a panic
 /// function, each with the call chain from the root to it (shortest, breadth-first).
@@ -95,7 +95,7 @@ fn matches_edge(chain: &[String], caller: &str, callee: &str) -> bool {
 }
 
 /// Builds one firmware with `--emit=asm` (own target directory); returns the assembly path.
-fn build_asm(features: &[&str], estimator: &str) -> Res<PathBuf> {
+pub fn build_asm(features: &[&str], estimator: &str) -> Res<PathBuf> {
     // One target directory for every build: only the firmware crate differs between them.
     let target_dir = util::root().join("target").join("fw-asm");
     let mut cmd = util::cargo();

@@ -16,8 +16,10 @@
 //!   [`EstimateRequest`] for [`run_estimate`].
 //! * [`run_estimate`]: the low-priority part. It takes the [`EstimateRequest`] that `tick()`
 //!   hands out once the step has settled and runs the [`Estimator`] the configuration names
-//!   (the paper's two-point method, or `pts::pathfit` on the same samples) on
-//!   [`EstReal`] (`pts::FirmwareReal`); the result goes back through [`Controller::deliver`].
+//!   (the paper's two-point method, or `pts::pathfit` on the same samples) as the firmware does,
+//!   through [`two_point_fw`] or [`path_fit_fw`] (integers and [`EstReal`] =
+//!   `pts::FirmwareReal`, no floating point); the result goes back through
+//!   [`Controller::deliver`].
 //!
 //! The state machine, and why it looks like this. The drive's reflected rotor inertia
 //! (J·N² ≈ 0.066 kg·m² at the base link for an RE10 on 3072:1) makes the finger under pure
@@ -72,8 +74,9 @@ pub use control_loop::{
 };
 pub use controller::{Controller, Event, FaultReason, State, Supervisor, TickOutput};
 pub use estimate::{
-    path_table, run_estimate, run_estimate_fw, run_estimate_with, EstReal, EstimateError,
-    EstimateRequest, EstimateResult, Located, Quality, Sample, PATH_CAPACITY,
+    path_fit_fw, path_table, run_estimate, run_estimate_fw, run_estimate_with, two_point_fw,
+    two_point_table, EstNum, EstReal, EstimateError, EstimateRequest, EstimateResult, Located,
+    Quality, Sample, TwoPointTable, PATH_CAPACITY,
 };
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),

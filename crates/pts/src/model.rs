@@ -567,11 +567,17 @@ impl<R: Real> Model<R> {
         // κ ≤ MAX_CONDITION and, with Δθa, κ·δθ/Δθa ≤ MAX_K2_NOISE: the smaller bound,
         // min(MAX_CONDITION, C·Δθa) with C = MAX_K2_NOISE/δθ, ordered so that no product
         // underflows in Q16.16. C·Δθa is the smaller only for Δθa below MAX_CONDITION/C (C
-        // as the back end holds it: Q8.24 saturates it), which folds to a constant.
+        // as the back end holds it: Q8.24 saturates it); a constant unless C saturates (no
+        // floating point at run time).
         let q = one_s * one_s * slope;
         let c_noise = R::from_f64(MAX_K2_NOISE / THETA_A_NOISE_RAD);
+        let dth_max = if c_noise.is_saturated() {
+            R::from_f64(MAX_CONDITION) / c_noise
+        } else {
+            R::from_f64(MAX_CONDITION * THETA_A_NOISE_RAD / MAX_K2_NOISE)
+        };
         let rhs = match dtheta_a {
-            Some(dth) if dth < R::from_f64(MAX_CONDITION / c_noise.to_f64()) => c_noise * dth * q,
+            Some(dth) if dth < dth_max => c_noise * dth * q,
             _ => times_const(q, MAX_CONDITION),
         };
         if !(slope > R::zero()) || !(lhs <= rhs) || lhs.is_saturated() || rhs.is_saturated() {
@@ -675,6 +681,56 @@ impl<R: Real> Model<R> {
             contact_config: cfg,
             contact,
         })
+    }
+}
+
+/// Number of Q32.32 words in [`Model::to_raw`].
+pub const MODEL_RAW_WORDS: usize = 14;
+
+impl Model<crate::fixed::Fx32> {
+    /// The model's precomputed constants as raw Q32.32 bits (with the finger, everything
+    /// [`Model::from_raw`] needs): for generating a model at build time.
+    pub fn to_raw(&self) -> [i64; MODEL_RAW_WORDS] {
+        [
+            self.l1,
+            self.l2,
+            self.phi2_minus_pi,
+            self.theta01,
+            self.theta02,
+            self.k1,
+            self.k2,
+            self.z1,
+            self.z2,
+            self.z3,
+            self.cos_scale,
+            self.two_l2,
+            self.k1_half,
+            self.k1_quarter,
+        ]
+        .map(|v| v.to_bits())
+    }
+
+    /// The model from the finger and the words of [`Model::to_raw`] (a build-time constant:
+    /// no floating point).
+    pub const fn from_raw(finger: Finger, w: &[i64; MODEL_RAW_WORDS]) -> Self {
+        use crate::fixed::Fx32;
+        Self {
+            finger,
+            l1: Fx32::from_bits(w[0]),
+            l2: Fx32::from_bits(w[1]),
+            phi2_minus_pi: Fx32::from_bits(w[2]),
+            theta01: Fx32::from_bits(w[3]),
+            theta02: Fx32::from_bits(w[4]),
+            k1: Fx32::from_bits(w[5]),
+            k2: Fx32::from_bits(w[6]),
+            z1: Fx32::from_bits(w[7]),
+            z2: Fx32::from_bits(w[8]),
+            z3: Fx32::from_bits(w[9]),
+            cos_scale: Fx32::from_bits(w[10]),
+            two_l2: Fx32::from_bits(w[11]),
+            k1_half: Fx32::from_bits(w[12]),
+            k1_quarter: Fx32::from_bits(w[13]),
+        }
     }
 }
 

@@ -274,8 +274,9 @@ pub struct PathTable {
     inv_l1: i32,
     /// The sample pass, in the controller's units.
     samples: SampleConsts,
-    /// The controller's tick period the table was built for (s).
+    /// The controller's tick period the table was built for (s), and in ns (rounded).
     tick_s: f64,
+    tick_ns: u32,
 }
 
 /// [`PathFitConfig`]'s sample-pass settings in integers (µrad, µN·m, ticks).
@@ -424,6 +425,7 @@ impl PathTable {
             inv_l1: to_q(1.0 / f.l1, QT).ok_or(oor)?,
             samples,
             tick_s,
+            tick_ns: libm::round(tick_s * 1e9) as u32,
         })
     }
 
@@ -435,6 +437,11 @@ impl PathTable {
     /// The controller tick period (s) the sample times are in.
     pub fn tick_s(&self) -> f64 {
         self.tick_s
+    }
+
+    /// The controller tick period (ns, rounded), for checking a request without floats.
+    pub fn tick_ns(&self) -> u32 {
+        self.tick_ns
     }
 
     /// T_a (N·m) of the free-motion equilibrium at θa (rad, the finger's frame): the

@@ -14,7 +14,8 @@
 //! (θa ≈ −1.40 … 1.98 rad for the paper's finger); outside it the lookup falls back to the
 //! model's Newton solve, so the answers are the same function of the inputs everywhere.
 
-use crate::model::{Config, Estimate, Model};
+use crate::fixed::Fx32;
+use crate::model::{Config, Estimate, Model, MODEL_RAW_WORDS};
 use crate::real::Real;
 use crate::{Finger, PtsError};
 
@@ -26,7 +27,7 @@ pub const TABLE_TA_MIN_NM: f64 = -0.3;
 pub const TABLE_TA_MAX_NM: f64 = 1.6;
 /// Fields per knot: θ2, θ1, x2, dx2/dθ2, cos θ2 and c = l1 cos θ2/(2 l2) (the scaled cosine
 /// the inversion takes, so the estimate needs no multiply for it).
-const FIELDS: usize = 6;
+pub const FIELDS: usize = 6;
 
 /// A back end the table can index: splits a non-negative grid coordinate into the
 /// interval number and the fraction within it.
@@ -112,6 +113,7 @@ impl TableReal for crate::fixed::Fx32 {
     }
 }
 
+#[cfg(feature = "bench-variants")]
 impl TableReal for crate::fixed::Fx16 {
     fn split_index(self) -> Option<(usize, Self)> {
         let b = self.to_bits();
@@ -122,6 +124,7 @@ impl TableReal for crate::fixed::Fx16 {
     }
 }
 
+#[cfg(feature = "bench-variants")]
 impl TableReal for crate::fixed::Fx24 {
     fn split_index(self) -> Option<(usize, Self)> {
         let b = self.to_bits();
@@ -278,14 +281,65 @@ impl<R: TableReal> FreeTable<R> {
         Ok((cfg, self.field(s, 4, u)))
     }
 
+    /// The free-motion torque T_a = K1(θ1 − θ01) (N·m) at θa (rad): one cubic inside the
+    /// table, the model's Newton solve outside it.
+    pub fn free_torque(&self, theta_a: R) -> Result<R, PtsError> {
+        match self.free_torque_in_table(theta_a) {
+            Err(PtsError::OutOfRange) => Ok(self.model.free_from_theta_a(theta_a)?.ta),
+            r => r,
+        }
+    }
+
+    /// [`FreeTable::free_torque`] inside the table only: [`PtsError::OutOfRange`] outside it
+    /// (a caller that needs no Newton solve links none).
+    pub fn free_torque_in_table(&self, theta_a: R) -> Result<R, PtsError> {
+        if !theta_a.is_finite() || theta_a.is_saturated() {
+            return Err(PtsError::NonFinite);
+        }
+        let (s, u) = self.locate(theta_a).ok_or(PtsError::OutOfRange)?;
+        let ta = self.k1 * (self.field(s, 1, u) - self.theta01);
+        if ta.is_saturated() {
+            return Err(PtsError::Overflow);
+        }
+        Ok(ta)
+    }
+
     /// The paper's two-point estimate ([`Model::estimate_two_point`]) with the contact
-    /// configuration from the table.
+    /// configuration from the table (the model's Newton solve outside it).
     pub fn estimate_two_point(
         &self,
         theta_a_c: R,
         ta_c: R,
         theta_a: R,
         ta: R,
+    ) -> Result<Estimate<R>, PtsError> {
+        self.estimate_with(theta_a_c, ta_c, theta_a, ta, |t| {
+            let (cfg, cos2) = self.free_from_theta_a(t)?;
+            Ok((cfg, self.model.scaled_cos(cos2)?))
+        })
+    }
+
+    /// [`FreeTable::estimate_two_point`] with θa,c inside the table only:
+    /// [`PtsError::OutOfRange`] outside it (a caller that needs no Newton solve links none).
+    pub fn estimate_two_point_in_table(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+    ) -> Result<Estimate<R>, PtsError> {
+        self.estimate_with(theta_a_c, ta_c, theta_a, ta, |_| Err(PtsError::OutOfRange))
+    }
+
+    /// The estimate with the table's contact configuration, `outside` where θa,c is not in it.
+    #[inline(always)]
+    fn estimate_with(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+        outside: impl FnOnce(R) -> Result<(Config<R>, R), PtsError>,
     ) -> Result<Estimate<R>, PtsError> {
         self.model
             .estimate_scaled(theta_a_c, ta_c, theta_a, ta, |t| {
@@ -303,11 +357,101 @@ impl<R: TableReal> FreeTable<R> {
                         },
                         self.field(s, 5, u),
                     )),
-                    None => {
-                        let (cfg, cos2) = self.free_from_theta_a(t)?;
-                        Ok((cfg, self.model.scaled_cos(cos2)?))
-                    }
+                    None => outside(t),
                 }
             })
+    }
+}
+
+/// A Q32.32 table as raw bits ([`FreeTable::to_raw`], [`FreeTable::from_raw`]): what a build
+/// script writes out so that the firmware holds the table as a constant in flash.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FreeTableRaw {
+    /// The finger.
+    pub finger: Finger,
+    /// The model's constants ([`Model::to_raw`]).
+    pub model: [i64; MODEL_RAW_WORDS],
+    /// θa at the first knot, 1/h, K1 and θ01.
+    pub scalars: [i64; 4],
+    /// Every cubic qualifies for [`TableReal::cubic_small`].
+    pub small: bool,
+    /// Per interval and field, the cubic's coefficients.
+    pub seg: [[[i64; 4]; FIELDS]; TABLE_INTERVALS],
+}
+
+impl FreeTable<Fx32> {
+    /// The table as raw bits.
+    pub fn to_raw(&self) -> FreeTableRaw {
+        FreeTableRaw {
+            finger: self.model.finger,
+            model: self.model.to_raw(),
+            scalars: [self.theta_a0, self.inv_h, self.k1, self.theta01].map(|v| v.to_bits()),
+            small: self.small,
+            seg: self.seg.map(|s| s.c.map(|f| f.map(|v| v.to_bits()))),
+        }
+    }
+
+    /// The table from [`FreeTable::to_raw`]'s bits: a constant expression (no floating
+    /// point), so a build-time table lives in flash.
+    pub const fn from_raw(raw: &FreeTableRaw) -> Self {
+        let zero = Fx32::from_bits(0);
+        let mut seg = [Segment {
+            c: [[zero; 4]; FIELDS],
+        }; TABLE_INTERVALS];
+        let mut i = 0;
+        while i < TABLE_INTERVALS {
+            let mut f = 0;
+            while f < FIELDS {
+                let mut k = 0;
+                while k < 4 {
+                    seg[i].c[f][k] = Fx32::from_bits(raw.seg[i][f][k]);
+                    k += 1;
+                }
+                f += 1;
+            }
+            i += 1;
+        }
+        Self {
+            model: Model::from_raw(raw.finger, &raw.model),
+            theta_a0: Fx32::from_bits(raw.scalars[0]),
+            inv_h: Fx32::from_bits(raw.scalars[1]),
+            k1: Fx32::from_bits(raw.scalars[2]),
+            theta01: Fx32::from_bits(raw.scalars[3]),
+            small: raw.small,
+            seg,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A table rebuilt from its raw bits is the same table: same bits, same answers, and the
+    /// answers those of the f64 model.
+    #[test]
+    fn raw_round_trip_keeps_the_table() {
+        let t = FreeTable::<Fx32>::new(&Finger::PAPER).unwrap();
+        let raw = t.to_raw();
+        let back = FreeTable::from_raw(&raw);
+        assert_eq!(back.to_raw(), raw);
+        let m64 = Model::<f64>::new(&Finger::PAPER).unwrap();
+        for i in 0..20 {
+            let th = -1.2 + 0.15 * f64::from(i);
+            let x = Fx32::from_f64(th);
+            assert_eq!(back.free_torque(x), t.free_torque(x));
+            let want = m64.free_from_theta_a(th).unwrap().ta;
+            let got = back.free_torque(x).unwrap().to_f64();
+            assert!((got - want).abs() < 1e-5, "θa {th}: {got} vs {want}");
+            let e = |tb: &FreeTable<Fx32>| {
+                tb.estimate_two_point(
+                    x,
+                    Fx32::from_f64(0.4),
+                    x + Fx32::from_f64(0.08),
+                    Fx32::from_f64(1.2),
+                )
+            };
+            assert_eq!(e(&back), e(&t));
+        }
     }
 }

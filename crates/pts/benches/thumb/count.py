@@ -114,7 +114,17 @@ class Target:
         self.count = 0
         self.exclude_until = None
         self.counting = False
+        # Counting one function only: its entry address, and the return address once inside.
+        self.fn_entry = None
+        self.fn_ret = None
         self.uc.hook_add(UC_HOOK_BLOCK, self._block)
+
+    def function(self, part):
+        """The one function symbol whose name contains `part` (its address)."""
+        hits = [(n, a) for n, (a, size) in self.elf.symbols.items() if part in n and size]
+        if len(hits) != 1:
+            raise SystemExit(f"{len(hits)} function symbols contain {part!r}: {[h[0] for h in hits]}")
+        return hits[0]
 
     def _insns(self, addr, size):
         key = (addr, size)
@@ -131,6 +141,18 @@ class Target:
 
     def _block(self, uc, addr, size, _user):
         if not self.counting:
+            return
+        if self.fn_entry is not None:
+            # Only the instructions of one call of the function (callees included).
+            if self.fn_ret is None:
+                if addr != self.fn_entry:
+                    return
+                self.fn_ret = uc.reg_read(A.UC_ARM_REG_LR) & ~1
+            elif addr == self.fn_ret:
+                self.fn_entry = None
+                self.counting = False
+                return
+            self.count += self._insns(addr, size)
             return
         if self.exclude_until is not None:
             if addr != self.exclude_until:
@@ -163,6 +185,16 @@ class Target:
             self.uc.mem_write(INP, b"".join(enc(v, kind) for v in values))
         code, n = self.call(self.run_fn, (op, INP, OUT), count)
         return code, n, bytes(self.uc.mem_read(OUT, 16))
+
+    def run_function(self, op, entry):
+        """Runs `op` and counts only the instructions of the call of the function at
+        `entry` it makes (0 when it made none)."""
+        self.uc.mem_write(OUT, b"\0" * 32)
+        self.fn_entry, self.fn_ret = entry, None
+        code, _ = self.call(self.run_fn, (op, INP, OUT), count=True)
+        entered = self.fn_ret is not None
+        self.fn_entry, self.fn_ret = None, None
+        return code, (self.count if entered else 0), bytes(self.uc.mem_read(OUT, 32))
 
 
 def linspace(a, b, n):
@@ -250,6 +282,76 @@ def measure(elf, m4, quick):
     return res
 
 
+# The firmware's estimate entries (grasp::estimate), counted on the request cases: (label,
+# op, symbol part, budget, guard in instructions, host result key in the case file). A count
+# above the budget but within the guard is printed as NOT MET; above the guard it fails. The
+# path fit's guard sits above its measured worst case (a proximal contact, where the fit runs
+# to its evaluation budget before refusing the distal reading).
+ENTRIES = [
+    ("two-point estimate task (grasp::estimate::two_point_fw)", 51, "5grasp8estimate12two_point_fw", 5_000,
+     5_000, "host_two_point"),
+    ("path-fit estimate task (grasp::estimate::path_fit_fw)", 52, "5grasp8estimate11path_fit_fw", 100_000,
+     130_000, "host_path_fit"),
+]
+
+
+def load_case(path):
+    """A request case (tests/estimate_cases.rs writes them): the input words for op 50 and
+    the host's results by key."""
+    params, fixed, pre, path_s, host = None, {}, [], [], {}
+    with open(path) as f:
+        for line in f:
+            w = line.split()
+            if not w or w[0].startswith("#"):
+                continue
+            if w[0] == "params":
+                params = [int(x) for x in w[1:6]]
+            elif w[0] in ("contact", "seat", "seat2", "end"):
+                fixed[w[0]] = [int(x) for x in w[1:5]]
+            elif w[0] == "pre":
+                pre.append([int(x) for x in w[1:5]])
+            elif w[0] == "path":
+                path_s.append([int(x) for x in w[1:5]])
+            else:
+                host[w[0]] = w[1:]
+    words = params + [len(pre), len(path_s)]
+    for k in ("contact", "seat", "seat2", "end"):
+        words += fixed[k]
+    for smp in pre + path_s:
+        words += smp
+    return struct.pack(f"<{len(words)}i", *words), host
+
+
+def decode_result(code, out):
+    if code == 0:
+        v = struct.unpack("<5i", out[:20])
+        return ["ok"] + [str(x) for x in v]
+    return ["err", out.split(b"\0")[0].decode("latin-1")]
+
+
+def measure_requests(elf, cases):
+    """Counts the firmware's estimate entries on thumbv7em on each request case and
+    compares each result with the host's (the same function on the host: bit for bit)."""
+    t = Target(elf, True)
+    code, _ = t.call(t.init)
+    if code != 0:
+        raise SystemExit(f"bench_init failed with code {code}")
+    rows = []
+    for label, op, part, budget, guard, key in ENTRIES:
+        name, entry = t.function(part)
+        for c in cases:
+            words, host = load_case(c)
+            t.uc.mem_write(INP, words)
+            lc, _, _ = t.run(50)
+            if lc != 0:
+                raise SystemExit(f"{c}: the harness refused the request (code {lc})")
+            rc, n, out = t.run_function(op, entry)
+            got = decode_result(rc, out)
+            rows.append({"entry": label, "symbol": name, "case": os.path.basename(c), "instructions": n,
+                         "budget": budget, "guard": guard, "target": got, "host": host.get(key)})
+    return rows
+
+
 def criterion_median_ns(crit_dir, name):
     p = os.path.join(crit_dir, "estimate", name.replace("+", "_"), "new", "estimates.json")
     try:
@@ -270,14 +372,26 @@ def main():
     ap.add_argument("--firmware-v6m", default="table+Fx32",
                     help="the firmware's variant on thumbv6m-none-eabi (table + FirmwareReal = Fx32)")
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--requests", nargs="*", default=[], help="request cases (*.req) for the estimate entries")
     ap.add_argument("--json", help="write the raw results here")
     a = ap.parse_args()
 
     r7 = measure(a.v7em, True, a.quick)
     r6 = measure(a.v6m, False, a.quick)
+    req_rows = measure_requests(a.v7em, a.requests) if a.requests else []
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"thumbv7em": r7, "thumbv6m": r6}, f, indent=1)
+            json.dump({"thumbv7em": r7, "thumbv6m": r6, "estimate_entries": req_rows}, f, indent=1)
+    if req_rows:
+        print("The firmware's estimate entries on thumbv7em-none-eabihf (the functions the estimate task")
+        print("calls, counted from entry to return on the committed request cases):\n")
+        print("| entry | case | instructions | budget | target result | = host |")
+        print("|---|---|---|---|---|---|")
+        for r in req_rows:
+            same = r["target"] == r["host"]
+            print(f"| {r['entry']} | {r['case']} | {r['instructions']:,} | {r['budget']:,} "
+                  f"| {' '.join(r['target'])} | {'yes' if same else 'NO: host ' + ' '.join(r['host'] or ['missing'])} |")
+        print()
 
     print("Instructions per call, counted in the compiled target code under unicorn (block hook,")
     print("dispatch overhead subtracted); error against the f64 variant over "
@@ -311,12 +425,15 @@ def main():
         fw7, fw6 = r7["variants"][a.firmware_v7em], r6["variants"][a.firmware_v6m]
         # Issue 6's budgets: (name, measured, budget, guard); CI fails above the guard. The
         # estimate budgets are met and are hard gates (guard = budget); a budget not met yet
-        # would be printed as such and guarded against regression at the measured value
-        # (+10 %). Accuracy and classification are hard gates.
+        # is printed as such and guarded against regression near the measured value.
+        # Accuracy and classification are hard gates.
         budgets = [
             ("estimate on thumbv7em", fw7["estimate_max"], 2000, 2000),
             ("estimate on thumbv6m", fw6["estimate_max"], 8000, 8000),
-            ("ControlLoop::tick (sampling task) max on thumbv7em", r7["tick"]["max"], 400, 400),
+            # Built with the firmware's profile (opt-level "s"), the loop's worst tick (a
+            # sample-ready tick early in the approach) is above the budget: guarded at its
+            # measured count until the loop is made cheaper.
+            ("ControlLoop::tick (sampling task) max on thumbv7em", r7["tick"]["max"], 400, 425),
         ]
         fails = []
         print()
@@ -328,6 +445,23 @@ def main():
                 print(f"budget NOT MET: {name} {got:,} > {budget:,} (issue 6; {gate} {guard:,})")
                 if got > guard:
                     fails.append(f"{name} {got:,} > {gate} {guard:,}")
+        for r in req_rows:
+            if r["instructions"] == 0:
+                fails.append(f"{r['entry']} on {r['case']}: the function was not called")
+            elif r["instructions"] > r["guard"]:
+                fails.append(f"{r['entry']} on {r['case']}: {r['instructions']:,} > guard {r['guard']:,}")
+            elif r["instructions"] > r["budget"]:
+                print(f"budget NOT MET: {r['entry']} on {r['case']}: {r['instructions']:,} > {r['budget']:,} "
+                      f"(regression guard {r['guard']:,})")
+            if r["target"] != r["host"]:
+                fails.append(f"{r['entry']} on {r['case']}: target {r['target']} != host {r['host']}")
+        if not req_rows:
+            fails.append("no request cases: the estimate entries were not measured")
+        for label, _op, _part, budget, _guard, _key in ENTRIES:
+            counts = [r["instructions"] for r in req_rows if r["entry"] == label]
+            if counts:
+                print(f"estimate entry: {label} max {max(counts):,} instructions over {len(counts)} "
+                      f"requests (budget {budget:,})")
         if not fw7["k2_max"] <= 1e-4:
             fails.append(f"{a.firmware_v7em} k2 error {fw7['k2_max']:.2e}·l2 > 1e-4·l2")
         if not r7["variants"][a.firmware_v6m]["k2_max"] <= 1e-4:

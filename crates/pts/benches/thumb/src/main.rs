@@ -9,7 +9,11 @@
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of_mut, read_volatile, write_volatile};
 
-use grasp::{ControlLoop, Controller, ControllerConfig, Hardware, Link, Supervisor};
+use grasp::{
+    ControlLoop, Controller, ControllerConfig, EstimateRequest, EstimateResult, Estimator,
+    Hardware, Link, Located, Sample, Supervisor, TwoPointTable,
+};
+use pts::pathfit::q::PathTable;
 use pts::fixed::{Fx16, Fx24, Fx32};
 use pts::table::FreeTable;
 use pts::{Estimate, Finger, Model, Phalanx, PtsError, Real};
@@ -165,6 +169,11 @@ struct State {
     tx16: FreeTable<Fx16>,
     ctl: Parts,
     mock: Mock,
+    /// The firmware's estimate tables for the paper's finger (grasp's constructors, as the
+    /// firmware's init calls them) and the request the estimate ops run on.
+    fw_tp: TwoPointTable,
+    fw_pt: PathTable,
+    req: EstimateRequest,
 }
 
 /// The controller split as the firmware runs it: the loop (sampling task) and the
@@ -209,7 +218,104 @@ fn build() -> Result<State, PtsError> {
         tx16: FreeTable::new(&f)?,
         ctl,
         mock,
+        fw_tp: grasp::two_point_table(&f)?,
+        fw_pt: grasp::path_table(&f, 100_000)?,
+        req: EstimateRequest {
+            contact: Sample::ZERO,
+            seat: Sample::ZERO,
+            seat2: Sample::ZERO,
+            end: Sample::ZERO,
+            pre: Default::default(),
+            path: Default::default(),
+            sample_ticks: 0,
+            path_stride: 0,
+            delta_ta_cmd_unm: 0,
+            detect_k_unm_per_rad: 0,
+            estimator: Estimator::TwoPoint,
+            dt_ns: 0,
+        },
     })
+}
+
+/// Word `i` of the input area (i32).
+#[inline(always)]
+fn word(inp: *const u64, i: usize) -> i32 {
+    unsafe { read_volatile((inp as *const i32).wrapping_add(i)) }
+}
+
+/// Loads a request from the input area (count.py's layout): sample_ticks, path_stride,
+/// ΔT_a cmd, detection K, dt_ns, #pre, #path, then contact, seat, seat2, end and the pre and
+/// path samples, four words each (tick, θa µrad, T_a µN·m, T_ref µN·m). 0 on success.
+fn load_request(s: &mut State, inp: *const u64) -> i32 {
+    let sample = |i: usize| Sample {
+        tick: word(inp, i) as u32,
+        theta_a_urad: word(inp, i + 1),
+        torque_unm: word(inp, i + 2),
+        torque_ref_unm: word(inp, i + 3),
+    };
+    let r = &mut s.req;
+    r.sample_ticks = word(inp, 0) as u32;
+    r.path_stride = word(inp, 1) as u32;
+    r.delta_ta_cmd_unm = word(inp, 2);
+    r.detect_k_unm_per_rad = word(inp, 3);
+    r.dt_ns = word(inp, 4) as u32;
+    let (n_pre, n_path) = (word(inp, 5) as usize, word(inp, 6) as usize);
+    r.contact = sample(7);
+    r.seat = sample(11);
+    r.seat2 = sample(15);
+    r.end = sample(19);
+    r.pre.clear();
+    r.path.clear();
+    for k in 0..n_pre {
+        if r.pre.push(sample(23 + 4 * k)).is_err() {
+            return 1;
+        }
+    }
+    for k in 0..n_path {
+        if r.path.push(sample(23 + 4 * (n_pre + k))).is_err() {
+            return 2;
+        }
+    }
+    if s.fw_pt.tick_ns() != r.dt_ns {
+        match grasp::path_table(&Finger::PAPER, r.dt_ns) {
+            Ok(t) => s.fw_pt = t,
+            Err(_) => return 3,
+        }
+    }
+    0
+}
+
+/// Writes an estimate's figures to `out` (i32 words: located, k2 µm or i32::MIN, K̂c,
+/// θa,c, T_a,c; on error the kind's name as bytes); 0 for a result, 1 for an error.
+#[inline(never)]
+fn put_result(r: &Result<EstimateResult, grasp::EstimateError>, out: *mut u64) -> i32 {
+    let o = out as *mut i32;
+    match r {
+        Ok(r) => {
+            let located = match r.located {
+                Located::Proximal => 0,
+                Located::Distal => 1,
+                Located::ProximalOrNearO2 => 2,
+            };
+            let v = [
+                located,
+                r.k2_um.unwrap_or(i32::MIN),
+                r.kc_hat_unm_per_rad,
+                r.theta_a_c_urad,
+                r.ta_c_unm,
+            ];
+            for (i, x) in v.into_iter().enumerate() {
+                unsafe { write_volatile(o.wrapping_add(i), x) };
+            }
+            0
+        }
+        Err(e) => {
+            for (i, b) in e.kind().bytes().take(31).chain([0]).enumerate() {
+                unsafe { write_volatile((out as *mut u8).wrapping_add(i), b) };
+            }
+            1
+        }
+    }
 }
 
 /// Controller state as a small integer for count.py.
@@ -290,7 +396,8 @@ fn free<R: Slot>(r: Result<pts::Config<R>, PtsError>, out: *mut u64) -> i32 {
     }
 }
 
-/// One operation: ids 1‥8 full estimate, 11‥18 free-motion configuration from θa
+/// One operation: 50 loads an estimate request, 51/52 run the firmware's two-point /
+/// path-fit estimate entry on it; ids 1‥8 full estimate, 11‥18 free-motion configuration from θa
 /// (f64, f32, Fx32, Fx16, then the table variants in the same order), 9/10 and 19/20
 /// the same for Fx24 and table+Fx24, 30 the f64
 /// measurement generator, 40 one control-loop tick, 44 the supervisor on what it handed
@@ -381,9 +488,23 @@ pub extern "C" fn bench_run(id: u32, inp: *const u64, out: *mut u64) -> i32 {
             }
             0
         }
+        50 => load_request(s, inp),
+        51 => {
+            // The firmware's two-point estimate task: request → result (src/ctl.rs calls
+            // this very function). count.py counts only the instructions inside it.
+            s.req.estimator = Estimator::TwoPoint;
+            let r = grasp::two_point_fw(&s.fw_tp, &s.req);
+            put_result(&r, out)
+        }
+        52 => {
+            // The firmware's path-fit estimate task, likewise.
+            s.req.estimator = Estimator::PathFit;
+            let r = grasp::path_fit_fw(&s.fw_pt, &s.req);
+            put_result(&r, out)
+        }
         41 => match s.ctl.sup.take_request() {
             Some(req) => {
-                let r = grasp::run_estimate(&pts::Finger::PAPER, &req);
+                let r = grasp::two_point_fw(&s.fw_tp, &req);
                 s.ctl.sup.deliver(r);
                 s.ctl.sup.publish(&mut s.ctl.link);
                 1
