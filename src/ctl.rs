@@ -79,6 +79,7 @@ impl TableSlot {
 // The slot and the estimator agree: a path-fit build has a slot for its table.
 const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFit));
 
+#[cfg_attr(not(target_os = "none"), allow(dead_code))] // the host runner names its estimator
 /// The path fit's table for a control period `dt_s` (s), built at init when this build's
 /// estimator is the path fit (f64 arithmetic, once); `None` otherwise, or when the finger
 /// is outside the kernel's formats (the estimate then reports that error).
@@ -89,6 +90,7 @@ pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<PathTable> {
     }
 }
 
+#[cfg_attr(not(target_os = "none"), allow(dead_code))] // the host runner names its estimator
 /// The estimate for a settled step with the build's estimator and the controller's finger
 /// (same numbers as `grasp::run_estimate_fw` for a request that names it): the two-point
 /// method, or the path fit on the integer kernel with the table from [`estimator_table`].
@@ -109,6 +111,77 @@ pub fn run_estimate(
             ))),
         },
     }
+}
+
+#[cfg_attr(not(target_os = "none"), allow(dead_code))] // the host runner names its estimator
+/// The estimators this build can run at run time: the two-point method always, the path fit
+/// when its table is built in (`FINGER_FW_ESTIMATOR=path-fit`).
+pub const AVAILABLE: &[Estimator] = match ESTIMATOR {
+    Estimator::PathFit => &[Estimator::TwoPoint, Estimator::PathFit],
+    Estimator::TwoPoint => &[Estimator::TwoPoint],
+};
+
+/// The estimate with the estimator the request names (device mode: chosen per grasp); the
+/// path fit needs the table of [`estimator_table`].
+pub fn run_estimate_as(
+    finger: &pts::Finger,
+    req: &EstimateRequest,
+    table: Option<&PathTable>,
+) -> Result<EstimateResult, EstimateError> {
+    match req.estimator {
+        Estimator::TwoPoint => {
+            let model = pts::Model::<grasp::EstReal>::new(finger)?;
+            grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
+        }
+        Estimator::PathFit => match table {
+            Some(t) => grasp::estimate::path_fit_q(t, req).map_err(EstimateError::PathFit),
+            None => Err(EstimateError::PathFit(PathFitError::Model(
+                pts::PtsError::OutOfRange,
+            ))),
+        },
+    }
+}
+
+/// The protocol's view of an estimator.
+pub fn proto_estimator(e: Estimator) -> proto::Estimator {
+    match e {
+        Estimator::TwoPoint => proto::Estimator::TwoPoint,
+        Estimator::PathFit => proto::Estimator::PathFit,
+    }
+}
+
+/// The build's settings: what a power-up grasp uses and what device mode starts from.
+pub fn default_settings() -> proto::Settings {
+    let c = ControllerConfig::DEFAULT;
+    proto::Settings {
+        layout: proto::Settings::LAYOUT,
+        delta_ta_nm: DELTA_TA_NM,
+        step_shape: match c.step_shape {
+            grasp::StepShape::Step => proto::StepShape::Step,
+            grasp::StepShape::Ramp(r) => proto::StepShape::RampNmPerS(r),
+        },
+        estimator: proto_estimator(ESTIMATOR),
+        approach_speed_rad_s: c.approach_speed_max_rad_s,
+        approach_max_nm: c.approach_max_nm,
+        telemetry_hz: 50,
+    }
+}
+
+/// The controller configuration for a drive and the host's settings (device mode, and the
+/// host runner's reference of it).
+pub fn config_with(drive: DriveConfig, s: &proto::Settings) -> ControllerConfig {
+    let mut c = config(drive).with_delta_ta(s.delta_ta_nm);
+    c.estimator = match s.estimator {
+        proto::Estimator::TwoPoint => Estimator::TwoPoint,
+        proto::Estimator::PathFit => Estimator::PathFit,
+    };
+    c.step_shape = match s.step_shape {
+        proto::StepShape::Step => grasp::StepShape::Step,
+        proto::StepShape::RampNmPerS(r) => grasp::StepShape::Ramp(r),
+    };
+    c.approach_speed_max_rad_s = s.approach_speed_rad_s;
+    c.approach_max_nm = s.approach_max_nm;
+    c
 }
 
 /// True once the grasp has nothing left to do: estimate delivered (holding or released) or
@@ -217,6 +290,21 @@ mod tests {
         assert_eq!(status(State::Fault(grasp::FaultReason::Stall)), 2);
         assert!(finished(State::Done) && finished(State::Holding));
         assert!(!finished(State::Approach) && !finished(State::Estimating));
+    }
+
+    /// Device mode starts from the build's settings: the controller it configures from them is
+    /// the power-up grasp's.
+    #[test]
+    fn default_settings_configure_the_power_up_grasp() {
+        let d = scene_drive(&plant::scenes::table2());
+        assert_eq!(config_with(d, &default_settings()), config(d));
+        assert!(default_settings().validate().is_ok());
+        let mut s = default_settings();
+        s.delta_ta_nm = 0.5;
+        s.estimator = proto::Estimator::PathFit;
+        let c = config_with(d, &s);
+        assert_eq!(c.delta_ta_nm, 0.5);
+        assert_eq!(c.estimator, Estimator::PathFit);
     }
 
     /// The simulated board's controller sees the scene's nominal drive: one encoder count
