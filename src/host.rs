@@ -83,7 +83,9 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
     let decimation = ctl::decimation(&cfg.drive);
     let table = match cfg.estimator {
-        grasp::Estimator::PathFit => grasp::path_table(&cfg.finger, (cfg.drive.dt_s * 1e9) as u32).ok(),
+        grasp::Estimator::PathFit => {
+            grasp::path_table(&cfg.finger, (cfg.drive.dt_s * 1e9) as u32).ok()
+        }
         grasp::Estimator::TwoPoint => None,
     };
     let mut ctrl = Controller::new(cfg).map_err(|e| format!("config: {e:?}"))?;

@@ -422,6 +422,8 @@ pub enum Error {
         /// The device's.
         device: u8,
     },
+    /// The controller refused the configuration these settings give (the grasp did not start).
+    ConfigRejected,
     /// This build does not do that (yet).
     NotSupported {
         /// What.
@@ -482,8 +484,11 @@ pub enum EventKind {
     Releasing,
     /// Back at rest, bridge off, idle.
     Idle,
-    /// Torque off on a stop command.
-    Stopped,
+    /// Torque off on a stop command (the event's tick is when the bridge went off).
+    Stopped {
+        /// Tick at which the stop command was decoded.
+        requested_tick: u32,
+    },
     /// Safe state after a fault.
     Fault(Fault),
 }

@@ -120,6 +120,7 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
         }),
         Err(Error::FaultLatched { fault }),
         Err(Error::VersionMismatch { host: 9, device: 1 }),
+        Err(Error::ConfigRejected),
         Err(Error::NotSupported {
             what: Unsupported::Calibrate,
         }),
@@ -174,7 +175,7 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
         EventKind::Holding,
         EventKind::Releasing,
         EventKind::Idle,
-        EventKind::Stopped,
+        EventKind::Stopped { requested_tick: 41 },
         EventKind::Fault(fault),
     ];
     v.extend(

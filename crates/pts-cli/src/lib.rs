@@ -13,6 +13,7 @@ macro_rules! outln {
     }};
 }
 
+pub mod board;
 pub mod estimate_cmd;
 pub mod eval;
 pub mod method;
