@@ -329,7 +329,7 @@ mod app {
                 (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
                 let off_tick = tm::TICKS.load(Ordering::Relaxed);
                 defmt::info!(
-                    "STOP requested at tick {=u32}, bridge off at tick {=u32}",
+                    "STOP requested_tick={=u32} off_tick={=u32}",
                     rx_tick,
                     off_tick
                 );

@@ -113,6 +113,7 @@ pub fn run_estimate(
     }
 }
 
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 #[cfg_attr(not(target_os = "none"), allow(dead_code))] // the host runner names its estimator
 /// The estimators this build can run at run time: the two-point method always, the path fit
 /// when its table is built in (`FINGER_FW_ESTIMATOR=path-fit`).
@@ -121,6 +122,7 @@ pub const AVAILABLE: &[Estimator] = match ESTIMATOR {
     Estimator::TwoPoint => &[Estimator::TwoPoint],
 };
 
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 /// The estimate with the estimator the request names (device mode: chosen per grasp); the
 /// path fit needs the table of [`estimator_table`].
 pub fn run_estimate_as(
@@ -142,6 +144,7 @@ pub fn run_estimate_as(
     }
 }
 
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 /// The protocol's view of an estimator.
 pub fn proto_estimator(e: Estimator) -> proto::Estimator {
     match e {
@@ -150,6 +153,7 @@ pub fn proto_estimator(e: Estimator) -> proto::Estimator {
     }
 }
 
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 /// The build's settings: what a power-up grasp uses and what device mode starts from.
 pub fn default_settings() -> proto::Settings {
     let c = ControllerConfig::DEFAULT;
@@ -167,6 +171,7 @@ pub fn default_settings() -> proto::Settings {
     }
 }
 
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 /// The controller configuration for a drive and the host's settings (device mode, and the
 /// host runner's reference of it).
 pub fn config_with(drive: DriveConfig, s: &proto::Settings) -> ControllerConfig {

@@ -95,6 +95,7 @@ pub enum Msg {
     /// The run is over.
     Done(Done),
     /// Device mode: the host went silent during a grasp; the bridge is off.
+    #[cfg_attr(not(feature = "device"), allow(dead_code))]
     HostLost {
         /// Tick of the halt.
         tick: u32,

@@ -592,6 +592,10 @@ pub fn main(args: &[String]) -> Res<i32> {
         "QEMU: reset mid-grasp with a latched fault -> waits, exit 5",
         latch_check,
     );
+    st.run(
+        "QEMU device mode over pts board: typed errors, stop, disconnect, three grasps = host within 1e-4·l2",
+        crate::device::check,
+    );
 
     eprintln!(
         "\n==== summary ({:.0} s) ====",

@@ -14,6 +14,7 @@ mod bench;
 mod callgraph;
 mod ci;
 mod demo;
+mod device;
 mod fuzz;
 mod log;
 mod panics;
