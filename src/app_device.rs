@@ -234,21 +234,17 @@ mod app {
                     torque_ref_unm,
                     duty,
                     state,
-                } => d.sample(
+                } => d.sample(proto::Sample {
                     tick,
-                    proto::Sample {
-                        tick,
-                        theta_a_urad,
-                        torque_unm,
-                        torque_ref_unm,
-                        duty,
-                        state: device::state(state),
-                    },
-                ),
+                    theta_a_urad,
+                    torque_unm,
+                    torque_ref_unm,
+                    duty,
+                    state: device::state(state),
+                }),
                 Msg::Event(ev) => d.event(&ev),
                 Msg::HostLost { tick, silent_ticks } => {
                     let f = device::host_lost(silent_ticks);
-                    d.rest = Some(DeviceState::Fault(f));
                     d.send(&DeviceMsg::Event(Event {
                         tick,
                         kind: EventKind::Fault(f),
@@ -294,13 +290,7 @@ mod app {
     /// The state the host sees: the controller's during a grasp, the device's otherwise.
     fn current(sh: &mut uart_rx::SharedResources<'_>) -> DeviceState {
         let s = sh.link.lock(|l| l.state);
-        sh.dev.lock(|d| {
-            if ACTIVE.load(Ordering::Relaxed) && d.rest.is_none() {
-                device::state(s)
-            } else {
-                d.device_state()
-            }
-        })
+        sh.dev.lock(|d| d.device_state(s))
     }
 
     fn command(sh: &mut uart_rx::SharedResources<'_>, cmd: Command) -> Result<Reply, Error> {
@@ -327,6 +317,8 @@ mod app {
                 HALT.store(true, Ordering::SeqCst);
                 ACTIVE.store(false, Ordering::SeqCst);
                 (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
+                // Acknowledges a latched fault (the controller's or a lost host).
+                HOST_LOST.store(false, Ordering::SeqCst);
                 let off_tick = tm::TICKS.load(Ordering::Relaxed);
                 defmt::info!(
                     "STOP requested_tick={=u32} off_tick={=u32}",

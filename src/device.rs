@@ -105,8 +105,6 @@ pub struct Device {
     pub estimator: proto::Estimator,
     /// The state outside a grasp (idle, stopped, a fault) or `None` during one.
     pub rest: Option<DeviceState>,
-    /// The latest controller state seen (samples and events).
-    pub state: State,
     /// The request decoder.
     pub rx: proto::Decoder<Request, { proto::MAX_FRAME }>,
     /// Encoded frames waiting for the UART.
@@ -126,7 +124,6 @@ impl Device {
             grasps: 0,
             estimator: settings.estimator,
             rest: Some(DeviceState::Idle),
-            state: State::Init,
             rx: proto::Decoder::new(),
             tx: heapless::Deque::new(),
             tx_dropped: 0,
@@ -170,11 +167,15 @@ impl Device {
         self.send(&DeviceMsg::Reply { id, result });
     }
 
-    /// The state the host sees.
-    pub fn device_state(&self) -> DeviceState {
+    /// The state the host sees outside a grasp (`controller`: the controller's state, for
+    /// a grasp under way).
+    pub fn device_state(&self, controller: State) -> DeviceState {
+        if HOST_LOST.load(Ordering::Relaxed) {
+            return DeviceState::Fault(host_lost(HOST_TIMEOUT_TICKS));
+        }
         match self.rest {
             Some(s) => s,
-            None => state(self.state),
+            None => state(controller),
         }
     }
 
@@ -236,8 +237,7 @@ impl Device {
     }
 
     /// A telemetry sample.
-    pub fn sample(&mut self, tick: u32, out: Sample) {
-        let _ = tick;
+    pub fn sample(&mut self, out: Sample) {
         self.send(&DeviceMsg::Sample(out));
     }
 }
@@ -293,7 +293,8 @@ pub fn fault(r: FaultReason) -> Fault {
     Fault { kind, value }
 }
 
-/// The fault a silent host leaves (value: ticks since its last frame).
+/// The fault a silent host leaves (value: ticks the host had been silent, at least
+/// [`HOST_TIMEOUT_TICKS`]).
 pub fn host_lost(ticks: u32) -> Fault {
     Fault {
         kind: FaultKind::HostLost,

@@ -81,15 +81,20 @@ pub enum EncodeError {
 
 /// Encodes `msg` as one frame into `out`, delimiter included; returns the frame's length.
 pub fn encode<T: Serialize>(msg: &T, out: &mut [u8]) -> Result<usize, EncodeError> {
+    // Written with checked slicing only: the firmware links this and must not panic.
     let mut raw = [0u8; MAX_PAYLOAD];
     raw[0] = VERSION;
     let body_len = postcard::to_slice(msg, &mut raw[1..MAX_PAYLOAD - 2])
         .map_err(|_| EncodeError::TooLong)?
         .len();
     let end = 1 + body_len;
-    let crc = CRC.checksum(&raw[..end]).to_le_bytes();
-    raw[end..end + 2].copy_from_slice(&crc);
-    let n = cobs::try_encode(&raw[..end + 2], out).map_err(|_| EncodeError::BufferTooSmall)?;
+    let content = raw.get(..end).ok_or(EncodeError::TooLong)?;
+    let crc = CRC.checksum(content).to_le_bytes();
+    raw.get_mut(end..end + 2)
+        .ok_or(EncodeError::TooLong)?
+        .copy_from_slice(&crc);
+    let framed = raw.get(..end + 2).ok_or(EncodeError::TooLong)?;
+    let n = cobs::try_encode(framed, out).map_err(|_| EncodeError::BufferTooSmall)?;
     let slot = out.get_mut(n).ok_or(EncodeError::BufferTooSmall)?;
     *slot = 0;
     Ok(n + 1)
@@ -102,8 +107,10 @@ pub fn decode<T: Message>(frame: &mut [u8]) -> Result<T, FrameError> {
     if n < 3 {
         return Err(FrameError::TooShort { len: n as u16 });
     }
-    let (content, crc) = raw.split_at(n - 2);
-    let received = u16::from_le_bytes([crc[0], crc[1]]);
+    let Some((content, crc)) = raw.split_last_chunk::<2>() else {
+        return Err(FrameError::TooShort { len: n as u16 });
+    };
+    let received = u16::from_le_bytes(*crc);
     let computed = CRC.checksum(content);
     if computed != received {
         return Err(FrameError::Checksum { computed, received });

@@ -473,3 +473,12 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn frames_too_short_for_version_and_crc_are_named() {
+    // COBS of [0x01, 0x02]: two content bytes, no room for version + CRC.
+    assert_eq!(
+        decode_all::<Request>(&[0x03, 0x01, 0x02, 0x00]),
+        vec![Err(FrameError::TooShort { len: 2 })]
+    );
+}
