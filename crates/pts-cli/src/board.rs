@@ -1,5 +1,5 @@
 //! `pts board`: the host side of the crates/proto protocol, against the QEMU firmware's UART
-//! socket (`--connect HOST:PORT`).
+//! socket (`--connect HOST:PORT`) or a serial device (`--connect /dev/ttyACM0`).
 //!
 //! Every command opens the link, sends one request and waits for its reply (or, for `grasp`,
 //! for the contact or the fault that ends it) with a timeout, so a silent device gives an
@@ -18,9 +18,39 @@ use proto::{
 /// How often `grasp` polls the status while it waits (the device's host-alive proof).
 pub const POLL: Duration = Duration::from_millis(100);
 
+/// The byte link: QEMU's UART socket or a serial port.
+enum Link {
+    Tcp(TcpStream),
+    Serial(Box<dyn serialport::SerialPort>),
+}
+
+impl Link {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Link::Tcp(s) => s.read(buf),
+            Link::Serial(p) => p.read(buf),
+        }
+    }
+
+    fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
+        match self {
+            Link::Tcp(s) => s.write_all(bytes),
+            Link::Serial(p) => p.write_all(bytes).and_then(|()| p.flush()),
+        }
+    }
+}
+
+/// Serial line rate (baud); a USB CDC-ACM port ignores it.
+pub const SERIAL_BAUD: u32 = 115_200;
+
+/// True when `addr` names a serial device rather than `HOST:PORT`.
+pub fn is_serial(addr: &str) -> bool {
+    addr.starts_with('/') || addr.to_ascii_uppercase().starts_with("COM")
+}
+
 /// A connection to the device.
 pub struct Board {
-    stream: TcpStream,
+    stream: Link,
     dec: proto::Decoder<DeviceMsg, { proto::MAX_FRAME }>,
     next_id: u16,
     timeout: Duration,
@@ -87,17 +117,29 @@ pub fn describe(e: &Error) -> String {
 }
 
 impl Board {
-    /// Connects to `addr` (`HOST:PORT`).
+    /// Connects to `addr`: `HOST:PORT` (QEMU's socket) or a serial device path.
     pub fn connect(addr: &str, timeout: Duration) -> Result<Board, BoardError> {
-        let sock = addr
-            .parse()
-            .map_err(|e| BoardError::Io(format!("{addr}: {e}")))?;
-        let stream = TcpStream::connect_timeout(&sock, timeout)
-            .map_err(|e| BoardError::Io(format!("{addr}: {e}")))?;
-        stream
-            .set_read_timeout(Some(Duration::from_millis(20)))
-            .map_err(|e| BoardError::Io(e.to_string()))?;
-        let _ = stream.set_nodelay(true);
+        let short = Duration::from_millis(20);
+        let stream = if is_serial(addr) {
+            let port = serialport::new(addr, SERIAL_BAUD)
+                .timeout(short)
+                .open()
+                .map_err(|e| BoardError::Io(format!("{addr}: {e}")))?;
+            Link::Serial(port)
+        } else {
+            let sock = addr.parse().map_err(|e| {
+                BoardError::Io(format!(
+                    "{addr}: {e} (expected HOST:PORT or a serial device path)"
+                ))
+            })?;
+            let stream = TcpStream::connect_timeout(&sock, timeout)
+                .map_err(|e| BoardError::Io(format!("{addr}: {e}")))?;
+            stream
+                .set_read_timeout(Some(short))
+                .map_err(|e| BoardError::Io(e.to_string()))?;
+            let _ = stream.set_nodelay(true);
+            Link::Tcp(stream)
+        };
         let mut b = Board {
             stream,
             dec: proto::Decoder::new(),
@@ -272,6 +314,27 @@ pub fn parse_param(name: &str, value: &str) -> Result<Param, String> {
 mod tests {
     use super::*;
 
+    /// A missing serial device or an unreachable socket is an error naming it, not a hang.
+    #[test]
+    fn unreachable_links_are_named_errors() {
+        let e = Board::connect("/dev/no_such_tty_for_pts", Duration::from_millis(200))
+            .err()
+            .expect("no such device");
+        assert!(e.to_string().contains("/dev/no_such_tty_for_pts"), "{e}");
+        let e = Board::connect("not an address", Duration::from_millis(200))
+            .err()
+            .expect("not an address");
+        assert!(e.to_string().contains("HOST:PORT"), "{e}");
+        // A closed local port: refused at once.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .unwrap();
+        let t = std::time::Instant::now();
+        assert!(Board::connect(&format!("127.0.0.1:{port}"), Duration::from_secs(2)).is_err());
+        assert!(t.elapsed() < Duration::from_secs(3));
+    }
+
     #[test]
     fn parameters_parse_by_name_and_errors_name_the_range() {
         assert_eq!(
@@ -284,6 +347,7 @@ mod tests {
         );
         assert!(parse_param("delta_ta", "0.4").is_err());
         assert!(parse_param("delta_ta_nm", "x").is_err());
+        assert!(is_serial("/dev/ttyACM0") && is_serial("COM3") && !is_serial("127.0.0.1:4321"));
         let e = Param::DeltaTaNm(9.0).check().unwrap_err();
         assert_eq!(
             describe(&e),

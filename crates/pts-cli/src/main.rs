@@ -109,7 +109,8 @@ enum Cmd {
 
 #[derive(clap::Args)]
 struct BoardArgs {
-    /// The device's socket, HOST:PORT (QEMU's `-serial tcp:HOST:PORT,server=on,wait=off`).
+    /// The device: HOST:PORT (QEMU's `-serial tcp:HOST:PORT,server=on,wait=off`) or a serial
+    /// device path (/dev/ttyACM0, COM3).
     #[arg(long, default_value = "127.0.0.1:4321")]
     connect: String,
     /// Seconds to wait for a reply (a grasp: for its end, see --grasp-timeout).
