@@ -110,6 +110,84 @@ pub fn run_estimate(
     grasp::estimate::two_point_fw(t, req)
 }
 
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+#[cfg_attr(not(target_os = "none"), allow(dead_code))] // the host runner names its estimator
+/// The estimators this build can run at run time: the two-point method always, the path fit
+/// when its table is built in (`FINGER_FW_ESTIMATOR=path-fit`).
+pub const AVAILABLE: &[Estimator] = match ESTIMATOR {
+    Estimator::PathFit => &[Estimator::TwoPoint, Estimator::PathFit],
+    Estimator::TwoPoint => &[Estimator::TwoPoint],
+};
+
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+/// The estimate with the estimator the request names (device mode: chosen per grasp): the
+/// build's own estimator on its table ([`run_estimate`]); in a path-fit build the two-point
+/// method too, from the fixed-point model (its table is not built in); a two-point build
+/// refuses the path fit (its table is not built in).
+pub fn run_estimate_as(
+    finger: &pts::Finger,
+    req: &EstimateRequest,
+    table: Option<&EstimatorTable>,
+) -> Result<EstimateResult, EstimateError> {
+    match (req.estimator, ESTIMATOR) {
+        (Estimator::TwoPoint, Estimator::TwoPoint) | (Estimator::PathFit, Estimator::PathFit) => {
+            run_estimate(finger, req, table)
+        }
+        (Estimator::TwoPoint, Estimator::PathFit) => {
+            let model = pts::Model::<grasp::EstReal>::new(finger)?;
+            grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
+        }
+        (Estimator::PathFit, Estimator::TwoPoint) => Err(EstimateError::PathFit(
+            PathFitError::Model(PtsError::OutOfRange),
+        )),
+    }
+}
+
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+/// The protocol's view of an estimator.
+pub fn proto_estimator(e: Estimator) -> proto::Estimator {
+    match e {
+        Estimator::TwoPoint => proto::Estimator::TwoPoint,
+        Estimator::PathFit => proto::Estimator::PathFit,
+    }
+}
+
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+/// The build's settings: what a power-up grasp uses and what device mode starts from.
+pub fn default_settings() -> proto::Settings {
+    let c = ControllerConfig::DEFAULT;
+    proto::Settings {
+        layout: proto::Settings::LAYOUT,
+        delta_ta_nm: DELTA_TA_NM,
+        step_shape: match c.step_shape {
+            grasp::StepShape::Step => proto::StepShape::Step,
+            grasp::StepShape::Ramp(r) => proto::StepShape::RampNmPerS(r),
+        },
+        estimator: proto_estimator(ESTIMATOR),
+        approach_speed_rad_s: c.approach_speed_max_rad_s,
+        approach_max_nm: c.approach_max_nm,
+        telemetry_hz: 50,
+    }
+}
+
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+/// The controller configuration for a drive and the host's settings (device mode, and the
+/// host runner's reference of it).
+pub fn config_with(drive: DriveConfig, s: &proto::Settings) -> ControllerConfig {
+    let mut c = config(drive).with_delta_ta(s.delta_ta_nm);
+    c.estimator = match s.estimator {
+        proto::Estimator::TwoPoint => Estimator::TwoPoint,
+        proto::Estimator::PathFit => Estimator::PathFit,
+    };
+    c.step_shape = match s.step_shape {
+        proto::StepShape::Step => grasp::StepShape::Step,
+        proto::StepShape::RampNmPerS(r) => grasp::StepShape::Ramp(r),
+    };
+    c.approach_speed_max_rad_s = s.approach_speed_rad_s;
+    c.approach_max_nm = s.approach_max_nm;
+    c
+}
+
 /// True once the grasp has nothing left to do: estimate delivered (holding or released) or
 /// the safe state.
 pub fn finished(state: State) -> bool {
@@ -228,6 +306,21 @@ mod tests {
         assert_eq!(fixed.model().finger, crate::config::FINGER);
         let th = pts::fixed::Fx32::from_bits(-(1 << 30));
         assert_eq!(fixed.free_torque(th), built.free_torque(th));
+    }
+
+    /// Device mode starts from the build's settings: the controller it configures from them is
+    /// the power-up grasp's.
+    #[test]
+    fn default_settings_configure_the_power_up_grasp() {
+        let d = scene_drive(&plant::scenes::table2());
+        assert_eq!(config_with(d, &default_settings()), config(d));
+        assert!(default_settings().validate().is_ok());
+        let mut s = default_settings();
+        s.delta_ta_nm = 0.5;
+        s.estimator = proto::Estimator::PathFit;
+        let c = config_with(d, &s);
+        assert_eq!(c.delta_ta_nm, 0.5);
+        assert_eq!(c.estimator, Estimator::PathFit);
     }
 
     /// The simulated board's controller sees the scene's nominal drive: one encoder count

@@ -3,7 +3,9 @@
 //! → estimate delivery) on the host's ISA, printing the firmware's log lines. `cargo xtask
 //! test` compares its estimate with the QEMU run's (same numbers on both ISAs).
 //!
-//! `finger-fw simulate [--scene NAME|FILE]` (default: the scene of this build, FINGER_FW_SCENE).
+//! `finger-fw simulate [--scene NAME|FILE] [--dta N·m] [--estimator two-point|path-fit]`
+//! (default: the scene and settings of this build); the options give the reference of a grasp
+//! the device-mode firmware ran with those settings.
 
 use grasp::Controller;
 
@@ -34,10 +36,29 @@ fn micro(v: f64) -> i32 {
 /// Runs one scene to the end; prints the log lines; returns the firmware's exit status.
 pub fn simulate(args: &[String]) -> Result<i32, String> {
     let mut name = None;
+    let mut settings = ctl::default_settings();
     let mut it = args.iter();
     while let Some(a) = it.next() {
         match a.as_str() {
             "--scene" => name = it.next().cloned(),
+            "--dta" => {
+                let v = it.next().ok_or("--dta needs a value (N·m)")?;
+                let v: f64 = v.parse().map_err(|_| format!("--dta {v}: not a number"))?;
+                settings
+                    .set(&proto::Param::DeltaTaNm(v), &[])
+                    .map_err(|e| format!("--dta: {e:?}"))?;
+            }
+            "--estimator" => {
+                settings.estimator = match it.next().map(String::as_str) {
+                    Some("two-point") => proto::Estimator::TwoPoint,
+                    Some("path-fit") => proto::Estimator::PathFit,
+                    other => {
+                        return Err(format!(
+                            "--estimator {other:?}: allowed two-point, path-fit"
+                        ))
+                    }
+                }
+            }
             other => return Err(format!("unknown argument {other}")),
         }
     }
@@ -59,8 +80,9 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         scene
     };
     let plant = plant::Plant::new(&scene).map_err(|e| format!("scene: {e:?}"))?;
-    let cfg = ctl::config(ctl::scene_drive(&scene));
+    let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
     let decimation = ctl::decimation(&cfg.drive);
+    // The build's table, as the firmware built with the same environment has it.
     let table = ctl::estimator_table(&cfg.finger, cfg.drive.dt_s);
     let mut ctrl = Controller::new(cfg).map_err(|e| format!("config: {e:?}"))?;
     // The same adapter as the QEMU board's, without the interrupt plumbing.
@@ -95,7 +117,7 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         }
         if out.estimate_ready {
             if let Some(req) = ctrl.take_request() {
-                let result = ctl::run_estimate(&cfg.finger, &req, table.as_ref());
+                let result = ctl::run_estimate_as(&cfg.finger, &req, table.as_ref());
                 ctrl.deliver(&mut board, result);
                 while let Some(ev) = ctrl.poll_event() {
                     println!("E {ev:?}");

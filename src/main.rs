@@ -9,6 +9,8 @@
 //! `cargo build/test/clippy --workspace` stays host-only and harmless.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
+// Device mode replaces the power-up run's end report, watchdog feeding and latch handling.
+#![cfg_attr(all(target_os = "none", feature = "device"), allow(dead_code))]
 
 /// Build-time constants: the finger description and the QEMU scene (from build.rs).
 // Generated data: exact decimal values from the finger file (π/2 is written out, not a typo).
@@ -17,11 +19,15 @@ mod config {
     include!(concat!(env!("OUT_DIR"), "/fw_config.rs"));
 }
 
-#[cfg(target_os = "none")]
+#[cfg(all(target_os = "none", not(feature = "device")))]
 mod app;
+#[cfg(all(target_os = "none", feature = "device"))]
+mod app_device;
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod board;
 mod ctl;
+#[cfg(all(target_os = "none", feature = "device"))]
+mod device;
 #[cfg(target_os = "none")]
 mod fault;
 #[cfg(target_os = "none")]

@@ -101,6 +101,14 @@ pub enum Msg {
     Truth(Truth),
     /// The run is over.
     Done(Done),
+    /// Device mode: the host went silent during a grasp; the bridge is off.
+    #[cfg_attr(not(feature = "device"), allow(dead_code))]
+    HostLost {
+        /// Tick of the halt.
+        tick: u32,
+        /// Ticks since the host's last frame.
+        silent_ticks: u32,
+    },
 }
 
 /// End of a run.
@@ -201,6 +209,11 @@ pub fn log(msg: &Msg) {
             t.torque_unm,
             t.contact,
             t.k_um
+        ),
+        Msg::HostLost { tick, silent_ticks } => defmt::error!(
+            "HOST lost at tick {=u32} (silent for {=u32} ticks): bridge off",
+            tick,
+            silent_ticks
         ),
         Msg::Done(d) => defmt::info!(
             "END status={=i32} state={} bridge_safe={=bool} ticks={=u32} dropped={=u32} work_max={=u32} work_max_tick={=u32} work_mean_x100={=u32} est_work_max={=u32} sup_work_max={=u32} sup_busy={=u32}",

@@ -95,6 +95,13 @@ impl SimBoard {
         stamp().wrapping_sub(self.wdg_start)
     }
 
+    /// A fresh plant (device mode: the scene the host selected, the finger back at its rest
+    /// pose for the next grasp); the bridge starts off.
+    #[cfg(feature = "device")]
+    pub fn reset_plant(&mut self, plant: plant::Plant) {
+        self.hw = sim_board::PlantBoard::new(plant);
+    }
+
     /// Nothing to acknowledge: SysTick pended the line.
     pub fn ack_sample(&mut self) {}
 

@@ -880,6 +880,10 @@ pub fn main(args: &[String]) -> Res<i32> {
         "QEMU: settings store damaged, reset -> corrupt, build defaults, grasp runs",
         settings_corrupt_check,
     );
+    st.run(
+        "QEMU device mode over pts board: typed errors, stop, disconnect, three grasps = host within 1e-4·l2",
+        crate::device::check,
+    );
 
     eprintln!(
         "\n==== summary ({:.0} s) ====",

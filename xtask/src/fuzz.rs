@@ -1,4 +1,4 @@
-//! `cargo xtask fuzz [--seconds N] [--target solver|parsers|settings]`: runs the cargo-fuzz targets
+//! `cargo xtask fuzz [--seconds N] [--target solver|parsers|settings|proto]`: runs the cargo-fuzz targets
 //! of `fuzz/` (nightly + libFuzzer) for N seconds each (default 60) and reports, per target,
 //! how long it ran clean and how many inputs it executed. Installs cargo-fuzz and the
 //! nightly toolchain when missing. Exit status 1 on any finding (the crash input is left in
@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-const TARGETS: [&str; 3] = ["solver", "parsers", "settings"];
+const TARGETS: [&str; 4] = ["solver", "parsers", "settings", "proto"];
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

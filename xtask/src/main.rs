@@ -15,6 +15,7 @@ mod bench;
 mod callgraph;
 mod ci;
 mod demo;
+mod device;
 mod figures;
 mod fuzz;
 mod log;

@@ -259,6 +259,71 @@ pub fn run(elf: &Path, live: &mut dyn FnMut(&Frame)) -> Res<Run> {
     })
 }
 
+/// Starts the device-mode firmware in QEMU with UART0 on a TCP server socket at
+/// 127.0.0.1:`port`; its defmt stream (semihosting stdout) goes to `log`. The caller kills it.
+pub fn spawn_device(elf: &Path, port: u16, log: &Path) -> Res<std::process::Child> {
+    ensure_qemu()?;
+    let out = std::fs::File::create(log).map_err(|e| format!("{}: {e}", log.display()))?;
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args([
+        "-cpu",
+        "cortex-m4",
+        "-machine",
+        "mps2-an386",
+        "-display",
+        "none",
+        "-monitor",
+        "none",
+        "-serial",
+        &format!("tcp:127.0.0.1:{port},server=on,wait=off"),
+        "-icount",
+        ICOUNT,
+        "-semihosting-config",
+        "enable=on,target=native",
+        "-kernel",
+    ])
+    .arg(elf)
+    .stdin(Stdio::null())
+    .stdout(out)
+    .stderr(Stdio::inherit());
+    eprintln!("$ {}", util::show(&cmd));
+    cmd.spawn()
+        .map_err(|e| format!("cannot start qemu-system-arm: {e}"))
+}
+
+/// Decodes a defmt stream captured in a file (what [`spawn_device`] wrote so far).
+pub fn decode_file(elf: &Path, log: &Path) -> Res<Vec<Frame>> {
+    let bytes = std::fs::read(elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let table = defmt_decoder::Table::parse(&bytes)
+        .map_err(|e| format!("defmt table of {}: {e}", elf.display()))?
+        .ok_or_else(|| format!("{} has no defmt table", elf.display()))?;
+    let data = std::fs::read(log).map_err(|e| format!("{}: {e}", log.display()))?;
+    let mut decoder = table.new_stream_decoder();
+    decoder.received(&data);
+    let mut frames = Vec::new();
+    loop {
+        match decoder.decode() {
+            Ok(frame) => frames.push(Frame {
+                ts: frame
+                    .display_timestamp()
+                    .and_then(|t| t.to_string().trim().parse().ok()),
+                level: frame
+                    .level()
+                    .map(|l| l.as_str().to_uppercase())
+                    .unwrap_or_else(|| "PRINT".into()),
+                msg: frame.display_message().to_string(),
+            }),
+            Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
+            Err(defmt_decoder::DecodeError::Malformed) => {
+                if !table.encoding().can_recover() {
+                    return Err("malformed defmt frame (unrecoverable encoding)".into());
+                }
+            }
+        }
+    }
+    Ok(frames)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -13,6 +13,7 @@ macro_rules! outln {
     }};
 }
 
+pub mod board;
 pub mod calibrate;
 pub mod estimate_cmd;
 pub mod eval;

@@ -105,11 +105,80 @@ enum Cmd {
     /// sweep against a fixed post on the proximal phalanx at a known θ1; θ0,2 needs
     /// --tip-touch, the free finger closing onto a known point that the distal phalanx meets.
     Calibrate(CalibrateArgs),
+    /// Talk to the finger's firmware (the QEMU build's UART socket) in the device protocol.
+    ///
+    /// Exit status 0 when the device did what was asked; 1 on a refusal (the message names
+    /// the value and its allowed range for a bad value), a timeout or a link error; for
+    /// `grasp`, 2 when the grasp ended in a fault and 3 when it was stopped.
+    Board(BoardArgs),
     /// Print the finger description (every key), e.g. as a template for a new finger.
     Finger {
         /// Finger description to check and print; default: the paper's prototype.
         #[arg(long)]
         finger: Option<PathBuf>,
+    },
+}
+
+#[derive(clap::Args)]
+struct BoardArgs {
+    /// The device: HOST:PORT (QEMU's `-serial tcp:HOST:PORT,server=on,wait=off`) or a serial
+    /// device path (/dev/ttyACM0, COM3).
+    #[arg(long, default_value = "127.0.0.1:4321")]
+    connect: String,
+    /// Seconds to wait for a reply (a grasp: for its end, see --grasp-timeout).
+    #[arg(long, default_value = "5")]
+    timeout: f64,
+    /// Machine-readable output (one JSON object per reply).
+    #[arg(long)]
+    json: bool,
+    #[command(subcommand)]
+    cmd: BoardCmd,
+}
+
+#[derive(Subcommand)]
+enum BoardCmd {
+    /// Protocol version exchange; prints firmware and board.
+    Hello,
+    /// State, settings and counters.
+    Status,
+    /// One parameter (delta_ta_nm, step_ramp_nm_per_s, estimator, approach_speed_rad_s,
+    /// approach_max_nm, telemetry_hz, scene).
+    Get {
+        /// Parameter name.
+        name: String,
+    },
+    /// Set a parameter (idle only): `set delta_ta_nm 0.6`, `set estimator path-fit`,
+    /// `set step_ramp_nm_per_s step`, `set scene cyl10_k2_20`.
+    Set {
+        /// Parameter name.
+        name: String,
+        /// Value (the parameter's unit).
+        value: String,
+    },
+    /// Close on the object; prints the contact estimate (waits for it unless --no-wait).
+    Grasp {
+        /// Return once the device accepted the command.
+        #[arg(long)]
+        no_wait: bool,
+        /// Seconds to wait for the grasp's end.
+        #[arg(long, default_value = "300")]
+        grasp_timeout: f64,
+    },
+    /// Let go (torque off, the finger opens to rest), back to idle.
+    Release,
+    /// Torque off now, from any state; acknowledges a latched fault.
+    Stop,
+    /// Calibrate the finger.
+    Calibrate,
+    /// Store the settings in flash.
+    Store,
+    /// Load the stored settings.
+    Load,
+    /// Send raw bytes (hex) and print whatever comes back within the timeout (protocol tests).
+    #[command(hide = true)]
+    Raw {
+        /// Bytes in hex, e.g. 0102ff00.
+        hex: String,
     },
 }
 
@@ -275,6 +344,192 @@ enum PlotCmd {
     },
 }
 
+fn run_board(a: BoardArgs) -> ExitCode {
+    use pts_cli::board::{Board, BoardError, Outcome};
+    use std::time::Duration;
+    let timeout = Duration::from_secs_f64(a.timeout.clamp(0.01, 86_400.0));
+    let fail = |e: BoardError| {
+        if a.json {
+            println!(
+                "{}",
+                serde_json::json!({"ok": false, "error": e.to_string()})
+            );
+        }
+        eprintln!("pts board: {e}");
+        ExitCode::FAILURE
+    };
+    let mut b = match Board::connect(&a.connect, timeout) {
+        Ok(b) => b,
+        Err(e) => return fail(e),
+    };
+    let show = |v: &dyn erased::Show| {
+        if a.json {
+            println!("{}", v.json());
+        } else {
+            println!("{}", v.text());
+        }
+    };
+    let cmd = match a.cmd {
+        BoardCmd::Hello => proto::Command::Hello {
+            version: proto::VERSION,
+        },
+        BoardCmd::Status => proto::Command::Status,
+        BoardCmd::Get { name } => match proto::ParamId::from_name(&name) {
+            Some(id) => proto::Command::Get(id),
+            None => return fail(BoardError::Io(format!("no parameter {name}"))),
+        },
+        BoardCmd::Set { name, value } => match pts_cli::board::parse_param(&name, &value) {
+            Ok(p) => proto::Command::Set(p),
+            Err(e) => {
+                eprintln!("pts board: {e}");
+                return ExitCode::FAILURE;
+            }
+        },
+        BoardCmd::Grasp {
+            no_wait,
+            grasp_timeout,
+        } => {
+            if no_wait {
+                proto::Command::Grasp
+            } else {
+                let give_up = Duration::from_secs_f64(grasp_timeout.clamp(0.01, 86_400.0));
+                return match b.grasp(give_up) {
+                    Ok(o) => {
+                        show(&o);
+                        match o {
+                            Outcome::Contact(_) => ExitCode::SUCCESS,
+                            Outcome::Fault(_) => ExitCode::from(2),
+                            Outcome::Stopped => ExitCode::from(3),
+                        }
+                    }
+                    Err(e) => fail(e),
+                };
+            }
+        }
+        BoardCmd::Release => proto::Command::Release,
+        BoardCmd::Stop => proto::Command::Stop,
+        BoardCmd::Calibrate => proto::Command::Calibrate,
+        BoardCmd::Store => proto::Command::Store,
+        BoardCmd::Load => proto::Command::Load,
+        BoardCmd::Raw { hex } => {
+            let bytes: Result<Vec<u8>, _> = (0..hex.len() / 2)
+                .map(|i| u8::from_str_radix(hex.get(2 * i..2 * i + 2).unwrap_or("zz"), 16))
+                .collect();
+            let Ok(bytes) = bytes else {
+                eprintln!("pts board raw: {hex}: not hex");
+                return ExitCode::FAILURE;
+            };
+            if let Err(e) = b.write(&bytes) {
+                return fail(e);
+            }
+            let t0 = std::time::Instant::now();
+            while t0.elapsed() < timeout {
+                match b.poll() {
+                    Ok(ms) => {
+                        for m in ms {
+                            match m {
+                                Ok(proto::DeviceMsg::Reply { id, result }) => {
+                                    show(&(id, result));
+                                    return ExitCode::SUCCESS;
+                                }
+                                Ok(_) => {}
+                                Err(e) => return fail(BoardError::Frame(e)),
+                            }
+                        }
+                    }
+                    Err(e) => return fail(e),
+                }
+            }
+            return fail(BoardError::Timeout(timeout));
+        }
+    };
+    match b.request(cmd) {
+        Ok(r) => {
+            show(&r);
+            ExitCode::SUCCESS
+        }
+        Err(e) => fail(e),
+    }
+}
+
+/// Text and JSON views of what `pts board` prints.
+mod erased {
+    use proto::{Error, Reply};
+    use pts_cli::board::{describe, Outcome};
+
+    pub trait Show {
+        fn json(&self) -> String;
+        fn text(&self) -> String;
+    }
+
+    impl Show for Reply {
+        fn json(&self) -> String {
+            serde_json::json!({"ok": true, "reply": self}).to_string()
+        }
+        fn text(&self) -> String {
+            match self {
+                Reply::Ack => "ok".into(),
+                Reply::Hello {
+                    version,
+                    firmware,
+                    board,
+                } => format!("protocol {version}, {firmware} on {board}"),
+                Reply::Status(s) => format!(
+                    "state {} (bridge {}), tick {}, grasps {}, scene {}\nsettings: {:?}",
+                    s.state.name(),
+                    if s.bridge_on { "on" } else { "off" },
+                    s.tick,
+                    s.grasps,
+                    s.scene.as_deref().unwrap_or("-"),
+                    s.settings
+                ),
+                Reply::Param(p) => format!("{p:?}"),
+            }
+        }
+    }
+
+    impl Show for (u16, Result<Reply, Error>) {
+        fn json(&self) -> String {
+            match &self.1 {
+                Ok(r) => serde_json::json!({"ok": true, "id": self.0, "reply": r}).to_string(),
+                Err(e) => serde_json::json!({"ok": false, "id": self.0, "device_error": e, "error": describe(e)}).to_string(),
+            }
+        }
+        fn text(&self) -> String {
+            match &self.1 {
+                Ok(r) => r.text(),
+                Err(e) => format!("refused: {}", describe(e)),
+            }
+        }
+    }
+
+    impl Show for Outcome {
+        fn json(&self) -> String {
+            match self {
+                Outcome::Contact(c) => serde_json::json!({"ok": true, "contact": c}).to_string(),
+                Outcome::Fault(f) => serde_json::json!({"ok": false, "fault": f}).to_string(),
+                Outcome::Stopped => serde_json::json!({"ok": false, "stopped": true}).to_string(),
+            }
+        }
+        fn text(&self) -> String {
+            match self {
+                Outcome::Contact(c) => format!(
+                    "grasp {}: {:?} contact, k2 {} µm, K̂c {} µN·m/rad, ΔT_a {} µN·m, Δθa {} µrad ({:?})",
+                    c.grasp,
+                    c.phalanx,
+                    c.k2_um.map_or("-".into(), |k| k.to_string()),
+                    c.kc_hat_unm_per_rad,
+                    c.delta_ta_unm,
+                    c.delta_theta_a_urad,
+                    c.estimator
+                ),
+                Outcome::Fault(f) => format!("fault {:?} (value {}): bridge off", f.kind, f.value),
+                Outcome::Stopped => "stopped: bridge off".into(),
+            }
+        }
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.cmd {
@@ -312,6 +567,7 @@ fn main() -> ExitCode {
             truth_out: c.truth_out,
             firmware: c.firmware,
         }),
+        Cmd::Board(args) => return run_board(args),
         Cmd::Finger { finger } => pts_cli::load_finger(finger.as_deref())
             .map(|f| pts_cli::outln!("{}", f.to_toml_string().trim_end())),
     };

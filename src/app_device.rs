@@ -1,0 +1,478 @@
+//! The RTIC application of device mode (QEMU, feature `device`): the tasks of `app.rs` (same
+//! priorities and controller path) plus the host link, so one power-up runs many grasps.
+//!
+//! | prio | task        | kind                           | work                                            |
+//! |------|-------------|--------------------------------|-------------------------------------------------|
+//! | 4    | `sample`    | hardware, `ADC`, 10 kHz        | as in `app.rs` while a grasp runs; bridge off while halted; the host's silence checked |
+//! | 3    | `supervise` | software                       | the grasp state machine                         |
+//! | 2    | `estimate`  | software                       | the estimator the grasp's settings name         |
+//! | 1    | `uart_rx`   | hardware, `UART0RX`            | decode requests, answer them; stop switches the bridge off at once |
+//! | 1    | `host`      | software                       | events, contacts and samples to the host (and defmt) |
+//!
+//! A grasp starts from a fresh controller (`Controller::new` with the host's settings) and a
+//! fresh simulated finger at its rest pose: the same start as a power-up grasp, so its estimate
+//! equals the host runner's with the same scene and settings.
+
+#[rtic::app(
+    device = crate::sim::pac,
+    dispatchers = [UART1TX, UART2RX, UART2TX],
+    peripherals = false
+)]
+mod app {
+    use core::sync::atomic::Ordering;
+
+    use grasp::{ControlLoop, Controller, Link, State, Supervisor};
+    use proto::{
+        Command, DeviceMsg, DeviceState, Error, Event, EventKind, FrameError, ParamId, Reply,
+        Request, Unsupported, VERSION,
+    };
+    use rtic::mutex::prelude::*;
+    use rtic_sync::channel::{Receiver, Sender};
+    use rtic_sync::make_channel;
+
+    use crate::ctl;
+    use crate::device::{self, uart, Device, ACTIVE, HALT, HOST_LOST, LAST_RX_TICK};
+    use crate::fault::supervision;
+    use crate::platform::{self, Board};
+    use crate::telemetry::{self as tm, Msg, QUEUE};
+
+    #[shared]
+    struct Shared {
+        link: Link,
+        sup: Supervisor,
+        lp: ControlLoop,
+        board: Board,
+        dev: Device,
+    }
+
+    #[local]
+    struct Local {
+        tel_tx: Sender<'static, Msg, QUEUE>,
+        sup_tx: Sender<'static, Msg, QUEUE>,
+        est_tx: Sender<'static, Msg, QUEUE>,
+        table: Option<&'static ctl::EstimatorTable>,
+        finger: pts::Finger,
+    }
+
+    #[init(local = [table_store: ctl::TableSlot = ctl::TableSlot::Empty])]
+    fn init(cx: init::Context) -> (Shared, Local) {
+        let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
+        let (board, cfg) = platform::init(cx.core);
+        defmt::info!(
+            "BOOT finger={=str} l2_um={=u32} scene={=str} board={=str} dt_us={=u32} mode=device",
+            crate::config::FINGER_NAME,
+            (crate::config::FINGER.l2 * 1e6) as u32,
+            crate::config::SCENE,
+            platform::NAME,
+            (cfg.drive.dt_s * 1e6) as u32
+        );
+        let ctrl = match Controller::new(cfg) {
+            Ok(c) => c,
+            Err(_) => {
+                defmt::error!("CONFIG rejected by grasp: bridge stays off");
+                platform::safe_state();
+                platform::halt(4)
+            }
+        };
+        cx.local
+            .table_store
+            .fill(ctl::estimator_table(&cfg.finger, cfg.drive.dt_s));
+        let table = cx.local.table_store.get();
+        let (lp, link, sup) = ctrl.into_parts();
+        uart::init();
+        host::spawn(tel_rx).ok();
+        let mut board = board;
+        board.start_watchdog();
+        defmt::info!("DEVICE ready: waiting for the host on UART0");
+        (
+            Shared {
+                link,
+                sup,
+                lp,
+                board,
+                dev: Device::new(crate::config::SCENE),
+            },
+            Local {
+                sup_tx: tel_tx.clone(),
+                est_tx: tel_tx.clone(),
+                tel_tx,
+                table,
+                finger: cfg.finger,
+            },
+        )
+    }
+
+    #[idle]
+    fn idle(_cx: idle::Context) -> ! {
+        loop {
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// The sampling + torque loop, 10 kHz, as in `app.rs` while a grasp runs.
+    #[task(binds = ADC, priority = 4, shared = [link, lp, board], local = [tel_tx, last_state: State = State::Init])]
+    fn sample(cx: sample::Context) {
+        let t0 = platform::stamp();
+        let tel = cx.local.tel_tx;
+        let tick = tm::TICKS.fetch_add(1, Ordering::Relaxed) + 1;
+        crate::fault::inject(tick);
+        (cx.shared.link, cx.shared.lp, cx.shared.board).lock(|l, lp, board| {
+            board.ack_sample();
+            if HALT.load(Ordering::Relaxed) {
+                if !board.is_safe() {
+                    lp.stop(board);
+                }
+            } else {
+                let out = lp.tick(board, l);
+                let state = l.state;
+                let input = l.has_input();
+                tm::record_work(tick, platform::stamp().wrapping_sub(t0));
+                if input && supervise::spawn().is_err() {
+                    tm::SUP_BUSY.fetch_add(1, Ordering::Relaxed);
+                }
+                // A silent host in the middle of a grasp: bridge off, reported.
+                let silent = tick.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed));
+                if device::in_motion(state) && silent > device::HOST_TIMEOUT_TICKS {
+                    HALT.store(true, Ordering::SeqCst);
+                    ACTIVE.store(false, Ordering::SeqCst);
+                    HOST_LOST.store(true, Ordering::SeqCst);
+                    lp.stop(board);
+                    send(
+                        tel,
+                        Msg::HostLost {
+                            tick,
+                            silent_ticks: silent,
+                        },
+                    );
+                }
+                if state == State::Estimating && *cx.local.last_state != State::Estimating {
+                    if let Some(t) = board.truth("settled") {
+                        send(tel, Msg::Truth(t));
+                    }
+                }
+                *cx.local.last_state = state;
+                let dec = device::DECIMATION.load(Ordering::Relaxed);
+                if dec > 0 && tick % dec == 0 && !tel.is_full() {
+                    let _ = tel.try_send(Msg::Sample {
+                        tick,
+                        theta_a_urad: out.theta_a_urad,
+                        torque_unm: out.torque_unm,
+                        torque_ref_unm: out.torque_ref_unm,
+                        duty: out.duty,
+                        state,
+                    });
+                }
+            }
+            board.advance();
+            while let Some(p) = board.poll_plant_event() {
+                send(tel, Msg::Plant(p));
+            }
+        });
+        if tick % supervision::SUP_HEARTBEAT_TICKS == 0 {
+            let _ = supervise::spawn();
+        }
+        platform::rearm_sampling();
+        tm::PREEMPT.fetch_add(platform::stamp().wrapping_sub(t0), Ordering::Relaxed);
+    }
+
+    fn send(tel: &mut Sender<'static, Msg, QUEUE>, msg: Msg) {
+        if tel.try_send(msg).is_err() {
+            tm::dropped();
+        }
+    }
+
+    /// The grasp state machine (as in `app.rs`).
+    #[task(priority = 3, shared = [link, sup], local = [sup_tx])]
+    async fn supervise(cx: supervise::Context) {
+        let mut link = cx.shared.link;
+        let mut sup = cx.shared.sup;
+        let tel = cx.local.sup_tx;
+        while let Some(input) = link.lock(|l| l.next_input()) {
+            let ready = sup.lock(|s| s.handle(input));
+            (&mut link, &mut sup).lock(|l, s| s.publish(l));
+            while let Some(ev) = sup.lock(|s| s.poll_event()) {
+                send(tel, Msg::Event(ev));
+            }
+            if ready && estimate::spawn().is_err() {
+                tm::dropped();
+            }
+        }
+        supervision::supervisor_check_in(tm::TICKS.load(Ordering::Relaxed));
+    }
+
+    /// The estimate with the estimator the grasp's settings named.
+    #[task(priority = 2, shared = [sup, link], local = [est_tx, table, finger])]
+    async fn estimate(cx: estimate::Context) {
+        let mut sup = cx.shared.sup;
+        let mut link = cx.shared.link;
+        let Some(req) = sup.lock(|s| s.take_request()) else {
+            return;
+        };
+        let result = ctl::run_estimate_as(cx.local.finger, &req, *cx.local.table);
+        (&mut sup, &mut link).lock(|s, l| {
+            s.deliver(result);
+            s.publish(l);
+        });
+        while let Some(ev) = sup.lock(|s| s.poll_event()) {
+            send(cx.local.est_tx, Msg::Event(ev));
+        }
+    }
+
+    /// Everything the tasks report: defmt (events, plant, truth) and the host (events,
+    /// contacts, samples).
+    #[task(priority = 1, shared = [dev])]
+    async fn host(mut cx: host::Context, mut rx: Receiver<'static, Msg, QUEUE>) {
+        while let Ok(msg) = rx.recv().await {
+            if !matches!(msg, Msg::Sample { .. }) {
+                tm::log(&msg);
+            }
+            cx.shared.dev.lock(|d| match msg {
+                Msg::Sample {
+                    tick,
+                    theta_a_urad,
+                    torque_unm,
+                    torque_ref_unm,
+                    duty,
+                    state,
+                } => d.sample(proto::Sample {
+                    tick,
+                    theta_a_urad,
+                    torque_unm,
+                    torque_ref_unm,
+                    duty,
+                    state: device::state(state),
+                }),
+                Msg::Event(ev) => d.event(&ev),
+                Msg::HostLost { tick, silent_ticks } => {
+                    let f = device::host_lost(silent_ticks);
+                    d.send(&DeviceMsg::Event(Event {
+                        tick,
+                        kind: EventKind::Fault(f),
+                    }));
+                }
+                _ => {}
+            });
+        }
+    }
+
+    /// Bytes from the host: decoded into requests, each answered.
+    #[task(binds = UART0RX, priority = 1, shared = [dev, lp, board, link, sup])]
+    fn uart_rx(cx: uart_rx::Context) {
+        let mut sh = cx.shared;
+        while let Some(b) = uart::read() {
+            let r = sh.dev.lock(|d| d.rx.push(b));
+            if let Some(r) = r {
+                LAST_RX_TICK.store(tm::TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
+                handle(&mut sh, r);
+            }
+        }
+        sh.dev.lock(|d| d.flush());
+    }
+
+    fn handle(sh: &mut uart_rx::SharedResources<'_>, r: Result<Request, FrameError>) {
+        let req = match r {
+            Ok(req) => req,
+            Err(FrameError::UnknownCommand { id, tag }) => {
+                sh.dev
+                    .lock(|d| d.reply(id, Err(Error::UnknownCommand { tag })));
+                return;
+            }
+            Err(e) => {
+                sh.dev.lock(|d| d.reply(0, Err(Error::BadFrame(e))));
+                return;
+            }
+        };
+        let id = req.id;
+        let result = command(sh, req.cmd);
+        sh.dev.lock(|d| d.reply(id, result));
+    }
+
+    /// The state the host sees: the controller's during a grasp, the device's otherwise.
+    fn current(sh: &mut uart_rx::SharedResources<'_>) -> DeviceState {
+        let s = sh.link.lock(|l| l.state);
+        sh.dev.lock(|d| d.device_state(s))
+    }
+
+    fn command(sh: &mut uart_rx::SharedResources<'_>, cmd: Command) -> Result<Reply, Error> {
+        match cmd {
+            Command::Hello { version } => {
+                if version != VERSION {
+                    return Err(Error::VersionMismatch {
+                        host: version,
+                        device: VERSION,
+                    });
+                }
+                Ok(Reply::Hello {
+                    version: VERSION,
+                    firmware: proto::Name::try_from(concat!(
+                        "finger-fw ",
+                        env!("CARGO_PKG_VERSION")
+                    ))
+                    .unwrap_or_default(),
+                    board: proto::Name::try_from(platform::NAME).unwrap_or_default(),
+                })
+            }
+            Command::Stop => {
+                let rx_tick = tm::TICKS.load(Ordering::Relaxed);
+                HALT.store(true, Ordering::SeqCst);
+                ACTIVE.store(false, Ordering::SeqCst);
+                (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
+                // Acknowledges a latched fault (the controller's or a lost host).
+                HOST_LOST.store(false, Ordering::SeqCst);
+                let off_tick = tm::TICKS.load(Ordering::Relaxed);
+                defmt::info!(
+                    "STOP requested_tick={=u32} off_tick={=u32}",
+                    rx_tick,
+                    off_tick
+                );
+                sh.dev.lock(|d| {
+                    d.rest = Some(DeviceState::Stopped);
+                    d.send(&DeviceMsg::Event(Event {
+                        tick: off_tick,
+                        kind: EventKind::Stopped {
+                            requested_tick: rx_tick,
+                        },
+                    }));
+                });
+                Ok(Reply::Ack)
+            }
+            Command::Status => {
+                let state = current(sh);
+                let bridge_on = !sh.board.lock(|b| b.is_safe());
+                Ok(sh.dev.lock(|d| {
+                    Reply::Status(proto::Status {
+                        state,
+                        tick: tm::TICKS.load(Ordering::Relaxed),
+                        grasps: d.grasps,
+                        settings: d.settings,
+                        scene: Some(d.scene.clone()),
+                        bridge_on,
+                    })
+                }))
+            }
+            Command::Get(ParamId::Scene) => Ok(sh
+                .dev
+                .lock(|d| Reply::Param(proto::Param::Scene(d.scene.clone())))),
+            Command::Get(id) => sh.dev.lock(|d| {
+                d.settings
+                    .get(id)
+                    .map(Reply::Param)
+                    .ok_or(Error::UnknownChoice { param: id })
+            }),
+            Command::Set(p) => {
+                idle_or_busy(sh)?;
+                if let proto::Param::Scene(name) = &p {
+                    if plant::scenes::by_name(name.as_str()).is_none() {
+                        return Err(Error::UnknownChoice {
+                            param: ParamId::Scene,
+                        });
+                    }
+                    sh.dev.lock(|d| d.scene = name.clone());
+                    return Ok(Reply::Ack);
+                }
+                sh.dev.lock(|d| {
+                    let avail: heapless::Vec<proto::Estimator, 2> = ctl::AVAILABLE
+                        .iter()
+                        .map(|e| ctl::proto_estimator(*e))
+                        .collect();
+                    d.settings.set(&p, &avail)?;
+                    device::set_decimation(d.settings.telemetry_hz);
+                    Ok(Reply::Ack)
+                })
+            }
+            Command::Grasp => {
+                idle_or_busy(sh)?;
+                start_grasp(sh)
+            }
+            Command::Release => {
+                let state = current(sh);
+                if !ACTIVE.load(Ordering::Relaxed) {
+                    return Err(Error::Busy { state });
+                }
+                // Torque off, and the simulated finger opens back to its rest pose.
+                HALT.store(true, Ordering::SeqCst);
+                ACTIVE.store(false, Ordering::SeqCst);
+                (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
+                let tick = tm::TICKS.load(Ordering::Relaxed);
+                sh.dev.lock(|d| {
+                    d.rest = Some(DeviceState::Idle);
+                    d.send(&DeviceMsg::Event(Event {
+                        tick,
+                        kind: EventKind::Releasing,
+                    }));
+                    d.send(&DeviceMsg::Event(Event {
+                        tick,
+                        kind: EventKind::Idle,
+                    }));
+                });
+                Ok(Reply::Ack)
+            }
+            Command::Calibrate => Err(Error::NotSupported {
+                what: Unsupported::Calibrate,
+            }),
+            Command::Store | Command::Load => Err(Error::NotSupported {
+                what: Unsupported::SettingsStore,
+            }),
+            Command::Reboot => Err(Error::NotSupported {
+                what: Unsupported::Reboot,
+            }),
+        }
+    }
+
+    /// Ok when no grasp runs and no fault is latched.
+    fn idle_or_busy(sh: &mut uart_rx::SharedResources<'_>) -> Result<(), Error> {
+        let state = current(sh);
+        match state {
+            DeviceState::Fault(fault) => Err(Error::FaultLatched { fault }),
+            _ if ACTIVE.load(Ordering::Relaxed) => Err(Error::Busy { state }),
+            _ => Ok(()),
+        }
+    }
+
+    /// A fresh finger at rest in the selected scene and a fresh controller with the settings.
+    fn start_grasp(sh: &mut uart_rx::SharedResources<'_>) -> Result<Reply, Error> {
+        let (settings, scene_name) = sh.dev.lock(|d| (d.settings, d.scene.clone()));
+        let scene = plant::scenes::by_name(scene_name.as_str())
+            .map(ctl::finger_scene)
+            .ok_or(Error::UnknownChoice {
+                param: ParamId::Scene,
+            })?;
+        let plant = plant::Plant::new(&scene).map_err(|_| Error::UnknownChoice {
+            param: ParamId::Scene,
+        })?;
+        let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
+        let ctrl = Controller::new(cfg).map_err(|_| Error::ConfigRejected)?;
+        let (lp_new, link_new, sup_new) = ctrl.into_parts();
+        let tick = tm::TICKS.load(Ordering::Relaxed);
+        LAST_RX_TICK.store(tick, Ordering::Relaxed);
+        (&mut sh.lp, &mut sh.board, &mut sh.link, &mut sh.sup).lock(|lp, board, link, sup| {
+            *lp = lp_new;
+            *link = link_new;
+            *sup = sup_new;
+            board.reset_plant(plant);
+            HOST_LOST.store(false, Ordering::SeqCst);
+            ACTIVE.store(true, Ordering::SeqCst);
+            HALT.store(false, Ordering::SeqCst);
+        });
+        sh.dev.lock(|d| {
+            d.grasps = d.grasps.wrapping_add(1);
+            d.estimator = settings.estimator;
+            d.rest = None;
+            defmt::info!(
+                "GRASP {=u16} scene={=str} dta_unm={=i32} estimator={=str}",
+                d.grasps,
+                d.scene.as_str(),
+                (settings.delta_ta_nm * 1e6) as i32,
+                match settings.estimator {
+                    proto::Estimator::TwoPoint => "two-point",
+                    proto::Estimator::PathFit => "path-fit",
+                }
+            );
+            d.send(&DeviceMsg::Event(Event {
+                tick,
+                kind: EventKind::GraspStarted { grasp: d.grasps },
+            }));
+        });
+        Ok(Reply::Ack)
+    }
+}

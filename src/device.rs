@@ -1,0 +1,323 @@
+//! Device mode (QEMU build, feature `device`): the host drives the finger over the mps2-an386
+//! CMSDK UART0 in the crates/proto protocol: many grasps per power-up, settings and the
+//! simulated scene changed between grasps, stop honoured from any state.
+//!
+//! The sampling task and this module meet in a few atomics: [`HALT`] (bridge off on the next
+//! tick, whatever the controller asks), [`ACTIVE`] (the controller is ticked) and the host's
+//! last-heard tick, from which the sampling task switches the bridge off when the host goes
+//! silent in the middle of a grasp.
+
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use grasp::{Event as GEvent, FaultReason, Located, Quality, State};
+use proto::{
+    Contact, DeviceMsg, DeviceState, Error, Event, EventKind, Fault, FaultKind, Phalanx, Reply,
+    Request, Sample, SceneName, Settings,
+};
+
+/// Set by `stop` (and on a lost host): the sampling task switches the bridge off at its next
+/// tick and does not tick the controller.
+pub static HALT: AtomicBool = AtomicBool::new(true);
+/// The controller is ticked (a grasp is under way or holding).
+pub static ACTIVE: AtomicBool = AtomicBool::new(false);
+/// Tick at which the host's last frame arrived.
+pub static LAST_RX_TICK: AtomicU32 = AtomicU32::new(0);
+/// Set by the sampling task when it halted for a silent host.
+pub static HOST_LOST: AtomicBool = AtomicBool::new(false);
+/// Telemetry decimation (ticks per sample; 0 = no samples).
+pub static DECIMATION: AtomicU32 = AtomicU32::new(200);
+
+/// During the motion of a grasp (calibration to estimate) the host must be heard at least
+/// this often (ticks: 2 s at 10 kHz); `pts board` polls the status meanwhile.
+pub const HOST_TIMEOUT_TICKS: u32 = 20_000;
+
+/// Bytes of encoded frames waiting for the UART.
+pub const TX_QUEUE: usize = 4096;
+
+/// True in the states where the finger moves under the controller's command and a silent
+/// host stops the grasp.
+pub fn in_motion(state: State) -> bool {
+    matches!(
+        state,
+        State::Calibrating
+            | State::Approach
+            | State::Seating
+            | State::Step
+            | State::Settling
+            | State::Estimating
+    )
+}
+
+/// The CMSDK APB UART0 of mps2-an386 (QEMU connects it to its first `-serial`).
+pub mod uart {
+    const BASE: usize = 0x4000_4000;
+    const DATA: *mut u32 = BASE as *mut u32;
+    const STATE: *mut u32 = (BASE + 0x04) as *mut u32;
+    const CTRL: *mut u32 = (BASE + 0x08) as *mut u32;
+    const INTSTATUS: *mut u32 = (BASE + 0x0C) as *mut u32;
+    const BAUDDIV: *mut u32 = (BASE + 0x10) as *mut u32;
+
+    /// Transmitter and receiver on, the receive interrupt on (UART0RX).
+    pub fn init() {
+        // SAFETY: UART0's registers, used by nobody else.
+        unsafe {
+            BAUDDIV.write_volatile(16);
+            CTRL.write_volatile(0b1011);
+        }
+    }
+
+    /// The received byte, if any; acknowledges the receive interrupt.
+    pub fn read() -> Option<u8> {
+        // SAFETY: UART0 register reads and the write-one-to-clear of its RX interrupt.
+        unsafe {
+            INTSTATUS.write_volatile(0b10);
+            if STATE.read_volatile() & 0b10 != 0 {
+                Some(DATA.read_volatile() as u8)
+            } else {
+                None
+            }
+        }
+    }
+
+    /// Sends a byte if the transmitter has room.
+    pub fn try_write(b: u8) -> bool {
+        // SAFETY: UART0 register read and data write.
+        unsafe {
+            if STATE.read_volatile() & 0b1 == 0 {
+                DATA.write_volatile(u32::from(b));
+                true
+            } else {
+                false
+            }
+        }
+    }
+}
+
+/// What the host side of the device keeps between commands.
+pub struct Device {
+    /// The next grasp's settings.
+    pub settings: Settings,
+    /// The simulated scene the next grasp uses.
+    pub scene: SceneName,
+    /// Grasps started since power-up.
+    pub grasps: u16,
+    /// Estimator of the grasp under way.
+    pub estimator: proto::Estimator,
+    /// The state outside a grasp (idle, stopped, a fault) or `None` during one.
+    pub rest: Option<DeviceState>,
+    /// The request decoder.
+    pub rx: proto::Decoder<Request, { proto::MAX_FRAME }>,
+    /// Encoded frames waiting for the UART.
+    pub tx: heapless::Deque<u8, TX_QUEUE>,
+    /// Frames dropped for a full TX queue.
+    pub tx_dropped: u32,
+}
+
+impl Device {
+    /// Idle with the build's settings and scene.
+    pub fn new(scene: &str) -> Self {
+        let settings = crate::ctl::default_settings();
+        set_decimation(settings.telemetry_hz);
+        Self {
+            settings,
+            scene: SceneName::try_from(scene).unwrap_or_default(),
+            grasps: 0,
+            estimator: settings.estimator,
+            rest: Some(DeviceState::Idle),
+            rx: proto::Decoder::new(),
+            tx: heapless::Deque::new(),
+            tx_dropped: 0,
+        }
+    }
+
+    /// Encodes a message into the TX queue (whole frames only) and sends what the UART takes.
+    pub fn send(&mut self, msg: &DeviceMsg) {
+        let mut buf = [0u8; proto::MAX_FRAME];
+        match proto::encode(msg, &mut buf) {
+            Ok(n) => {
+                let frame = buf.get(..n).unwrap_or(&[]);
+                if self.tx.capacity() - self.tx.len() < frame.len() {
+                    self.tx_dropped = self.tx_dropped.wrapping_add(1);
+                } else {
+                    for &b in frame {
+                        let _ = self.tx.push_back(b);
+                    }
+                }
+            }
+            Err(e) => defmt::error!("proto: reply not encodable: {}", e),
+        }
+        self.flush();
+    }
+
+    /// Hands queued bytes to the UART while it has room.
+    pub fn flush(&mut self) {
+        while let Some(&b) = self.tx.front() {
+            if !uart::try_write(b) {
+                break;
+            }
+            self.tx.pop_front();
+        }
+    }
+
+    /// Replies to request `id`.
+    pub fn reply(&mut self, id: u16, result: Result<Reply, Error>) {
+        if let Err(e) = &result {
+            log_error(e);
+        }
+        self.send(&DeviceMsg::Reply { id, result });
+    }
+
+    /// The state the host sees outside a grasp (`controller`: the controller's state, for
+    /// a grasp under way).
+    pub fn device_state(&self, controller: State) -> DeviceState {
+        if HOST_LOST.load(Ordering::Relaxed) {
+            return DeviceState::Fault(host_lost(HOST_TIMEOUT_TICKS));
+        }
+        match self.rest {
+            Some(s) => s,
+            None => state(controller),
+        }
+    }
+
+    /// A controller event: forwarded, with the contact after an estimate.
+    pub fn event(&mut self, ev: &GEvent) {
+        let (tick, kind) = match *ev {
+            GEvent::Calibrated { tick, .. } => (tick, EventKind::Calibrated),
+            GEvent::ContactDetected {
+                tick,
+                theta_a_urad,
+                torque_unm,
+                ..
+            } => (
+                tick,
+                EventKind::ContactDetected {
+                    theta_a_urad,
+                    torque_unm,
+                },
+            ),
+            GEvent::Seated { .. } => return,
+            GEvent::StepDone { tick } => (tick, EventKind::StepDone),
+            GEvent::Settled { tick, .. } => (tick, EventKind::Settled),
+            GEvent::Estimated { tick, result } => {
+                self.send(&DeviceMsg::Event(Event {
+                    tick,
+                    kind: EventKind::Estimated,
+                }));
+                let c = Contact {
+                    grasp: self.grasps,
+                    estimator: self.estimator,
+                    phalanx: match result.located {
+                        Located::Proximal => Phalanx::Proximal,
+                        Located::Distal => Phalanx::Distal,
+                        Located::ProximalOrNearO2 => Phalanx::ProximalOrNearO2,
+                    },
+                    k2_um: result.k2_um,
+                    sigma_um: None,
+                    r_um: None,
+                    two_point_k2_um: None,
+                    kc_hat_unm_per_rad: result.kc_hat_unm_per_rad,
+                    theta_a_c_urad: result.theta_a_c_urad,
+                    ta_c_unm: result.ta_c_unm,
+                    delta_ta_unm: result.delta_ta_unm,
+                    delta_theta_a_urad: result.delta_theta_a_urad,
+                    good: result.quality == Quality::Good,
+                };
+                self.send(&DeviceMsg::Contact(c));
+                return;
+            }
+            GEvent::Holding { tick } => (tick, EventKind::Holding),
+            GEvent::Releasing { tick } => (tick, EventKind::Releasing),
+            GEvent::Released { tick } => (tick, EventKind::Idle),
+            GEvent::Fault { tick, reason } => (tick, EventKind::Fault(fault(reason))),
+        };
+        if let EventKind::Fault(f) = kind {
+            self.rest = Some(DeviceState::Fault(f));
+        }
+        self.send(&DeviceMsg::Event(Event { tick, kind }));
+    }
+
+    /// A telemetry sample.
+    pub fn sample(&mut self, out: Sample) {
+        self.send(&DeviceMsg::Sample(out));
+    }
+}
+
+/// Sets the telemetry decimation for a rate (Hz) at the 10 kHz loop.
+pub fn set_decimation(hz: u16) {
+    let n = if hz == 0 {
+        0
+    } else {
+        (10_000 / u32::from(hz)).max(1)
+    };
+    DECIMATION.store(n, Ordering::Relaxed);
+}
+
+/// The protocol's view of the controller's state.
+pub fn state(s: State) -> DeviceState {
+    match s {
+        State::Init | State::Calibrating => DeviceState::Calibrating,
+        State::Approach => DeviceState::Approach,
+        State::Seating => DeviceState::Seating,
+        State::Step => DeviceState::Step,
+        State::Settling => DeviceState::Settling,
+        State::Estimating => DeviceState::Estimating,
+        State::Holding => DeviceState::Holding,
+        State::Releasing => DeviceState::Releasing,
+        State::Done => DeviceState::Idle,
+        State::Fault(r) => DeviceState::Fault(fault(r)),
+    }
+}
+
+/// The protocol's view of a controller fault.
+pub fn fault(r: FaultReason) -> Fault {
+    let (kind, value) = match r {
+        FaultReason::EncoderJump { step_counts } => (FaultKind::EncoderJump, step_counts),
+        FaultReason::EncoderMismatch { emf_mv, .. } => (FaultKind::EncoderMismatch, emf_mv),
+        FaultReason::AdcCode { code } => (FaultKind::AdcCode, i32::from(code)),
+        FaultReason::AdcOffset { offset_q8 } => (FaultKind::AdcOffset, offset_q8),
+        FaultReason::AdcRail { code } => (FaultKind::AdcRail, i32::from(code)),
+        FaultReason::OverCurrent { current_ua } => (FaultKind::OverCurrent, current_ua),
+        FaultReason::Stall => (FaultKind::Stall, 0),
+        FaultReason::NoContact => (FaultKind::NoContact, 0),
+        FaultReason::SettleTimeout => (FaultKind::SettleTimeout, 0),
+        FaultReason::EstimateTimeout => (FaultKind::EstimateTimeout, 0),
+        FaultReason::SecondContact { kc_unm_per_rad } => (FaultKind::SecondContact, kc_unm_per_rad),
+        FaultReason::NoMotion { dtheta_a_urad } => (FaultKind::NoMotion, dtheta_a_urad),
+        FaultReason::LossOfContact { dtheta_a_urad } => (FaultKind::LossOfContact, dtheta_a_urad),
+        FaultReason::EstimateOutOfRange { .. } => (FaultKind::EstimateOutOfRange, 0),
+        FaultReason::SupervisorStalled { age_ticks } => (
+            FaultKind::SupervisorStalled,
+            age_ticks.min(i32::MAX as u32) as i32,
+        ),
+    };
+    Fault { kind, value }
+}
+
+/// The fault a silent host leaves (value: ticks the host had been silent, at least
+/// [`HOST_TIMEOUT_TICKS`]).
+pub fn host_lost(ticks: u32) -> Fault {
+    Fault {
+        kind: FaultKind::HostLost,
+        value: ticks.min(i32::MAX as u32) as i32,
+    }
+}
+
+fn log_error(e: &Error) {
+    match e {
+        Error::BadValue {
+            param,
+            value,
+            range,
+        } => defmt::warn!(
+            "HOST bad value {=str}={=f64} (allowed {=f64}..={=f64})",
+            param.name(),
+            value,
+            range.min,
+            range.max
+        ),
+        Error::BadFrame(f) => defmt::warn!("HOST bad frame: {}", f),
+        Error::UnknownCommand { tag } => defmt::warn!("HOST unknown command tag {=u32}", tag),
+        Error::Busy { state } => defmt::warn!("HOST busy ({=str})", state.name()),
+        _ => defmt::warn!("HOST request refused"),
+    }
+}

@@ -1,0 +1,434 @@
+//! The device-mode end-to-end stage of `cargo xtask test`: the QEMU firmware built with
+//! feature `device` and `pts board` over its UART socket. Bad input first (malformed frame,
+//! corrupted checksum, unknown command, out-of-range value: typed errors), then a stop in
+//! mid-approach (bridge off within one control period), a host that disconnects mid-grasp
+//! (bridge off, fault reported), then three grasps with different scenes, ΔT_a and both
+//! estimators in the same power-up, each estimate against the host runner's with the same
+//! scene and settings.
+
+use std::path::PathBuf;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+use crate::log::{self, int};
+use crate::qemu::{self, Frame};
+use crate::util::{self, Res};
+
+/// Tolerance of a device-mode estimate against the host run of the same grasp, × l2.
+const K2_TOL_REL_L2: f64 = 1e-4;
+
+/// The grasps: (scene, ΔT_a in N·m, estimator).
+const GRASPS: &[(&str, &str, &str)] = &[
+    ("table2", "0.8", "path-fit"),
+    ("cyl10_k2_20", "0.6", "two-point"),
+    ("vertex_k2_30", "1.0", "two-point"),
+];
+
+/// Seconds a grasp may take in QEMU (wall) before the stage gives up.
+const GRASP_WALL_S: &str = "400";
+
+struct Session {
+    elf: PathBuf,
+    log: PathBuf,
+    pts: PathBuf,
+    addr: String,
+}
+
+impl Session {
+    /// `pts board --json ARGS`: (exit status, stdout parsed as JSON, stderr).
+    fn board(&self, args: &[&str]) -> Res<(i32, Value, String)> {
+        let out = Command::new(&self.pts)
+            .args(["board", "--connect", &self.addr, "--json"])
+            .args(args)
+            .output()
+            .map_err(|e| format!("cannot run {}: {e}", self.pts.display()))?;
+        let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        let v =
+            serde_json::from_str(stdout.lines().last().unwrap_or("null")).unwrap_or(Value::Null);
+        println!(
+            "pts board {} -> exit {:?}: {}{}",
+            args.join(" "),
+            out.status.code(),
+            stdout.trim(),
+            if stderr.is_empty() {
+                String::new()
+            } else {
+                format!(" / {}", stderr.trim())
+            }
+        );
+        Ok((out.status.code().unwrap_or(-1), v, stderr))
+    }
+
+    /// `pts board` that must succeed.
+    fn ok(&self, args: &[&str]) -> Res<Value> {
+        match self.board(args)? {
+            (0, v, _) => Ok(v),
+            (c, v, e) => Err(format!(
+                "pts board {args:?} exited {c}: {v} {e}",
+                args = args.join(" ")
+            )),
+        }
+    }
+
+    /// The device's reply to raw bytes (`pts board raw HEX`).
+    fn raw(&self, bytes: &[u8]) -> Res<Value> {
+        let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+        Ok(self.board(&["raw", &hex])?.1)
+    }
+
+    fn frames(&self) -> Res<Vec<Frame>> {
+        qemu::decode_file(&self.elf, &self.log)
+    }
+
+    fn state(&self) -> Res<(String, bool, Value)> {
+        let v = self.ok(&["status"])?;
+        let st = &v["reply"]["Status"];
+        let state = match &st["state"] {
+            Value::String(s) => s.clone(),
+            Value::Object(o) => o.keys().next().cloned().unwrap_or_default(),
+            other => other.to_string(),
+        };
+        Ok((state, st["bridge_on"].as_bool().unwrap_or(true), v))
+    }
+}
+
+/// A request frame with these postcard body bytes (after the version byte), CRC appended.
+fn frame_with_body(body: &[u8], corrupt_crc: bool) -> Vec<u8> {
+    // Encode a real request, then rebuild its content with our body: the CRC is proto's.
+    let mut raw = vec![proto::VERSION];
+    raw.extend_from_slice(body);
+    let crc = crc16_x25(&raw);
+    let crc = if corrupt_crc { crc ^ 0x0101 } else { crc };
+    raw.extend(crc.to_le_bytes());
+    let mut out = cobs_encode(&raw);
+    out.push(0);
+    out
+}
+
+/// CRC-16/X.25 written out (an independent reference of what proto uses).
+fn crc16_x25(data: &[u8]) -> u16 {
+    let mut crc: u16 = 0xFFFF;
+    for &b in data {
+        crc ^= u16::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0x8408
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
+/// COBS without the delimiter (an independent reference).
+fn cobs_encode(data: &[u8]) -> Vec<u8> {
+    let mut out = vec![0];
+    let mut code_at = 0;
+    let mut code = 1u8;
+    for &b in data {
+        if b == 0 {
+            out[code_at] = code;
+            code_at = out.len();
+            out.push(0);
+            code = 1;
+        } else {
+            out.push(b);
+            code += 1;
+            if code == 0xFF {
+                out[code_at] = code;
+                code_at = out.len();
+                out.push(0);
+                code = 1;
+            }
+        }
+    }
+    out[code_at] = code;
+    out
+}
+
+/// The host runner's estimate of the same grasp: (k2 µm, l2 µm).
+fn host_k2(scene: &str, dta: &str, estimator: &str) -> Res<(i64, f64)> {
+    let (out, _) = util::output_code(
+        util::cargo()
+            .args([
+                "run",
+                "-q",
+                "-p",
+                "finger-fw",
+                "--",
+                "simulate",
+                "--scene",
+                scene,
+                "--dta",
+                dta,
+                "--estimator",
+                estimator,
+            ])
+            // Built like the device firmware (a path-fit build: both estimators at run time).
+            .env("FINGER_FW_ESTIMATOR", "path-fit"),
+    )?;
+    let l2 = out
+        .lines()
+        .find(|l| l.starts_with("BOOT"))
+        .and_then(|l| int(l, "l2_um"))
+        .ok_or("host run: no BOOT line")? as f64;
+    let k2 = out
+        .lines()
+        .rfind(|l| l.starts_with("E Estimated"))
+        .and_then(|l| int(l, "k2_um"))
+        .ok_or_else(|| format!("host run of {scene} gave no k2"))?;
+    Ok((k2, l2))
+}
+
+fn free_port() -> Res<u16> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
+    Ok(l.local_addr().map_err(|e| e.to_string())?.port())
+}
+
+/// Builds the device firmware (path-fit build: both estimators at run time).
+fn build() -> Res<PathBuf> {
+    let mut cmd = util::cargo();
+    cmd.args([
+        "build",
+        "--release",
+        "-p",
+        "finger-fw",
+        "--target",
+        qemu::TARGET,
+        "--no-default-features",
+        "--features",
+        "qemu,device",
+    ])
+    .env("FINGER_FW_SCENE", "table2")
+    .env("FINGER_FW_ESTIMATOR", "path-fit")
+    .env("FINGER_FW_INJECT", "");
+    util::run(&mut cmd)?;
+    let built = util::root()
+        .join("target")
+        .join(qemu::TARGET)
+        .join("release")
+        .join("finger-fw");
+    // Kept apart: the next stage's build overwrites the one above.
+    let elf = util::root().join("target").join("finger-fw-device.elf");
+    std::fs::copy(&built, &elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    Ok(elf)
+}
+
+/// The stage.
+pub fn check() -> Res {
+    let elf = build()?;
+    util::run(util::cargo().args(["build", "-q", "--release", "-p", "pts-cli"]))?;
+    util::run(util::cargo().args(["build", "-q", "-p", "finger-fw"]))?;
+    let port = free_port()?;
+    let s = Session {
+        elf,
+        log: util::root().join("target").join("finger-fw-device.defmt"),
+        pts: util::root().join("target").join("release").join("pts"),
+        addr: format!("127.0.0.1:{port}"),
+    };
+    let mut child = qemu::spawn_device(&s.elf, port, &s.log)?;
+    let r = session(&s);
+    let _ = child.kill();
+    let _ = child.wait();
+    if let Ok(frames) = s.frames() {
+        for f in frames.iter().filter(|f| !f.msg.starts_with("P ")) {
+            println!("{}", log::show(f));
+        }
+    }
+    r
+}
+
+fn session(s: &Session) -> Res {
+    let t0 = Instant::now();
+    // The socket is there once QEMU started.
+    let hello = loop {
+        match s.board(&["hello"]) {
+            Ok((0, v, _)) => break v,
+            _ if t0.elapsed() < Duration::from_secs(20) => {
+                std::thread::sleep(Duration::from_millis(200))
+            }
+            other => return Err(format!("no hello from the device: {other:?}")),
+        }
+    };
+    let mut errs = Vec::new();
+    if hello["reply"]["Hello"]["version"].as_u64() != Some(u64::from(proto::VERSION)) {
+        errs.push(format!("hello: {hello}"));
+    }
+
+    // Bad input: each a typed error, the device still answering.
+    let malformed = s.raw(&[0x05, 0x00, 0xC8, 0x01, 0x0A, 0x0B, 0x00])?;
+    if malformed["device_error"]["BadFrame"].is_null() {
+        errs.push(format!("malformed frame: {malformed}"));
+    }
+    // Request id 7 (varint 07), command Status (tag 1): the right body with a wrong CRC.
+    let bad_crc = s.raw(&frame_with_body(&[0x07, 0x01], true))?;
+    if bad_crc["device_error"]["BadFrame"]["Checksum"].is_null() {
+        errs.push(format!("corrupted checksum: {bad_crc}"));
+    }
+    let good = s.raw(&frame_with_body(&[0x07, 0x01], false))?;
+    if good["reply"]["Status"].is_null() || good["id"].as_u64() != Some(7) {
+        errs.push(format!("hand-built status request: {good}"));
+    }
+    let unknown = s.raw(&frame_with_body(&[0x09, 0xC8, 0x01], false))?;
+    if unknown["device_error"]["UnknownCommand"]["tag"].as_u64() != Some(200)
+        || unknown["id"].as_u64() != Some(9)
+    {
+        errs.push(format!("unknown command: {unknown}"));
+    }
+    let (code, _, stderr) = s.board(&["set", "delta_ta_nm", "9"])?;
+    if code != 1 || !stderr.contains("delta_ta_nm = 9 is outside the allowed range 0.05..=1.5") {
+        errs.push(format!("out-of-range ΔT_a: exit {code}, {stderr}"));
+    }
+    let (code, v, _) = s.board(&["set", "scene", "no_such_scene"])?;
+    if code != 1 || v["ok"] != Value::Bool(false) {
+        errs.push(format!("unknown scene accepted: {v}"));
+    }
+
+    // Stop in mid-approach.
+    s.ok(&["set", "scene", "table2"])?;
+    s.ok(&["grasp", "--no-wait"])?;
+    let mut seen_approach = false;
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(60) {
+        let (state, bridge_on, _) = s.state()?;
+        if state == "Approach" && bridge_on {
+            seen_approach = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    if !seen_approach {
+        errs.push("the grasp never showed Approach with the bridge on".into());
+    }
+    s.ok(&["stop"])?;
+    let (state, bridge_on, _) = s.state()?;
+    if state != "Stopped" || bridge_on {
+        errs.push(format!("after stop: state {state}, bridge_on {bridge_on}"));
+    }
+    match s
+        .frames()?
+        .iter()
+        .rfind(|f| f.msg.starts_with("STOP requested"))
+    {
+        Some(f) => {
+            let rx = int(&f.msg, "requested_tick").unwrap_or(i64::MAX);
+            let off = int(&f.msg, "off_tick").unwrap_or(i64::MAX);
+            println!("stop: requested at tick {rx}, bridge off at tick {off}");
+            if off.saturating_sub(rx) > 1 || off < rx {
+                errs.push(format!(
+                    "stop took {} control periods (more than one)",
+                    off - rx
+                ));
+            }
+        }
+        None => errs.push("no STOP line in the firmware log".into()),
+    }
+
+    // A host that disconnects in mid-grasp: the device switches the bridge off by itself.
+    s.ok(&["grasp", "--no-wait"])?;
+    let t = Instant::now();
+    let mut lost = false;
+    while t.elapsed() < Duration::from_secs(120) {
+        std::thread::sleep(Duration::from_millis(500));
+        if s.frames()?.iter().any(|f| f.msg.starts_with("HOST lost")) {
+            lost = true;
+            break;
+        }
+    }
+    let (state, bridge_on, v) = s.state()?;
+    if !lost || bridge_on || v["reply"]["Status"]["state"]["Fault"]["kind"] != "HostLost" {
+        errs.push(format!(
+            "disconnect mid-grasp: HOST lost logged {lost}, state {state}, bridge_on {bridge_on}"
+        ));
+    }
+    let (code, v, _) = s.board(&["grasp", "--no-wait"])?;
+    if code != 1
+        || v["error"]
+            .as_str()
+            .is_none_or(|e| !e.contains("fault latched"))
+    {
+        errs.push(format!("grasp with a latched fault: exit {code}, {v}"));
+    }
+    s.ok(&["stop"])?;
+
+    // Three grasps in the same power-up.
+    for (scene, dta, est) in GRASPS {
+        s.ok(&["set", "scene", scene])?;
+        s.ok(&["set", "delta_ta_nm", dta])?;
+        s.ok(&["set", "estimator", est])?;
+        let t = Instant::now();
+        let v = s.ok(&["grasp", "--grasp-timeout", GRASP_WALL_S])?;
+        let k2_dev = v["contact"]["k2_um"]
+            .as_i64()
+            .ok_or_else(|| format!("{scene}: no k2 in {v}"))?;
+        let dev_est = v["contact"]["estimator"].as_str().unwrap_or("");
+        let (k2_host, l2) = host_k2(scene, dta, est)?;
+        let d = (k2_dev - k2_host).abs() as f64;
+        println!(
+            "grasp {scene} ΔT_a {dta} N·m {est}: k2 device {k2_dev} µm, host {k2_host} µm, |Δ| {d} µm (tolerance {:.1} µm), {:.1} s",
+            K2_TOL_REL_L2 * l2,
+            t.elapsed().as_secs_f64()
+        );
+        if d > K2_TOL_REL_L2 * l2 {
+            errs.push(format!(
+                "{scene} ΔT_a {dta} {est}: device k2 {k2_dev} µm vs host {k2_host} µm"
+            ));
+        }
+        let want = if *est == "path-fit" {
+            "PathFit"
+        } else {
+            "TwoPoint"
+        };
+        if dev_est != want {
+            errs.push(format!("{scene}: the device ran {dev_est}, asked {want}"));
+        }
+        s.ok(&["release"])?;
+        let (state, bridge_on, _) = s.state()?;
+        if state != "Idle" || bridge_on {
+            errs.push(format!("after release: {state}, bridge_on {bridge_on}"));
+        }
+    }
+    let (_, _, v) = s.state()?;
+    let grasps = v["reply"]["Status"]["grasps"].as_u64();
+    let boots = s
+        .frames()?
+        .iter()
+        .filter(|f| f.msg.starts_with("BOOT"))
+        .count();
+    if grasps != Some(5) || boots != 1 {
+        errs.push(format!(
+            "one power-up expected: {boots} boots, {grasps:?} grasps (expected 5)"
+        ));
+    }
+    println!("device session: {:.1} s", t0.elapsed().as_secs_f64());
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The hand-written references agree with proto's encoder on a real request.
+    #[test]
+    fn hand_built_frames_match_proto() {
+        let mut out = [0u8; proto::MAX_FRAME];
+        let n = proto::encode(
+            &proto::Request {
+                id: 7,
+                cmd: proto::Command::Status,
+            },
+            &mut out,
+        )
+        .unwrap();
+        assert_eq!(frame_with_body(&[0x07, 0x01], false), out[..n].to_vec());
+        assert_eq!(crc16_x25(b"123456789"), 0x906E);
+    }
+}
