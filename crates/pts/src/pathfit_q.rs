@@ -782,9 +782,16 @@ impl<'t> QKernel<'t> {
         if k2_fin <= 0 {
             return Err(PathFail::PastJoint);
         }
-        // Contact friction: L = l1 (cos θ2 − µ sin θ2) + k2, ∂L/∂δ2 = −µ l1 cos θ2.
-        let l = st.c2 - mul::<QA>(tb.mu, st.s2) + k2;
-        let dl_d2 = -mul::<QA>(tb.mu, st.c2);
+        // Contact friction: L = l1 (cos θ2 − µ sin θ2) + k2, ∂L/∂δ2 = −µ l1 cos θ2 (skipped
+        // at µ = 0, the firmware's default: its instruction budget is counted without them).
+        let (l, dl_d2) = if tb.mu == 0 {
+            (st.c2 + k2, 0)
+        } else {
+            (
+                st.c2 - mul::<QA>(tb.mu, st.s2) + k2,
+                -mul::<QA>(tb.mu, st.c2),
+            )
+        };
         let d1 = self.d1c + dphi - d2;
         let dd2 = self.d2c + d2;
         let k1d1 = mul::<QA>(tb.k1, d1);
@@ -805,9 +812,13 @@ impl<'t> QKernel<'t> {
             sh(wide(tb.k1, k2 + mul::<QA>(d1, dk2_dphi)) - wide(tb.k2, mul::<QA>(dd2, dk2_dphi)));
         let dden_phi = dk2_dphi - mul::<QA>(st.x2, dk2_dphi);
         let t_phi = rden.div::<KD>(narrow(dn_phi as i64 - (wide(ta, dden_phi) >> QA))?)?;
-        let dn_2 =
-            sh(wide(tb.k1, mul::<QA>(d1, dk2_d2) - k2) - wide(tb.k2, l + mul::<QA>(dd2, dl_d2)));
-        let dden_2 = dk2_d2 - mul::<QA>(l, st.dx2) - mul::<QA>(st.x2, dl_d2);
+        let (l_2, x2dl) = if dl_d2 == 0 {
+            (l, 0)
+        } else {
+            (l + mul::<QA>(dd2, dl_d2), mul::<QA>(st.x2, dl_d2))
+        };
+        let dn_2 = sh(wide(tb.k1, mul::<QA>(d1, dk2_d2) - k2) - wide(tb.k2, l_2));
+        let dden_2 = dk2_d2 - mul::<QA>(l, st.dx2) - x2dl;
         let t_2 = rden.div::<KD>(narrow(dn_2 as i64 - (wide(ta, dden_2) >> QA))?)?;
         // ∂k2 = ∂L = cos δφ per k2,c and sin δφ per R.
         let qn = narrow(k1d1 as i64 - k2dd2 as i64 - (wide(ta, ONE - st.x2) >> QA))?;
