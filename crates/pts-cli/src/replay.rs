@@ -389,7 +389,18 @@ pub fn segment(
     let (nb, block_s) = make_blocks(&m64, &cfg, &rows, &mut scratch)
         .map_err(|e| format!("segmenting the trace: {} ({e:?})", e.kind()))?;
     if method == crate::method::Method::Pathfit {
-        dynamics_corrected_residual(&m64, &cfg, &mut scratch[..nb], block_s, finger);
+        // The recording's encoder step: its smallest θa change between rows.
+        let quantum_rad = rows
+            .windows(2)
+            .map(|w| (w[1].theta_a_rad - w[0].theta_a_rad).abs())
+            .filter(|d| *d > 1e-12)
+            .fold(f64::INFINITY, f64::min);
+        let quantum_rad = if quantum_rad.is_finite() {
+            quantum_rad
+        } else {
+            0.0
+        };
+        dynamics_corrected_residual(&m64, &cfg, &mut scratch[..nb], block_s, finger, quantum_rad);
     }
     let blocks = &scratch[..nb];
     let mut out = Segmented {
@@ -454,8 +465,7 @@ pub fn segment(
 /// approach up to the first static detection — free motion whether that detection is the
 /// contact or the ringing — and each block's residual becomes
 /// T_a − T_free(θa) − viscous·θ̇a − inertia·θ̈a, which is noise in free motion whatever the
-/// crank's speed and rises at the contact only. θ̇a and θ̈a are differences across ±2 blocks,
-/// as in the identification. The torques themselves are left as recorded: the path fit
+/// crank's speed and rises at the contact only. The torques themselves are left as recorded: the path fit
 /// carries the identified inertia on its own.
 fn dynamics_corrected_residual(
     m64: &pts::Model<f64>,
@@ -463,9 +473,9 @@ fn dynamics_corrected_residual(
     blocks: &mut [grasp::offline::Block],
     block_s: f64,
     finger: &FingerFile,
+    quantum_rad: f64,
 ) {
     use grasp::offline::{find_contact, identify_drive, DrivePrior};
-    const S: usize = 2;
     let q = finger.rad_per_count();
     let Ok(seg) = find_contact(m64, cfg, blocks, block_s, q, 0) else {
         return;
@@ -477,31 +487,55 @@ fn dynamics_corrected_residual(
     let Some(id) = identify_drive(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior) else {
         return;
     };
-    let corr: Vec<f64> = (0..blocks.len())
-        .map(|k| {
-            let (Some(a), Some(b), Some(c)) = (
-                k.checked_sub(S).and_then(|i| blocks.get(i)),
-                blocks.get(k),
-                blocks.get(k + S),
-            ) else {
-                return 0.0;
-            };
-            let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
-            if !(d1 > 0.0 && d2 > 0.0) {
-                return 0.0;
-            }
-            let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
-            let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
-            let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
-            let acc = 2.0 * (v2 - v1) / (d1 + d2);
-            let v = id.viscous_nm_s_per_rad * w + id.inertia_kgm2 * acc;
-            if v.is_finite() {
-                v
-            } else {
-                0.0
-            }
-        })
-        .collect();
+    // The correction across ±s blocks. A short span follows the ringing; a long one keeps the
+    // encoder's quantisation (`quantum_rad`, the recording's smallest θa step) out of θ̈a.
+    let corr_with = |s: usize| -> Vec<f64> {
+        (0..blocks.len())
+            .map(|k| {
+                let (Some(a), Some(b), Some(c)) = (
+                    k.checked_sub(s).and_then(|i| blocks.get(i)),
+                    blocks.get(k),
+                    blocks.get(k + s),
+                ) else {
+                    return 0.0;
+                };
+                let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+                if !(d1 > 0.0 && d2 > 0.0) {
+                    return 0.0;
+                }
+                let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
+                let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
+                let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+                let acc = 2.0 * (v2 - v1) / (d1 + d2);
+                let v = id.viscous_nm_s_per_rad * w + id.inertia_kgm2 * acc;
+                if v.is_finite() {
+                    v
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    };
+    // The quantisation noise on inertia·θ̈a across ±s blocks is about inertia·q/(s·block)²:
+    // the span that keeps it at a quarter of the detection threshold, from 2 to 12 blocks,
+    // interpolated between whole spans (the answer must not jump with the identified inertia).
+    let span = (id.inertia_kgm2 * quantum_rad / (0.25 * cfg.detect_excess_nm)).sqrt() / block_s;
+    let span = if span.is_finite() {
+        span.clamp(2.0, 12.0)
+    } else {
+        2.0
+    };
+    let lo = span.floor() as usize;
+    let f = span - lo as f64;
+    let c_lo = corr_with(lo);
+    let corr: Vec<f64> = if f > 0.0 {
+        c_lo.iter()
+            .zip(corr_with(lo + 1))
+            .map(|(a, b)| (1.0 - f) * a + f * b)
+            .collect()
+    } else {
+        c_lo
+    };
     for (b, c) in blocks.iter_mut().zip(corr) {
         b.resid_nm -= c;
     }

@@ -321,12 +321,10 @@ fn engine_grid_default_method() {
     if name != "ci" {
         return;
     }
-    // The CI slice, measured (release, 2 cores shared): 15/16 distal positives answered, mean
-    // 2.86 %, max 9.75 % of l2 (R 10 mm, 5e-3 kg·m², realistic friction: its contact lands
-    // 15 mrad late), all 15 within 3σ; none answered as proximal; 6/8 negatives right (the
-    // proximal contacts at 5e-3 kg·m²: one refused, one answered distal at k2 5 mm with low
-    // signal, σ 6.6 mm). Short of the targets, which are printed above; the bounds
-    // below are what holds today with a margin, so that a regression shows.
+    // The CI slice, measured (release, 2 cores shared): 16/16 distal positives answered, mean
+    // 2.47 %, max 6.97 % of l2, all within 3σ; none answered as proximal; 6/8 negatives right
+    // (the proximal contacts at 5e-3 kg·m²). Short of the targets, which are printed
+    // above; the bounds below are what held before with a margin, so that a regression shows.
     assert!(all.answered >= 13, "answered {}/{}", all.answered, all.n);
     assert!(
         all.mean() <= 4.0 && all.max <= 12.0,

@@ -207,6 +207,14 @@ pub struct PathFitConfig {
     /// these samples say nothing about the path. For averaged samples (the controller's, the
     /// default); raw quantised encoder samples repeat while moving slowly.
     pub drop_plateaus: bool,
+    /// Coulomb friction coefficient µ at the object contact (dimensionless, 0 ≤ µ < 2). While
+    /// the step loads the finger the contact slides outward along the distal phalanx (θ1
+    /// falls as θ2 rises), and the friction the object puts on the phalanx resists it: the
+    /// tangential force µ f at the material point, whose motion along the phalanx is
+    /// l1 sin θ2 · δθ1, enters the balance of the O1 joint. The path model then reads
+    /// L = l1 (cos θ2 − µ sin θ2) + k2 instead of l1 cos θ2 + k2 (MODEL.md, "After contact");
+    /// leaving it at 0 on a rough object reads the extra stiffness as a contact further out.
+    pub contact_mu: f64,
 }
 
 impl PathFitConfig {
@@ -233,6 +241,7 @@ impl PathFitConfig {
         envelope_tol_rad: 2e-3,
         approach_span_rad: 0.0,
         drop_plateaus: true,
+        contact_mu: 0.0,
     };
 
     /// This configuration with the measurement model of a drive: rotor inertia (kg·m²), total
@@ -550,7 +559,12 @@ where
     // θa, behind the encoder by the backlash lead. Only θa differences enter the bins.
     let meas_c = theta_a_c_rad;
     let theta_a_c_rad = meas_c - c.lead;
-    let pm = PathModel::new(model, theta_a_c_rad)?;
+    let mut pm = PathModel::new(model, theta_a_c_rad)?;
+    pm.set_contact_mu(
+        R::try_from_f64(cfg.contact_mu)
+            .filter(|_| (0.0..2.0).contains(&cfg.contact_mu))
+            .ok_or(PathFitError::Model(PtsError::OutOfRange))?,
+    );
     let mut w = Work::new(theta_a_c_rad);
     let mut k = GenericKernel {
         pm,

@@ -124,6 +124,8 @@ pub struct PathModel<R> {
     d2c: R,
     l1: R,
     inv_l1: R,
+    /// Coulomb friction coefficient at the object contact (see `PathFitConfig::contact_mu`).
+    mu: R,
     l2: R,
     k1: R,
     k2: R,
@@ -264,6 +266,7 @@ impl<R: Real> PathModel<R> {
             d2c: cfg.theta2 - conv(f.theta02)?,
             l1: conv(f.l1)?,
             inv_l1: conv(1.0 / f.l1)?,
+            mu: R::zero(),
             l2: conv(f.l2)?,
             k1: conv(f.k1)?,
             k2: conv(f.k2)?,
@@ -290,6 +293,12 @@ impl<R: Real> PathModel<R> {
             newton_iters: 0,
             pc,
         })
+    }
+
+    /// Sets the Coulomb friction coefficient µ at the object contact (0 at construction):
+    /// the path's moment arm at O1 becomes L = l1 (cos θ2 − µ sin θ2) + k2.
+    pub fn set_contact_mu(&mut self, mu: R) {
+        self.mu = mu;
     }
 
     /// Moves the contact to another θa,c (the closure table is kept: it is indexed by θ2).
@@ -517,7 +526,10 @@ impl<R: Real> PathModel<R> {
         if !(k2_fin > R::zero()) {
             return Err(PathFail::PastJoint);
         }
-        let l = lc + k2;
+        // Friction µ f on the sliding contact acts at O1 through the material point's motion
+        // along the phalanx, l1 sin θ2 per unit of θ1: L = l1 (cos θ2 − µ sin θ2) + k2.
+        let l = lc - self.mu * self.l1 * st.s2 + k2;
+        let dl_d2 = -self.mu * self.l1 * st.c2;
         let d1 = self.d1c + dphi - d2;
         let dd2 = self.d2c + d2;
         let num = self.k1 * d1 * k2 - self.k2 * dd2 * l;
@@ -536,11 +548,12 @@ impl<R: Real> PathModel<R> {
             let dden = dk2 - st.x2 * dl;
             (dn - ta * dden) * inv_den
         };
-        // Along δ2, k2 gains l1 sin θ2 and L = l1 cos θ2 + k2 stays put (∂L/∂δ2 = 0).
+        // Along δ2, k2 gains l1 sin θ2 and l1 cos θ2 + k2 stays put: ∂L/∂δ2 is the friction
+        // arm's −µ l1 cos θ2.
         let t_2 = {
             let dk2 = dk2_d2;
-            let dn = self.k1 * (d1 * dk2 - k2) - self.k2 * l;
-            let dden = dk2 - l * st.dx2;
+            let dn = self.k1 * (d1 * dk2 - k2) - self.k2 * (l + dd2 * dl_d2);
+            let dden = dk2 - l * st.dx2 - st.x2 * dl_d2;
             (dn - ta * dden) * inv_den
         };
         // ∂k2 = ∂L = cos δφ per k2c and sin δφ per R: both share one factor.
