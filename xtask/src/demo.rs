@@ -237,11 +237,13 @@ impl View {
                 "scene      {} (simulated inside the firmware)",
                 word(m, "scene").unwrap_or("?")
             );
-            println!(
-                "build      {} estimator, ΔT_a = {}",
-                word(m, "estimator").unwrap_or("?"),
-                nm(int(m, "dta_unm").unwrap_or(0))
-            );
+            match word(m, "estimator") {
+                Some(e) => println!(
+                    "build      {e} estimator, ΔT_a = {}",
+                    nm(int(m, "dta_unm").unwrap_or(0))
+                ),
+                None => println!("mode       device: each grasp takes its settings from the host"),
+            }
             println!();
         } else if m.starts_with("S ") {
             let st = word(m, "state").unwrap_or("?");
@@ -261,6 +263,14 @@ impl View {
                     nm(int(m, "ref_unm").unwrap_or(0))
                 );
             }
+        } else if m.starts_with("GRASP ") {
+            println!(
+                "\ngrasp {} on {}: ΔT_a = {}, {} estimator",
+                m.split(' ').nth(1).unwrap_or("?"),
+                word(m, "scene").unwrap_or("?"),
+                nm(int(m, "dta_unm").unwrap_or(0)),
+                word(m, "estimator").unwrap_or("?")
+            );
         } else if let Some(e) = m.strip_prefix("E ") {
             if let Some(words) = event_words(e) {
                 println!("{}", wrap(&format!("{}  ** {words}", t(f.ts)), 14));

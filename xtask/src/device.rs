@@ -190,7 +190,7 @@ fn free_port() -> Res<u16> {
 }
 
 /// Builds the device firmware (path-fit build: both estimators at run time).
-fn build() -> Res<PathBuf> {
+pub fn build() -> Res<PathBuf> {
     let mut cmd = util::cargo();
     cmd.args([
         "build",

@@ -6,6 +6,7 @@
 //! * `bench [--check] [--quick] [--no-criterion]`: solver cost against error.
 //! * `fuzz [--seconds N] [--target NAME]`: the cargo-fuzz targets.
 //! * `qemu ELF`: run a firmware ELF in QEMU and print its decoded defmt log.
+//! * `device [--port PORT]`: the device-mode firmware in QEMU for `pts board`.
 //! * `figures [--check]`: draw the documentation's figures (or check they are current).
 //!
 //! The overview, each command's `--help` and the dispatch all come from one table
@@ -21,6 +22,7 @@ mod fuzz;
 mod log;
 mod panics;
 mod qemu;
+mod serve;
 mod size;
 mod util;
 
@@ -92,6 +94,25 @@ options:
 exit status: 0 when every stage passed, 1 otherwise.
 ",
         run: ci::main,
+    },
+    Cmd {
+        name: "device",
+        args: "[--port PORT]",
+        summary: "the device-mode firmware in QEMU, its UART on a socket for `pts board`",
+        help: "\
+Builds the device-mode firmware for QEMU (features qemu,device; a path-fit build, so both
+estimators can be chosen per grasp), starts it with its UART on the TCP socket
+127.0.0.1:PORT and shows its log live until Ctrl-C. Drive it from another terminal with
+`pts board --connect 127.0.0.1:PORT hello|status|get|set|grasp|release|stop`; between grasps
+`pts board set scene NAME` selects the simulated object.
+
+options:
+  --port PORT           the TCP port of the UART (default 4321, pts board's default)
+  -h, --help            print this help and exit
+
+exit status: QEMU's when it ends; 1 when the build or QEMU cannot start.
+",
+        run: serve::main,
     },
     Cmd {
         name: "figures",

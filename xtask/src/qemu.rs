@@ -306,7 +306,7 @@ pub fn decode_file(elf: &Path, log: &Path) -> Res<Vec<Frame>> {
             Ok(frame) => frames.push(Frame {
                 ts: frame
                     .display_timestamp()
-                    .and_then(|t| t.to_string().trim().parse().ok()),
+                    .and_then(|t| ticks_from_seconds(t.to_string().trim())),
                 level: frame
                     .level()
                     .map(|l| l.as_str().to_uppercase())
