@@ -16,7 +16,7 @@ use pts::PtsError;
 /// The estimator of this build, fixed at build time (`FINGER_FW_ESTIMATOR=two-point|path-fit`,
 /// default: the controller's default). `grasp::run_estimate` picks it at run time from the
 /// request, which links both; choosing here lets the linker drop the other one: the path fit
-/// is much larger fixed-point code, the two-point method fits the 64 KiB flash budget.
+/// is much larger fixed-point code (and its table is built at init).
 pub const ESTIMATOR: Estimator = match crate::config::ESTIMATOR {
     Some(e) => e,
     None => ControllerConfig::DEFAULT.estimator,

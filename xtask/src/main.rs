@@ -138,8 +138,8 @@ exit status: 0 when drawn (or all current), 1 when a figure is stale or a step f
         summary: "flash / static RAM of the board firmware against the budgets",
         help: "\
 Builds the release firmware for the board (STM32F411, thumbv7em-none-eabihf) and prints its
-flash and static RAM (.data + .bss + .uninit, without the stack) against the budgets of 64 KiB
-and 16 KiB.
+flash and static RAM (.data + .bss + .uninit, without the stack) against the budgets of 128 KiB
+and 32 KiB.
 
 options:
   -h, --help            print this help and exit

@@ -6,10 +6,11 @@ use object::{Object, ObjectSection, SectionFlags};
 
 use crate::util::{self, Res};
 
-/// Flash budget of the board firmware (bytes).
-pub const FLASH_BUDGET: u64 = 64 * 1024;
+/// Flash budget of the board firmware (bytes): a quarter of the STM32F411CE's 512 KiB, room
+/// for both estimators, the protocol and USB, with the settings store's sectors apart.
+pub const FLASH_BUDGET: u64 = 128 * 1024;
 /// Static RAM budget (bytes): .data + .bss + .uninit, without the stack.
-pub const RAM_BUDGET: u64 = 16 * 1024;
+pub const RAM_BUDGET: u64 = 32 * 1024;
 
 /// Sizes of one ELF.
 #[derive(Clone, Copy, Debug)]
