@@ -384,7 +384,7 @@ fn print_table(name: &str, cases: &[Case]) -> (f64, f64, f64, usize, usize) {
 fn open_loop_grid_ideal() {
     let cases = grid(Scene::DEFAULT.ideal(), Shape::Step);
     let (m2, mf, meanf, r2, rf) = print_table("ideal plant, open-loop voltage step", &cases);
-    // Measured (pts::pathfit at a50e2e4): path fit max 3.15 %, mean 0.45 %, 1 refusal (R 5 cm
+    // Measured (pathfit at a50e2e4): path fit max 3.15 %, mean 0.45 %, 1 refusal (R 5 cm
     // at 0.9 l2 slides past the tip under 1 N·m); two-point max 25.3 % (its ΔT_a/radius
     // bias, MODEL.md).
     assert!(mf < 4.0 && meanf < 0.7, "path fit max {mf} mean {meanf}");
@@ -396,7 +396,7 @@ fn open_loop_grid_ideal() {
 fn open_loop_grid_realistic() {
     let cases = grid(Scene::DEFAULT, Shape::Step);
     let (m2, mf, meanf, r2, rf) = print_table("realistic plant, open-loop voltage step", &cases);
-    // Measured (pts::pathfit at a50e2e4): path fit max 4.05 %, mean 0.85 %, no refusal;
+    // Measured (pathfit at a50e2e4): path fit max 4.05 %, mean 0.85 %, no refusal;
     // two-point max 24.5 % (2 past the tip).
     assert!(mf < 5.0 && meanf < 1.2, "path fit max {mf} mean {meanf}");
     assert!(m2 < 30.0, "two-point {m2}");

@@ -16,7 +16,7 @@
 //!   [`EstimateRequest`] for [`run_estimate`].
 //! * [`run_estimate`]: the low-priority part. It takes the [`EstimateRequest`] that `tick()`
 //!   hands out once the step has settled and runs the [`Estimator`] the configuration names
-//!   (the paper's two-point method, or `pts::pathfit` on the same samples) as the firmware does,
+//!   (the paper's two-point method, or `pathfit` on the same samples) as the firmware does,
 //!   through [`two_point_fw`] or [`path_fit_fw`] (integers and [`EstReal`] =
 //!   `pts::FirmwareReal`, no floating point); the result goes back through
 //!   [`Controller::deliver`].

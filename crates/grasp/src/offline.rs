@@ -1306,10 +1306,10 @@ pub fn refine_contact<R: pts::Real>(
 /// caller's configuration and the request's period; σ is graded against the table's l2 as the
 /// controller's estimate does. Returns the result with σ(k2,c) (m) of a distal answer; a proximal path is reported as [`Located::Proximal`](crate::Located).
 pub fn path_fit_with(
-    table: &pts::pathfit::q::PathTable,
+    table: &pathfit::q::PathTable,
     req: &EstimateRequest,
     theta_a_c_rad: f64,
     ta_c_nm: f64,
-) -> Result<(crate::EstimateResult, Option<f64>), pts::pathfit::PathFitError> {
+) -> Result<(crate::EstimateResult, Option<f64>), pathfit::PathFitError> {
     crate::estimate::path_fit_q_at(table, req, theta_a_c_rad, ta_c_nm)
 }

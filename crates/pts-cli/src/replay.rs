@@ -580,13 +580,13 @@ fn foreign_path_fit(
             (seg.theta_a_c_rad, seg.ta_c_nm, seg.contact_t_s),
         ),
     };
-    let pcfg = pts::pathfit::PathFitConfig {
+    let pcfg = pathfit::PathFitConfig {
         inertia_kgm2: inertia,
         encoder_lead_rad: 0.5 * finger.drive.backlash_rad,
-        ..pts::pathfit::PathFitConfig::DEFAULT
+        ..pathfit::PathFitConfig::DEFAULT
     };
     let dt = f64::from(seg.request.dt_ns) * 1e-9;
-    let res = pts::pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
+    let res = pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
         .map_err(|e| err(grasp::EstimateError::Model(e)))
         .and_then(|table| {
             path_fit_with(&table, &seg.request, contact.0, contact.1)
