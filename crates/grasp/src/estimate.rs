@@ -699,7 +699,7 @@ fn friction_offset<R: EstNum>(
 /// solves h(T) = T − offset − T_free(q(T)) = 0 by secant from the seated point `(t1, θ1)`
 /// downwards, at most `iters` steps. `Some((θa,c rad, T_a,c N·m))` only when it converged to
 /// a plausible point: within 0.2 N·m below the seated torque and not past the seated angle.
-pub(crate) fn meet_free_curve<R: EstNum>(
+pub fn meet_free_curve<R: EstNum>(
     q: &dyn Fn(R) -> R,
     t_free: &dyn Fn(R) -> Option<R>,
     offset: R,
@@ -839,7 +839,9 @@ fn fit<'a, R: EstNum>(samples: impl Iterator<Item = &'a Sample> + Clone) -> Opti
     Some((mth - b * mt, b))
 }
 
-pub(crate) fn to_micro(v: f64) -> i32 {
+/// A value in SI units as the request's integer micro-units (rounded half away from zero;
+/// 0 for a non-finite value).
+pub fn to_micro(v: f64) -> i32 {
     let x = v * 1e6;
     if !x.is_finite() {
         return 0;
