@@ -220,23 +220,30 @@ fn inject_consts(src: &mut String) {
     );
 }
 
-/// `FINGER_FW_ESTIMATOR=two-point|path-fit`: the estimator linked into the firmware (default:
-/// the controller's default).
+/// The estimator linked into the firmware: the Cargo feature `path-fit` selects the path fit;
+/// `FINGER_FW_ESTIMATOR=two-point|path-fit` is an alias kept for scripts and xtask (default:
+/// the controller's default). Both map to the same cfg; a conflict is an error.
 fn estimator_consts(src: &mut String) {
     // `fw_path_fit`: the path fit's table slot exists only in that build (3.6 KB of RAM).
     println!("cargo::rustc-check-cfg=cfg(fw_path_fit)");
+    let feature = env::var_os("CARGO_FEATURE_PATH_FIT").is_some();
+    let path_fit = "Some(grasp::Estimator::PathFit)";
     let e = match env::var("FINGER_FW_ESTIMATOR").as_deref() {
         // The host tool's spelling (`--method pathfit`) is accepted too.
+        Ok("two-point" | "twopoint") if feature => fail(
+            "FINGER_FW_ESTIMATOR=two-point contradicts the feature `path-fit`; use one of them",
+        ),
         Ok("two-point" | "twopoint") => "Some(grasp::Estimator::TwoPoint)",
-        Ok("path-fit" | "pathfit") => {
-            println!("cargo:rustc-cfg=fw_path_fit");
-            "Some(grasp::Estimator::PathFit)"
-        }
+        Ok("path-fit" | "pathfit") => path_fit,
+        Ok("") | Err(_) if feature => path_fit,
         Ok("") | Err(_) => "None",
         Ok(other) => fail(&format!(
             "FINGER_FW_ESTIMATOR={other}: not an estimator; allowed: two-point, path-fit"
         )),
     };
+    if e == path_fit {
+        println!("cargo:rustc-cfg=fw_path_fit");
+    }
     let _ = writeln!(
         src,
         "/// Estimator chosen at build time (None: the controller's default).\n\

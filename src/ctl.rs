@@ -10,10 +10,11 @@
 
 pub use grasp::{ControllerConfig, DriveConfig, State};
 use grasp::{EstimateError, EstimateRequest, EstimateResult, Estimator};
-use pts::pathfit::PathFitError;
+use pathfit::PathFitError;
 use pts::PtsError;
 
-/// The estimator of this build, fixed at build time (`FINGER_FW_ESTIMATOR=two-point|path-fit`,
+/// The estimator of this build, fixed at build time (feature `path-fit`, or its alias
+/// `FINGER_FW_ESTIMATOR=two-point|path-fit`;
 /// default: the controller's default). `grasp::run_estimate` picks it at run time from the
 /// request, which links both; choosing here lets the linker drop the other one: the path fit
 /// is much larger fixed-point code (and its table is built at init).
@@ -35,7 +36,7 @@ pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
 /// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
 /// build time, a constant in flash: `config::FREE_TABLE`).
 #[cfg(fw_path_fit)]
-pub type EstimatorTable = pts::pathfit::q::PathTable;
+pub type EstimatorTable = pathfit::q::PathTable;
 /// The table this build's estimate runs on, for the build's finger: the path fit's
 /// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
 /// build time, a constant in flash: `config::FREE_TABLE`).
@@ -113,7 +114,7 @@ pub fn run_estimate(
 #[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 #[cfg_attr(not(target_os = "none"), allow(dead_code))] // the host runner names its estimator
 /// The estimators this build can run at run time: the two-point method always, the path fit
-/// when its table is built in (`FINGER_FW_ESTIMATOR=path-fit`).
+/// when its table is built in (feature `path-fit`).
 pub const AVAILABLE: &[Estimator] = match ESTIMATOR {
     Estimator::PathFit => &[Estimator::TwoPoint, Estimator::PathFit],
     Estimator::TwoPoint => &[Estimator::TwoPoint],

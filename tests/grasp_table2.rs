@@ -86,7 +86,7 @@ fn table2_realistic_two_point_and_path_fit() {
     // Measured: two-point +17.0 % (the quasi-static two-point result is +16.35 %, MODEL.md;
     // it was +22.6 % while the impact's rest point, held anywhere in the stiction band, was
     // the first static point); path fit −4.7 % (+1.1 % at commit 7599292; its accuracy is
-    // pts::pathfit's, tested there). Here: the two-point estimate is within 1.5 % l2 of the
+    // pathfit's, tested there). Here: the two-point estimate is within 1.5 % l2 of the
     // quasi-static result (friction's honest cost: Coulomb cancels in ΔT_a, what is left is
     // the sensor gain error and the back-dating), and the path fit, which the selection
     // reaches, is at least twice as close as the two-point estimate on this run.

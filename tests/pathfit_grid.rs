@@ -1,7 +1,7 @@
 //! Acceptance grid of the path-fit estimator (issue 7), closed loop: the real
 //! `grasp::Controller` against `plant::Plant`, the estimate computed from the controller's
-//! `EstimateRequest` by `pts::pathfit` — the generic fit in f64 (the reference) and the
-//! firmware's integer kernel `pts::pathfit::q` on the controller's integer samples, each
+//! `EstimateRequest` by `pathfit` — the generic fit in f64 (the reference) and the
+//! firmware's integer kernel `pathfit::q` on the controller's integer samples, each
 //! summarised and held to the targets — and, beside them, by the paper's two-point method
 //! (`grasp::run_estimate`) on the same run.
 //!
@@ -15,12 +15,12 @@ mod common;
 
 use common::*;
 use grasp::{run_estimate, Controller, EstimateRequest, Hardware, State};
+use pathfit::q::{fit_path_q, PathTable, RawSample};
+use pathfit::{fit_path, FittedObject, PathFit, PathFitConfig, PathFitError, PathSample};
 use plant::kin::Phalanx as PPhalanx;
 use plant::path::ContactSpec;
 use plant::scene::ObjectSpec;
 use plant::{EventKind, Plant, Scene};
-use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
-use pts::pathfit::{fit_path, FittedObject, PathFit, PathFitConfig, PathFitError, PathSample};
 use pts::Model;
 
 const RADII: [f64; 6] = [0.0, 0.005, 0.01, 0.025, 0.05, 0.0975];
@@ -160,7 +160,7 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         cfg.contact_angle_sigma_rad = v;
     }
     if std::env::var("PATHFIT_CYL").is_ok() {
-        cfg.object = pts::pathfit::ObjectModel::Cylinder;
+        cfg.object = pathfit::ObjectModel::Cylinder;
     }
     if let Some(v) = std::env::var("PATHFIT_BINS")
         .ok()
@@ -560,7 +560,7 @@ fn summarize(
             );
         }
     }
-    // Cost driver on the target: path evaluations per fit (crates/pts/benches/pathfit counts
+    // Cost driver on the target: path evaluations per fit (crates/pathfit/benches/icount counts
     // instructions for dumped cases: ≈ 23 k for the sample pass + ≈ 13 k per evaluation, f32).
     let mut evals = [0usize; 25];
     for c in cases {

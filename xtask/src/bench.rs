@@ -262,9 +262,9 @@ fn request_cases(root: &Path) -> Result<Vec<PathBuf>, String> {
 }
 
 /// Issue 7's gate: the firmware's integer path fit on the committed cases within its
-/// instruction budget on thumbv7em and within σ/2 of the FPU fit (`benches/pathfit/check.py`).
+/// instruction budget on thumbv7em and within σ/2 of the FPU fit (`crates/pathfit/benches/icount/check.py`).
 fn pathfit_check(root: &Path) -> Result<i32, String> {
-    let dir = root.join("crates/pts/benches/pathfit");
+    let dir = root.join("crates/pathfit/benches/icount");
     status(
         Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
             .args([

@@ -160,7 +160,7 @@ Builds the instruction-count harness (crates/pts/benches/thumb) for thumbv7em an
 it in the unicorn emulator (python3; `pip install unicorn` when missing) and prints, per solver
 variant, instructions per estimate on both targets, the controller's per-sample work, host time
 (criterion) and the error against the f64 reference. Also counts the firmware's integer path fit
-on the committed cases (crates/pts/benches/pathfit/cases). Counts are emulated instructions,
+on the committed cases (crates/pathfit/benches/icount/cases). Counts are emulated instructions,
 so they do not depend on the machine. The full run takes several minutes.
 
 options:

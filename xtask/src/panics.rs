@@ -84,8 +84,8 @@ const ACCEPTED: &[(&str, &str, &str)] = &[
 ];
 
 /// Panic edges known to remain, reported but not failed: (caller, panic function) substrings.
-/// The path fit's integer kernel (crates/pts/src/pathfit, owned by the estimator's side).
-const KNOWN_OPEN: &[(&str, &str)] = &[("pts7pathfit", "")];
+/// The path fit (crates/pathfit, owned by the estimator's side).
+const KNOWN_OPEN: &[(&str, &str)] = &[("_ZN7pathfit", "")];
 
 fn matches_edge(chain: &[String], caller: &str, callee: &str) -> bool {
     let n = chain.len();

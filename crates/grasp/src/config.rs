@@ -83,7 +83,7 @@ pub enum Estimator {
     /// The paper's two-point method: K̂c = ΔT_a/Δθa (Eq. 1), inverted at the contact
     /// configuration.
     TwoPoint,
-    /// `pts::pathfit`: the whole contact-to-settle path fitted with the quasi-static contact
+    /// `pathfit`: the whole contact-to-settle path fitted with the quasi-static contact
     /// model (friction offset, curvature, inertia), no ΔT_a bias.
     PathFit,
 }

@@ -23,7 +23,7 @@
 #![deny(clippy::float_arithmetic)]
 
 use heapless::{Deque, Vec};
-use pts::pathfit::PathFitError;
+use pathfit::PathFitError;
 use pts::PtsError;
 
 use crate::config::{AfterEstimate, ConfigError, ControllerConfig, Params, HISTORY};

@@ -17,9 +17,9 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use heapless::Vec;
+use pathfit::q::{fit_path_q, PathTable, RawSample};
+use pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
 use pts::fixed::Fx32;
-use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
-use pts::pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
 use pts::table::{FreeTable, TableReal};
 use pts::{Estimate, Finger, Model, Phalanx, PtsError, Real};
 
@@ -284,7 +284,7 @@ pub fn run_estimate_with<R: EstNum>(
 
 /// The table the firmware's path fit runs on for a finger and the control period (ns): the
 /// default path-fit configuration (the prototype drive). Built once, at init on the board
-/// (f64 arithmetic; see [`pts::pathfit::q::PathTable`]).
+/// (f64 arithmetic; see [`pathfit::q::PathTable`]).
 pub fn path_table(finger: &Finger, dt_ns: u32) -> Result<PathTable, PtsError> {
     PathTable::new(finger, &PathFitConfig::DEFAULT, f64::from(dt_ns) * 1e-9)
 }
@@ -357,7 +357,7 @@ fn path_samples(req: &EstimateRequest) -> impl DoubleEndedIterator<Item = &Sampl
         .chain(req.path.iter())
 }
 
-/// The whole-path estimate (`pts::pathfit`, generic back end) from the samples after the
+/// The whole-path estimate (`pathfit`, generic back end) from the samples after the
 /// detection.
 pub fn path_fit<R: EstNum>(
     model: &Model<R>,
@@ -376,7 +376,7 @@ pub fn path_fit<R: EstNum>(
     path_fit_result(model.l2(), req, theta_c, ta_c, fit).map(|(r, _)| r)
 }
 
-/// The whole-path estimate on the firmware's integer kernel (`pts::pathfit::q`): the
+/// The whole-path estimate on the firmware's integer kernel (`pathfit::q`): the
 /// controller's samples as they are (ticks, µrad, µN·m), the contact point from the table's
 /// free-motion torque. `table` must be built for the request's control period
 /// ([`path_table`]).
@@ -699,7 +699,7 @@ fn friction_offset<R: EstNum>(
 /// solves h(T) = T − offset − T_free(q(T)) = 0 by secant from the seated point `(t1, θ1)`
 /// downwards, at most `iters` steps. `Some((θa,c rad, T_a,c N·m))` only when it converged to
 /// a plausible point: within 0.2 N·m below the seated torque and not past the seated angle.
-pub(crate) fn meet_free_curve<R: EstNum>(
+pub fn meet_free_curve<R: EstNum>(
     q: &dyn Fn(R) -> R,
     t_free: &dyn Fn(R) -> Option<R>,
     offset: R,
@@ -839,7 +839,9 @@ fn fit<'a, R: EstNum>(samples: impl Iterator<Item = &'a Sample> + Clone) -> Opti
     Some((mth - b * mt, b))
 }
 
-pub(crate) fn to_micro(v: f64) -> i32 {
+/// A value in SI units as the request's integer micro-units (rounded half away from zero;
+/// 0 for a non-finite value).
+pub fn to_micro(v: f64) -> i32 {
     let x = v * 1e6;
     if !x.is_finite() {
         return 0;

@@ -11,12 +11,9 @@
 //!   for the host with the same numbers. Integer arithmetic only, no allocation, no panic
 //!   path: `tests/no_float.rs` checks the thumbv6m assembly of [`tick_dyn`], [`loop_tick_dyn`]
 //!   and [`supervise_dyn`].
-//! * [`offline`]: a recorded grasp that our controller did not produce (any profile, any
-//!   sample rate): contacts found by segmentation, each turned into the same
-//!   [`EstimateRequest`] for [`run_estimate`].
 //! * [`run_estimate`]: the low-priority part. It takes the [`EstimateRequest`] that `tick()`
 //!   hands out once the step has settled and runs the [`Estimator`] the configuration names
-//!   (the paper's two-point method, or `pts::pathfit` on the same samples) as the firmware does,
+//!   (the paper's two-point method, or `pathfit` on the same samples) as the firmware does,
 //!   through [`two_point_fw`] or [`path_fit_fw`] (integers and [`EstReal`] =
 //!   `pts::FirmwareReal`, no floating point); the result goes back through
 //!   [`Controller::deliver`].
@@ -64,7 +61,6 @@ pub mod config;
 pub mod control_loop;
 pub mod controller;
 pub mod estimate;
-pub mod offline;
 pub mod sensors;
 pub mod torque_loop;
 

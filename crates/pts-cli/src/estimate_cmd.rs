@@ -125,7 +125,7 @@ pub fn run(
 ) -> Result<(), String> {
     let text = read_text(path)?;
     // A trace written by `pts sim` (our controller in the loop): replay that controller, bit
-    // for bit. Any other recorded grasp: find its contacts with grasp::offline.
+    // for bit. Any other recorded grasp: find its contacts with crate::offline.
     if TraceMeta::find(&text).is_none() {
         let method = method.unwrap_or(Method::Pathfit);
         return run_segmented(path, &text, finger, dta, dt_s, json_out, method);

@@ -18,6 +18,7 @@ pub mod calibrate;
 pub mod estimate_cmd;
 pub mod eval;
 pub mod method;
+pub mod offline;
 pub mod path;
 pub mod plot;
 pub mod replay;

@@ -1,5 +1,5 @@
 //! Which estimator the controller's request names: the paper's two-point method or
-//! `pts::pathfit` on the whole contact-to-settle path. Both run inside the firmware's
+//! `pathfit` on the whole contact-to-settle path. Both run inside the firmware's
 //! `grasp::run_estimate_with`; the tool only picks `ControllerConfig::estimator`.
 
 /// The estimator.

@@ -318,7 +318,7 @@ pub fn replay(
     Ok(rep)
 }
 
-/// One contact found by the offline segmenter (`grasp::offline`) in a trace our controller
+/// One contact found by the offline segmenter (`crate::offline`) in a trace our controller
 /// did not produce, with the estimate `grasp::run_estimate_with` made from its request.
 #[derive(Clone, Debug)]
 pub struct SegmentedContact {
@@ -335,7 +335,7 @@ pub struct SegmentedContact {
     /// The paper's two-point estimate on the same request (reported beside a path fit).
     pub two_point: Option<Result<EstimateResult, crate::sim::EstError>>,
     /// The drive identified from this contact's approach (path fit only).
-    pub drive: Option<grasp::offline::DriveId>,
+    pub drive: Option<crate::offline::DriveId>,
     /// σ(k2,c) of a distal path-fit answer (m).
     pub sigma_k2_m: Option<f64>,
 }
@@ -351,7 +351,7 @@ pub struct Segmented {
     pub block_s: f64,
 }
 
-/// Finds every contact of a recorded grasp with `grasp::offline` (no controller replay: the
+/// Finds every contact of a recorded grasp with `crate::offline` (no controller replay: the
 /// trace may come from any profile, sample rate or driver) and runs the firmware's estimator
 /// on the request built for each.
 pub fn segment(
@@ -359,7 +359,7 @@ pub fn segment(
     finger: &FingerFile,
     method: crate::method::Method,
 ) -> Result<Segmented, String> {
-    use grasp::offline::{for_each_contact, make_blocks, Block, OfflineConfig, TraceSample};
+    use crate::offline::{for_each_contact, make_blocks, Block, OfflineConfig, TraceSample};
     // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
     // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
     const IDLE_KEEP_S: f64 = 2.0;
@@ -461,7 +461,7 @@ pub fn segment(
 /// friction rings in free motion (the crank oscillates on the links' springs, period
 /// 2π·√(J/K)), and where the ringing nearly stalls the crank the static residual
 /// T_a − T_free(θa) rises as a contact's would (measured on the engine grid: knees 60-85 mrad
-/// before the contact). The drive is identified (`grasp::offline::identify_drive`) on the
+/// before the contact). The drive is identified (`crate::offline::identify_drive`) on the
 /// approach up to the first static detection — free motion whether that detection is the
 /// contact or the ringing — and each block's residual becomes
 /// T_a − T_free(θa) − viscous·θ̇a − inertia·θ̈a, which is noise in free motion whatever the
@@ -469,13 +469,13 @@ pub fn segment(
 /// carries the identified inertia on its own.
 fn dynamics_corrected_residual(
     m64: &pts::Model<f64>,
-    cfg: &grasp::offline::OfflineConfig,
-    blocks: &mut [grasp::offline::Block],
+    cfg: &crate::offline::OfflineConfig,
+    blocks: &mut [crate::offline::Block],
     block_s: f64,
     finger: &FingerFile,
     quantum_rad: f64,
 ) {
-    use grasp::offline::{find_contact, identify_drive, DrivePrior};
+    use crate::offline::{find_contact, identify_drive, DrivePrior};
     let q = finger.rad_per_count();
     let Ok(seg) = find_contact(m64, cfg, blocks, block_s, q, 0) else {
         return;
@@ -543,22 +543,22 @@ fn dynamics_corrected_residual(
 
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
 /// term and friction offset identified from this contact's approach
-/// (`grasp::offline::identify_drive`, the finger file's inertia as the prior), the contact
-/// point on the dynamics-corrected residual (`grasp::offline::refine_contact`), then the
+/// (`crate::offline::identify_drive`, the finger file's inertia as the prior), the contact
+/// point on the dynamics-corrected residual (`crate::offline::refine_contact`), then the
 /// firmware's integer path fit with that inertia and the finger file's backlash. Without an
 /// identification (too short an approach) the controller's defaults.
 #[allow(clippy::type_complexity)]
 fn foreign_path_fit(
     m64: &pts::Model<f64>,
-    cfg: &grasp::offline::OfflineConfig,
-    blocks: &[grasp::offline::Block],
-    seg: &grasp::offline::Segment,
+    cfg: &crate::offline::OfflineConfig,
+    blocks: &[crate::offline::Block],
+    seg: &crate::offline::Segment,
     finger: &FingerFile,
 ) -> (
     Result<(EstimateResult, Option<f64>), crate::sim::EstError>,
-    Option<(grasp::offline::DriveId, (f64, f64, f64))>,
+    Option<(crate::offline::DriveId, (f64, f64, f64))>,
 ) {
-    use grasp::offline::{identify_drive, path_fit_with, refine_contact, DrivePrior};
+    use crate::offline::{identify_drive, path_fit_with, refine_contact, DrivePrior};
     let q = finger.rad_per_count();
     let prior = DrivePrior {
         inertia_kgm2: finger.drive.inertia_kgm2,
@@ -580,13 +580,13 @@ fn foreign_path_fit(
             (seg.theta_a_c_rad, seg.ta_c_nm, seg.contact_t_s),
         ),
     };
-    let pcfg = pts::pathfit::PathFitConfig {
+    let pcfg = pathfit::PathFitConfig {
         inertia_kgm2: inertia,
         encoder_lead_rad: 0.5 * finger.drive.backlash_rad,
-        ..pts::pathfit::PathFitConfig::DEFAULT
+        ..pathfit::PathFitConfig::DEFAULT
     };
     let dt = f64::from(seg.request.dt_ns) * 1e-9;
-    let res = pts::pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
+    let res = pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
         .map_err(|e| err(grasp::EstimateError::Model(e)))
         .and_then(|table| {
             path_fit_with(&table, &seg.request, contact.0, contact.1)

@@ -99,7 +99,7 @@ fn minimal_columns_and_current_reproduce_it_closely() {
     for (name, body) in [("minimal.csv", minimal), ("current.csv", current)] {
         let p = dir().join(name);
         std::fs::write(&p, body).unwrap();
-        // No `# pts-sim` line: the contact is found by grasp::offline's segmentation (not by
+        // No `# pts-sim` line: the contact is found by pts_cli::offline's segmentation (not by
         // replaying the controller), so close to, not equal to, the closed loop: measured
         // k2 0.041531 m vs 0.042003 m (MODEL.md's quasi-static two-point: 0.041529 m),
         // K̂c 9.9995 vs 10.156 N·m/rad.

@@ -23,6 +23,9 @@ use crate::Real;
 use core::ops::{Add, Div, Mul, Neg, Sub};
 use fixed::types::I32F32;
 
+/// The Q31 reciprocal of the integer kernel, for other integer kernels (the path fit's).
+pub use kernel::recip_q31;
+
 /// Integer kernels in Q62/Q32 shared by both widths.
 pub(crate) mod kernel {
     /// 1.0 in Q62.
@@ -324,7 +327,7 @@ pub(crate) mod kernel {
     /// cycles on the Cortex-M4, relative error < 2^-14) and from a 256-entry table on
     /// Armv6-M, which has no divide instruction (relative error < 2^-8).
     #[inline(always)]
-    pub(crate) fn recip_q31(d: u32) -> u64 {
+    pub fn recip_q31(d: u32) -> u64 {
         #[cfg(all(target_arch = "arm", not(target_has_atomic = "32")))]
         {
             recip_q31_from(d, recip_seed_table(d))

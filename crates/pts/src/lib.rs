@@ -19,7 +19,6 @@ mod error;
 mod finger;
 pub mod fixed;
 pub mod model;
-pub mod pathfit;
 pub mod real;
 pub mod table;
 

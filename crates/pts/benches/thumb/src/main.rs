@@ -13,7 +13,7 @@ use grasp::{
     ControlLoop, Controller, ControllerConfig, EstimateRequest, EstimateResult, Estimator,
     Hardware, Link, Located, Sample, Supervisor, TwoPointTable,
 };
-use pts::pathfit::q::PathTable;
+use pathfit::q::PathTable;
 use pts::fixed::{Fx16, Fx24, Fx32};
 use pts::table::FreeTable;
 use pts::{Estimate, Finger, Model, Phalanx, PtsError, Real};

@@ -1,4 +1,4 @@
-//! `grasp::offline` on traces synthesized here from MODEL.md's quasi-static relations: free
+//! `pts_cli::offline` on traces synthesized here from MODEL.md's quasi-static relations: free
 //! motion (T_a = K1(θ1 − θ0,1), K2(θ2 − θ0,2) = T_a x2), then a vertex fixed in the world where
 //! the free finger touched it at θ1,c = 1.2797 rad (the Table 2 contact configuration), the
 //! contact sliding along the distal phalanx with the statics
@@ -7,13 +7,13 @@
 //! ADC quantization and Gaussian current noise. Truth: the k2 of the vertex at contact.
 //!
 //! Also: several contacts in one file, unsorted and duplicated rows, 1 kHz and 10 kHz.
-//! `cargo test --release --test offline_synth -- --nocapture` prints the tables.
+//! `cargo test --release -p pts-cli --test offline_synth -- --nocapture` prints the tables.
 
-use grasp::offline::{
-    find_contact, for_each_contact, make_blocks, Block, OfflineConfig, OfflineError, TraceSample,
-};
 use grasp::{run_estimate_fw, Estimator};
 use pts::Model;
+use pts_cli::offline::{
+    find_contact, for_each_contact, make_blocks, Block, OfflineConfig, OfflineError, TraceSample,
+};
 
 const L1: f64 = 0.100;
 const L2: f64 = 0.075;

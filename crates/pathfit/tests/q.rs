@@ -1,7 +1,7 @@
-//! The firmware's integer path fit (`pts::pathfit::q`) against the generic fit in f64.
+//! The firmware's integer path fit (`pathfit::q`) against the generic fit in f64.
+use pathfit::q::{fit_path_q, PathTable, RawSample};
+use pathfit::{fit_path, PathFitConfig, PathSample};
 use pts::fixed::Fx32;
-use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
-use pts::pathfit::{fit_path, PathFitConfig, PathSample};
 use pts::{Finger, Model, Real};
 
 const TICK_S: f64 = 1e-4;
@@ -36,7 +36,7 @@ fn harness_cases_match_f64() {
     let m = Model::<f64>::paper().unwrap();
     // QCASES=dir runs another folder of case files (e.g. the grid dumped by PATHFIT_DUMP).
     let dir = std::env::var("QCASES")
-        .unwrap_or(concat!(env!("CARGO_MANIFEST_DIR"), "/benches/pathfit/cases").to_string());
+        .unwrap_or(concat!(env!("CARGO_MANIFEST_DIR"), "/benches/icount/cases").to_string());
     for e in std::fs::read_dir(dir).unwrap() {
         let p = e.unwrap().path();
         let (thc, tac, raw) = read_case(p.to_str().unwrap());
@@ -124,7 +124,7 @@ mod arbitrary {
         PathTable::new(&Finger::PAPER, &PathFitConfig::DEFAULT, TICK_S).unwrap()
     }
 
-    fn check(r: Result<pts::pathfit::PathFit<Fx32>, pts::pathfit::PathFitError>) {
+    fn check(r: Result<pathfit::PathFit<Fx32>, pathfit::PathFitError>) {
         if let Ok(f) = r {
             let k2 = f.k2_contact_m.to_f64();
             assert!(k2 > 0.0 && k2 <= Finger::PAPER.l2, "k2 {k2}");
@@ -174,7 +174,7 @@ mod arbitrary {
             dth_c in -0.05f64..0.05,
             tick_jitter in 0u32..3,
         ) {
-            let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/pathfit/cases");
+            let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/icount/cases");
             let (thc, tac, raw) = read_case(&format!("{dir}/table2_realistic.txt"));
             let mut x = seed | 1;
             let mut rnd = move |m: i32| {

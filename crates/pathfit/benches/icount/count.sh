@@ -1,8 +1,8 @@
 #!/bin/sh
-# Instruction count and peak stack of pts::pathfit::fit_path on thumbv7em (Cortex-M4F) under
+# Instruction count and peak stack of pathfit::fit_path on thumbv7em (Cortex-M4F) under
 # unicorn, for every case file: f32 on the FPU (`run_f32`) and Fx32 (`run`).
-# Usage: crates/pts/benches/pathfit/count.sh [case files...]        one line per case and entry
-#        crates/pts/benches/pathfit/count.sh --summary case files...  min / median / max
+# Usage: crates/pathfit/benches/icount/count.sh [case files...]        one line per case and entry
+#        crates/pathfit/benches/icount/count.sh --summary case files...  min / median / max
 # (needs python3 + unicorn: `cargo xtask bench` installs it). Builds into target/bench-pathfit.
 # Case files of the whole grid, one per request: mkdir d && PATHFIT_DUMP=d cargo test --release
 # --test pathfit_grid -- pathfit_grid_on_the_plant (files d/ideal_* and d/realistic_*).

@@ -1,14 +1,14 @@
 //! Instruction count of the path fit on thumbv7em (run under unicorn by emu.py, `count.sh`):
-//! `run` = the generic `pts::pathfit::fit_path` on Fx32, `run_f32` the same on the Cortex-M4F
-//! single-precision FPU, `run_q` the firmware's integer fit `pts::pathfit::q::fit_path_q` (its
+//! `run` = the generic `pathfit::fit_path` on Fx32, `run_f32` the same on the Cortex-M4F
+//! single-precision FPU, `run_q` the firmware's integer fit `pathfit::q::fit_path_q` (its
 //! table built by `init_q` beforehand, as the firmware does at init), with
 //! `PathFitConfig::DEFAULT` (the paper finger on the RE10 drive) and the case in INPUT*.
 #![no_std]
 #![no_main]
 
 use pts::fixed::Fx32;
-use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
-use pts::pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
+use pathfit::q::{fit_path_q, PathTable, RawSample};
+use pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
 use pts::{Finger, Model};
 
 /// Filled by the harness: Fx32 bits of θa,c, T_a,c and N samples (θa, T_a).
@@ -137,7 +137,7 @@ pub extern "C" fn init_q() -> i32 {
     }
 }
 
-/// The firmware's integer fit (`pts::pathfit::q`).
+/// The firmware's integer fit (`pathfit::q`).
 #[no_mangle]
 #[inline(never)]
 pub extern "C" fn run_q() -> i32 {

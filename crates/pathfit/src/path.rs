@@ -1,4 +1,4 @@
-//! The estimator's own model of the quasi-static contact path (used by [`crate::pathfit`]).
+//! The estimator's own model of the quasi-static contact path (used by [`crate`]).
 //!
 //! After contact on the distal phalanx at k2,c the object is fixed: a vertex (R = 0) or a
 //! cylinder of radius R tangent to the phalanx at the contact point, on its flexion side.
@@ -21,7 +21,7 @@
 //! cubic Hermite interpolation between nodes [`NODE_STEP`] apart. So a path evaluation costs
 //! multiplications and a few divisions, no library trigonometry.
 
-use crate::{Config, Model, PtsError, Real};
+use pts::{Config, Model, PtsError, Real};
 
 /// Spacing of the closure table nodes in θ2 (rad). A power of two: exact in fixed point.
 pub const NODE_STEP: f64 = 0.125;
@@ -734,7 +734,7 @@ fn closure_sc<R: Real>(z: &[R; 3], sl: R, cl: R) -> Result<Node<R>, PathFail> {
     let inv_m = R::one() / m;
     let gp = n * inv_m;
     let x2 = R::one() - gp;
-    if x2.abs() < R::from_f64(crate::model::TOGGLE_X2) {
+    if x2.abs() < R::from_f64(pts::model::TOGGLE_X2) {
         return Err(PathFail::Model(PtsError::Toggle));
     }
     let np = clg * x2 - z3 * cl;

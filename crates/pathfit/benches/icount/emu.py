@@ -3,7 +3,7 @@ and counts every executed instruction: the one loader behind count.py, summary.p
 callers.py. A case file is `θa,c T_a,c` then `t θa T_a` per sample (SI); the harness gets it as
 Fx32 bits (INPUT), f32 (INPUT_F32) and the controller's integers (INPUT_RAW: tick of 100 µs, µrad,
 µN·m). Entries: `run` = generic fit on Fx32, `run_f32` = generic fit on the FPU, `run_q` = the
-firmware's integer fit (`pts::pathfit::q`; its table is built by `init_q` first, not counted)."""
+firmware's integer fit (`pathfit::q`; its table is built by `init_q` first, not counted)."""
 import struct, subprocess
 from unicorn import Uc, UC_ARCH_ARM, UC_MODE_THUMB, UC_MODE_MCLASS, UC_HOOK_CODE
 from unicorn.arm_const import UC_ARM_REG_SP, UC_ARM_REG_LR, UC_ARM_REG_R0

@@ -3,10 +3,10 @@
 //! Levenberg–Marquardt steps and σ (a few hundred operations per fit) stay in [`Fx32`].
 //!
 //! Why a kernel of its own: in Q32.32 every add saturates and every product takes three to
-//! four long multiplies, which put the generic fit ([`super::fit_path`] on [`Fx32`]) at
-//! 0.2–0.36 M instructions on a Cortex-M4, where the budget is 0.1 M. Here a product is one
-//! `SMULL` and a shift, sums of products accumulate in 64 bits (`SMLAL`), a quotient is a
-//! reciprocal seeded by the hardware divider, and the samples never leave the integers the
+//! four long multiplies, which puts the generic fit ([`super::fit_path`] on [`Fx32`]) over the
+//! firmware's instruction budget. Here a product is one `SMULL` and a shift, sums of products
+//! accumulate in 64 bits (`SMLAL`), a quotient is a reciprocal seeded by the hardware divider,
+//! and the samples never leave the integers the
 //! controller measured (µrad, µN·m, ticks). The formats (value = raw · 2^-Q):
 //!
 //! | quantity | Q | range | resolution |
@@ -24,14 +24,11 @@
 //! transmission within the formats): every product and sum is then in range, and every
 //! quotient and narrowing is checked ([`PathFail::OutOfRange`] otherwise).
 //!
-//! Cost on thumbv7em (unicorn, `crates/pts/benches/pathfit/count.sh --summary` over the 160
-//! realistic plant requests of the grid): min 55 k / median 72 k / max 93 k instructions per
-//! fit, within the 100 k budget every time (refused requests ≤ 93 k); peak stack 7.1 KB
-//! (harness included). Memory: the table is 3.6 KB (RAM, built at init), a fit allocates
-//! nothing. `cargo xtask bench` gates the committed cases at 100 k.
+//! Memory: the table lives in RAM, built at init; a fit allocates nothing. Its instruction
+//! count on thumbv7em is gated by `cargo xtask bench --check` (`benches/icount`).
 //!
 //! Tested against an exact f64 solve of the contact equations (path points, unit tests
-//! below), the f64 model (free motion), the generic fit in f64 (`tests/pathfit_q.rs`:
+//! below), the f64 model (free motion), the generic fit in f64 (`tests/q.rs`:
 //! recorded-style requests, synthesized paths, arbitrary samples without a panic) and the
 //! plant (`tests/pathfit_grid.rs`).
 
@@ -40,9 +37,9 @@ use super::{
     run_fit, Eval, FitConsts, Kernel, PathFit, PathFitConfig, PathFitError, Work, MAX_BINS,
     MIN_BINS, NP, RAD, TC, TF,
 };
-use crate::fixed::{kernel::recip_q31, Fx32};
-use crate::table::{TABLE_TA_MAX_NM, TABLE_TA_MIN_NM};
-use crate::{Config, Finger, Model, PtsError, Real};
+use pts::fixed::{recip_q31, Fx32};
+use pts::table::{TABLE_TA_MAX_NM, TABLE_TA_MIN_NM};
+use pts::{Config, Finger, Model, PtsError, Real};
 
 /// Binary point of angles, sin/cos, x2, dx2/dθ2 and lengths in units of l1.
 const QA: u32 = 28;
@@ -1422,7 +1419,7 @@ fn correct(
 ///
 /// `theta_a_c_rad` and `approach_torque_nm` as for [`super::fit_path`]; `samples` are the
 /// controller's own (ticks of the period given to [`PathTable::new`], µrad, µN·m), in time
-/// order, traversed backwards once. Cost on a Cortex-M4: see `crates/pts/benches/pathfit`.
+/// order, traversed backwards once. Cost on a Cortex-M4: see `crates/pathfit/benches/icount`.
 pub fn fit_path_q<I>(
     table: &PathTable,
     theta_a_c_rad: Fx32,
@@ -1451,7 +1448,7 @@ mod tests {
     //! (library trigonometry, the model's exact closure, Newton to 1e-13) and its finite
     //! differences; the generic path model's interpolated points are printed beside it.
     use super::*;
-    use crate::pathfit::path::PathModel;
+    use crate::path::PathModel;
     extern crate std;
 
     fn q28(v: f64) -> i32 {

@@ -49,17 +49,12 @@
 //! The fit is written once (priors, LM, the radius decision, σ, refusals) against a
 //! `Kernel`: the path model and the binned samples. [`fit_path`] runs the generic kernel
 //! ([`path`], any [`Real`]: f64 on the host is the reference); [`q::fit_path_q`] runs the
-//! firmware's 32-bit integer kernel on the controller's own integer samples. Cost on
-//! thumbv7em for the 160 realistic plant requests of the grid (unicorn,
-//! `crates/pts/benches/pathfit/count.sh --summary`): the integer kernel min 55 k / median
-//! 72 k / max 93 k instructions (every fit and every refusal within the 100 k budget, also on
-//! the ideal plant and other noise seeds), 7.1 KB peak stack; this generic fit on the
-//! Cortex-M4F FPU 48 k / 59 k / 78 k; on `Fx32` 201 k / 255 k / 344 k (every I32F32 add
-//! saturates and every product takes three to four long multiplies). No library
-//! trigonometry runs in either. It runs once per contact in the low-priority task.
+//! firmware's 32-bit integer kernel on the controller's own integer samples. Its cost on
+//! thumbv7em is measured by `benches/icount` (`cargo xtask bench`). It runs once per contact
+//! in the firmware's low-priority task.
 //!
 //! ```
-//! use pts::pathfit::{fit_path, PathFitConfig, PathSample};
+//! use pathfit::{fit_path, PathFitConfig, PathSample};
 //! let model = pts::Model::<f64>::paper().unwrap();
 //! // (θa, T_a) pairs from the controller, in time order; here a short, flat, useless path.
 //! let samples = (0..50).map(|i| PathSample {
@@ -70,14 +65,16 @@
 //! let r = fit_path(&model, &PathFitConfig::DEFAULT, -0.2238, Some(0.42), samples);
 //! assert_eq!(r.unwrap_err().kind(), "no_motion");
 //! ```
+#![no_std]
+#![forbid(unsafe_code)]
+// `!(a > b)` is deliberate throughout: it is true for NaN, so a NaN fails every range check.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-#[path = "pathfit_path.rs"]
 pub mod path;
-#[path = "pathfit_q.rs"]
 pub mod q;
 
-use crate::{Config, Model, PtsError, Real};
 use path::{PathFail, PathModel};
+use pts::{Config, Model, PtsError, Real};
 
 /// Parameter indices of the fit: k2,c/l2, R/l2, T_f (N·m), θa,c (rad).
 const K: usize = 0;

@@ -1,4 +1,4 @@
-//! `grasp::offline` on traces our controller did not produce.
+//! `pts_cli::offline` on traces our controller did not produce.
 //!
 //! (a) The plant driven open loop by a plain commanded-current profile (smooth slow ramp →
 //!     contact → ΔT_a step or ramp → hold), ideal and realistic drive/sensors, vertex and
@@ -7,11 +7,7 @@
 //! (b) A trace synthesized here from MODEL.md's quasi-static relations (free motion, then the
 //!     contact path of a vertex), with encoder quantization, current noise and a Coulomb offset.
 //!
-//! `cargo test --release --test offline_traces -- --nocapture` prints the tables.
-mod common;
-
-use common::L2;
-use grasp::offline::{find_contact, make_blocks, Block, OfflineConfig, OfflineError, TraceSample};
+//! `cargo test --release -p pts-cli --test offline_traces -- --nocapture` prints the tables.
 use grasp::{run_estimate_fw, EstimateResult, Estimator};
 use plant::drive::Input;
 use plant::kin::Phalanx as PPhalanx;
@@ -19,6 +15,12 @@ use plant::path::ContactSpec;
 use plant::scene::ObjectSpec;
 use plant::{EventKind, Plant, Scene};
 use pts::Model;
+use pts_cli::offline::{
+    find_contact, make_blocks, Block, OfflineConfig, OfflineError, TraceSample,
+};
+
+/// l2 of the paper's finger (m).
+const L2: f64 = 0.075;
 
 /// Encoder step of the paper's drive (rad): 2π/(64·3072).
 const QUANTUM: f64 = core::f64::consts::TAU / (64.0 * 3072.0);
@@ -205,7 +207,7 @@ fn estimate(
     estimator: Estimator,
 ) -> Result<
     (
-        grasp::offline::Segment,
+        pts_cli::offline::Segment,
         Result<EstimateResult, grasp::EstimateError>,
     ),
     OfflineError,
@@ -384,7 +386,7 @@ fn print_table(name: &str, cases: &[Case]) -> (f64, f64, f64, usize, usize) {
 fn open_loop_grid_ideal() {
     let cases = grid(Scene::DEFAULT.ideal(), Shape::Step);
     let (m2, mf, meanf, r2, rf) = print_table("ideal plant, open-loop voltage step", &cases);
-    // Measured (pts::pathfit at a50e2e4): path fit max 3.15 %, mean 0.45 %, 1 refusal (R 5 cm
+    // Measured (pathfit at a50e2e4): path fit max 3.15 %, mean 0.45 %, 1 refusal (R 5 cm
     // at 0.9 l2 slides past the tip under 1 N·m); two-point max 25.3 % (its ΔT_a/radius
     // bias, MODEL.md).
     assert!(mf < 4.0 && meanf < 0.7, "path fit max {mf} mean {meanf}");
@@ -396,7 +398,7 @@ fn open_loop_grid_ideal() {
 fn open_loop_grid_realistic() {
     let cases = grid(Scene::DEFAULT, Shape::Step);
     let (m2, mf, meanf, r2, rf) = print_table("realistic plant, open-loop voltage step", &cases);
-    // Measured (pts::pathfit at a50e2e4): path fit max 4.05 %, mean 0.85 %, no refusal;
+    // Measured (pathfit at a50e2e4): path fit max 4.05 %, mean 0.85 %, no refusal;
     // two-point max 24.5 % (2 past the tip).
     assert!(mf < 5.0 && meanf < 1.2, "path fit max {mf} mean {meanf}");
     assert!(m2 < 30.0, "two-point {m2}");

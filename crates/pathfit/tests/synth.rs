@@ -2,11 +2,11 @@
 //! finite-difference Jacobian, fine torque marching), with and without a synthetic board
 //! (Coulomb friction, stiction at contact, current noise, encoder quantisation).
 //!
-//! `cargo test -p pts --release --test pathfit_synth -- --nocapture` prints the grids.
+//! `cargo test -p pathfit --release --test synth -- --nocapture` prints the grids.
 //! The acceptance grid on the plant is `tests/pathfit_grid.rs` in the root package.
 
-use pts::pathfit::q::{fit_path_q, PathTable, RawSample};
-use pts::pathfit::{fit_path, PathFitConfig, PathFitError, PathSample};
+use pathfit::q::{fit_path_q, PathTable, RawSample};
+use pathfit::{fit_path, PathFitConfig, PathFitError, PathSample};
 use pts::{Finger, Model};
 
 const L2: f64 = 0.075;

@@ -1,0 +1,487 @@
+//! Phases 1–2: arming on free motion, detecting the rise of the free-motion residual (a
+//! stiction stall is not a contact), the knee where the rise meets the shifted free-motion
+//! curve, its back-dating through static points on the path, and the contact point on the
+//! dynamics-corrected residual once the drive is identified.
+
+use heapless::Vec;
+use pts::{Model, PtsError};
+
+use super::blocks::{mean, median};
+use super::drive::DriveId;
+use super::{Block, OfflineConfig, OfflineError, Segment};
+
+/// A free-motion window: θa advanced by ≥ arm, residual flat. Returns (offset, σ).
+pub fn free_window(cfg: &OfflineConfig, w: &[Block]) -> Option<(f64, f64)> {
+    let (first, last) = (w.first()?, w.last()?);
+    if w.iter().any(|b| b.resid_nm.is_nan()) {
+        return None;
+    }
+    if !(last.theta_a_rad - first.theta_a_rad >= cfg.arm_rad) {
+        return None;
+    }
+    // θa must advance through the window (no stall in the middle of it).
+    let h = w.len() / 2;
+    let (a, b) = w.split_at(h);
+    let mid = b.first()?.theta_a_rad;
+    let travel = last.theta_a_rad - first.theta_a_rad;
+    if !(mid - first.theta_a_rad > 0.2 * travel && last.theta_a_rad - mid > 0.2 * travel) {
+        return None;
+    }
+    let off = median(w.iter().map(|b| b.resid_nm))?;
+    // σ from successive differences: a trend (a slow contact rise) must not pass for noise.
+    let mad = median(w.windows(2).map(|p| match p {
+        [x, y] => (y.resid_nm - x.resid_nm).abs(),
+        _ => f64::NAN,
+    }))?;
+    let sigma = 1.4826 * mad / core::f64::consts::SQRT_2;
+    let ma = median(a.iter().map(|b| b.resid_nm))?;
+    let mb = median(b.iter().map(|b| b.resid_nm))?;
+    // Flat: the residual's change between the halves is noise, or far less than a contact
+    // adds per radian (≥ K_c,proximal − K_free ≈ 2 N·m/rad).
+    let dth = mean(b, |x| x.theta_a_rad) - mean(a, |x| x.theta_a_rad);
+    if !((mb - ma).abs() <= 2.0 * sigma + cfg.free_slope_nm_per_rad * dth.abs()) {
+        return None;
+    }
+    Some((off, sigma))
+}
+
+/// A confirmed rise of the free-motion residual above the approach's offset.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Detection {
+    /// First block of the confirmed run above the threshold.
+    pub first_above: usize,
+    /// Block where the run was confirmed.
+    pub detect: usize,
+    /// The approach offset (median residual, N·m) of the baseline armed a full window before
+    /// the rise began.
+    pub offset_nm: f64,
+    /// σ of the residual in that baseline window (N·m).
+    pub sigma_nm: f64,
+}
+
+/// Phases 1–2: arm on free motion from block `from` (a window of `wf` blocks), then detect the
+/// residual staying above the baseline by the threshold for `conf` blocks in a row. The
+/// baseline of a detection is the one armed a full window before the rise began (the latest
+/// ones see its start); a rise that resumes free motion is a stall and is skipped.
+pub fn detect_rise(
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    from: usize,
+    wf: usize,
+    conf: usize,
+) -> Result<Detection, OfflineError> {
+    let n = blocks.len();
+    let mut ring = [(0usize, 0.0f64, 0.0f64); 64];
+    let mut armed: Option<(f64, f64)> = None;
+    let mut ever_armed = false;
+    let mut run = 0usize;
+    let mut i = from + wf;
+    while i < n {
+        if run == 0 {
+            if let Some(fw) = blocks.get(i - wf..i).and_then(|w| free_window(cfg, w)) {
+                armed = Some(fw);
+                ever_armed = true;
+                if let Some(slot) = ring.get_mut(i % 64) {
+                    *slot = (i, fw.0, fw.1);
+                }
+            }
+        }
+        if armed.is_none() {
+            i += 1;
+            continue;
+        }
+        // Compare with a baseline from a window at least half a window old (a slow rise
+        // must not drag it along).
+        let lag = wf / 2;
+        let Some((off, sigma)) = ring
+            .iter()
+            .filter(|e| e.0 > from && e.0 + lag <= i)
+            .max_by_key(|e| e.0)
+            .map(|e| (e.1, e.2))
+        else {
+            i += 1;
+            continue;
+        };
+        let thr = cfg.detect_excess_nm.max(8.0 * sigma);
+        let r = blocks.get(i).map_or(f64::NAN, |b| b.resid_nm);
+        if r - off > thr {
+            run += 1;
+            if run >= conf {
+                let first = i + 1 - conf;
+                // A stall in free motion (stiction) also raises the residual at constant θa:
+                // a contact only if the finger, once it moves again, does not go back onto
+                // the free-motion curve.
+                if let Some(resume) = resumes_free(cfg, blocks, i, off, thr, wf) {
+                    armed = None;
+                    run = 0;
+                    i = resume;
+                    continue;
+                }
+                let early = ring
+                    .iter()
+                    .filter(|e| e.0 > from && e.0 + wf <= first)
+                    .max_by_key(|e| e.0)
+                    .map_or((off, sigma), |e| (e.1, e.2));
+                return Ok(Detection {
+                    first_above: first,
+                    detect: i,
+                    offset_nm: early.0,
+                    sigma_nm: early.1,
+                });
+            }
+        } else {
+            run = 0;
+        }
+        i += 1;
+    }
+    Err(if ever_armed {
+        OfflineError::NoContact
+    } else {
+        OfflineError::NoFreeMotion
+    })
+}
+
+/// The knee's θa,c: the rise of the residual, extrapolated back to the shifted free-motion
+/// curve (a line through the residual excess against θa while θa still advances, up to
+/// `4 conf` blocks past the detection). Returns (the last block at or below the low
+/// threshold before the rise, its θa, θa,c), θa,c within [θa of that block − 5 mrad, the last
+/// θa fitted]; without a usable line, θa of that block.
+pub fn knee_theta(
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    from: usize,
+    d: &Detection,
+    conf: usize,
+) -> (usize, f64, f64) {
+    let n = blocks.len();
+    let (offset, sigma) = (d.offset_nm, d.sigma_nm);
+    let thr = cfg.detect_excess_nm.max(8.0 * sigma);
+    let low = (3.0 * sigma).max(0.25 * cfg.detect_excess_nm);
+    let excess = |k: usize| blocks.get(k).map_or(f64::NAN, |b| b.resid_nm - offset);
+    let mut k_lo = d.first_above.saturating_sub(1);
+    while k_lo > from && !(excess(k_lo) <= low) {
+        k_lo -= 1;
+    }
+    let th_lo = blocks.get(k_lo).map_or(f64::NAN, |b| b.theta_a_rad);
+    let (mut sx, mut sy, mut sxx, mut sxy, mut cnt) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut th_prev = th_lo;
+    let mut th_hi = th_lo;
+    for k in k_lo + 1..n.min(d.detect + 4 * conf + 1) {
+        let Some(b) = blocks.get(k) else { break };
+        let e = excess(k);
+        if b.theta_a_rad < th_prev || e > 4.0 * thr {
+            break;
+        }
+        th_prev = b.theta_a_rad;
+        if e >= low {
+            sx += b.theta_a_rad;
+            sy += e;
+            sxx += b.theta_a_rad * b.theta_a_rad;
+            sxy += b.theta_a_rad * e;
+            cnt += 1.0;
+            th_hi = b.theta_a_rad;
+        }
+    }
+    let mut theta_c = th_lo;
+    if cnt >= 3.0 {
+        let (mx, my) = (sx / cnt, sy / cnt);
+        let vxx = sxx / cnt - mx * mx;
+        let slope = (sxy / cnt - mx * my) / vxx;
+        if vxx > 0.0 && slope > 0.0 {
+            let z = mx - my / slope;
+            if z.is_finite() {
+                theta_c = z.clamp(th_lo - 5e-3, th_hi);
+            }
+        }
+    }
+    (k_lo, th_lo, theta_c)
+}
+
+/// The knee block for θa,c: the last one at or below θa,c from `k_lo` back (its tick closes
+/// the free-motion data), and T_a,c on the free-motion curve shifted by the offset the
+/// estimator will measure: the mean residual of the `FIT_SAMPLES` blocks up to the knee (so
+/// that its back-dating through this point returns it; `offset` when there is none).
+pub fn knee_point(
+    blocks: &[Block],
+    from: usize,
+    k_lo: usize,
+    theta_c: f64,
+    offset: f64,
+    t_free: &dyn Fn(f64) -> Option<f64>,
+) -> Result<(usize, Block, f64), OfflineError> {
+    let mut knee = k_lo;
+    while knee > from && blocks.get(knee).is_some_and(|b| b.theta_a_rad > theta_c) {
+        knee -= 1;
+    }
+    let kb = *blocks.get(knee).ok_or(OfflineError::TooShort)?;
+    let lo = (knee + 1)
+        .saturating_sub(grasp::estimate::FIT_SAMPLES)
+        .max(from);
+    let est_off = blocks
+        .get(lo..=knee)
+        .map(|w| mean(w, |b| b.resid_nm))
+        .filter(|v| v.is_finite())
+        .unwrap_or(offset);
+    let ta_c = t_free(theta_c).ok_or(OfflineError::Model(PtsError::OutOfRange))? + est_off;
+    Ok((knee, kb, ta_c))
+}
+
+/// After a rise of the residual detected at `at`: the block where the finger is back in free
+/// motion (θa advancing with the residual within `thr` of `off`) before the torque falls,
+/// if it is: then the rise was a stall, not a contact.
+fn resumes_free(
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    at: usize,
+    off: f64,
+    thr: f64,
+    wf: usize,
+) -> Option<usize> {
+    let t_at = blocks.get(at)?.torque_nm;
+    let mut j = at + wf;
+    while let Some(w) = blocks.get(j - wf..j) {
+        let last = w.last()?;
+        if last.torque_nm < t_at - cfg.unload_drop_nm {
+            return None;
+        }
+        if let Some((o, _)) = free_window(cfg, w) {
+            if (o - off).abs() <= 0.5 * thr {
+                return Some(j);
+            }
+        }
+        j += 1;
+        if j > at + 16 * wf {
+            return None;
+        }
+    }
+    None
+}
+
+/// Where the parabola θa(T_a) through three points (T, θ) on the path meets the free-motion
+/// curve shifted by `offset`: secant from the first point's torque downwards, as
+/// `estimate::contact_point_model` does. (θa,c rad, T_a,c N·m), or `None` when implausible.
+pub fn back_date(
+    t_free: &dyn Fn(f64) -> Option<f64>,
+    offset: f64,
+    p1: (f64, f64),
+    pb: (f64, f64),
+    p2: (f64, f64),
+) -> Option<(f64, f64)> {
+    let ((t1, th1), (tb, thb), (t2, th2)) = (p1, pb, p2);
+    if !(tb - t1 > 1e-4 && t2 - tb > 1e-4) {
+        return None;
+    }
+    let s1b = (thb - th1) / (tb - t1);
+    let sb2 = (th2 - thb) / (t2 - tb);
+    let c2 = (sb2 - s1b) / (t2 - t1);
+    let q = |t: f64| th1 + s1b * (t - t1) + c2 * (t - t1) * (t - tb);
+    grasp::estimate::meet_free_curve(&q, t_free, offset, (t1, th1), 16)
+}
+
+/// The contact point on the dynamics-corrected residual: with the drive identified
+/// ([`identify_drive`]), e = T_a − T_free(θa) − offset − viscous·θ̇a − inertia·θ̈a is noise in
+/// free motion and (K_c − K_free)(θa − θa,c) once the object is touched, whatever the crank's
+/// speed, its ringing before or its bounce after the impact. θa,c is the hinge of that line
+/// (least squares over a 0.1 mrad grid within 15 mrad before the detection), fitted on the
+/// moving blocks from a free-motion window before the knee up to 8 mrad past it.
+/// Returns (θa,c rad, T_a,c = T_free(θa,c) + offset N·m, trace time of θa,c s).
+pub fn refine_contact<R: pts::Real>(
+    model: &Model<R>,
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    seg: &Segment,
+    id: &DriveId,
+    quantum_rad: f64,
+) -> Option<(f64, f64, f64)> {
+    const S: usize = 2;
+    let t_free = |th: f64| -> Option<f64> {
+        model
+            .free_from_theta_a(R::try_from_f64(th)?)
+            .ok()
+            .map(|c| c.ta.to_f64())
+    };
+    let wf = cfg.free_window.clamp(4, 64);
+    let lo = seg.knee.saturating_sub(2 * wf).max(S);
+    let th_det = blocks.get(seg.detect)?.theta_a_rad;
+    let th_top = th_det.max(seg.theta_a_c_rad) + 8e-3;
+    let still = 0.5 * quantum_rad.max(1e-9);
+    // (θ, e) per usable block.
+    let mut pts: Vec<(f64, f64), 512> = Vec::new();
+    let mut k = lo;
+    while k + S < blocks.len() && pts.len() < 512 {
+        let (a, b, c) = (blocks.get(k - S)?, blocks.get(k)?, blocks.get(k + S)?);
+        k += 1;
+        if k > seg.detect + 200 || b.theta_a_rad > th_top {
+            if k > seg.detect {
+                break;
+            }
+            continue;
+        }
+        if (c.theta_a_rad - a.theta_a_rad).abs() <= still {
+            continue;
+        }
+        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+        if !(d1 > 0.0 && d2 > 0.0) {
+            continue;
+        }
+        let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
+        let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
+        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+        let acc = 2.0 * (v2 - v1) / (d1 + d2);
+        let e = b.torque_nm
+            - t_free(b.theta_a_rad)?
+            - id.offset_nm
+            - id.viscous_nm_s_per_rad * w
+            - id.inertia_kgm2 * acc;
+        if e.is_finite() {
+            let _ = pts.push((b.theta_a_rad, e));
+        }
+    }
+    if pts.len() < 8 {
+        return None;
+    }
+    let scale = id.noise_nm.max(1e-4);
+    // Hinge plus a step: past θa,c the residual is (K_c − K_free)(θa − θa,c) plus what the
+    // transmission's stiction holds once the crank stops on the object (≥ 0); without the
+    // step that excess right after the contact drags the hinge early.
+    let sse_at = |thc: f64| -> f64 {
+        let (mut seh, mut shh, mut seu, mut shu, mut suu) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(th, e) in pts.iter() {
+            let h = (th - thc).max(0.0);
+            let u = if th > thc { 1.0 } else { 0.0 };
+            seh += e * h;
+            shh += h * h;
+            seu += e * u;
+            shu += h * u;
+            suu += u * u;
+        }
+        let det = shh * suu - shu * shu;
+        let (mut sl, mut d) = if det > 1e-30 {
+            ((seh * suu - seu * shu) / det, (seu * shh - seh * shu) / det)
+        } else {
+            (0.0, 0.0)
+        };
+        if d < 0.0 || sl < 0.0 {
+            d = 0.0;
+            sl = if shh > 0.0 { (seh / shh).max(0.0) } else { 0.0 };
+        }
+        // Huber loss at 3 σ: a lone spike must not move the hinge.
+        pts.iter()
+            .map(|&(th, e)| {
+                let u = if th > thc { d } else { 0.0 };
+                let r = (e - sl * (th - thc).max(0.0) - u).abs();
+                if r <= 3.0 * scale {
+                    r * r
+                } else {
+                    3.0 * scale * (2.0 * r - 3.0 * scale)
+                }
+            })
+            .sum()
+    };
+    let hi = th_det;
+    let mut best = (f64::INFINITY, hi);
+    let mut thc = hi - 15e-3;
+    while thc <= hi {
+        let v = sse_at(thc);
+        if v < best.0 {
+            best = (v, thc);
+        }
+        thc += 1e-4;
+    }
+    let thc = best.1;
+    let ta_c = t_free(thc)? + id.offset_nm;
+    let t_c = blocks
+        .iter()
+        .skip(lo)
+        .find(|b| b.theta_a_rad >= thc)
+        .map_or(seg.contact_t_s, |b| b.t_s);
+    Some((thc, ta_c, t_c))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// θa advancing 0.1 mrad per 4 ms block; the free-motion residual flat at 0.05 N·m with
+    /// a small deterministic scatter, rising by `k_c` N·m/rad past block `knee` (if any).
+    fn trace(n: usize, knee: Option<usize>, k_c: f64, step: f64) -> std::vec::Vec<Block> {
+        let th = |k: usize| -0.3 + step * k as f64;
+        (0..n)
+            .map(|k| {
+                let noise = 2e-4 * (((k * 7919) % 13) as f64 / 13.0 - 0.5);
+                let rise = knee.map_or(0.0, |c| k_c * (th(k) - th(c)).max(0.0));
+                Block {
+                    index: k as u32,
+                    t_s: 0.004 * k as f64,
+                    theta_a_rad: th(k),
+                    torque_nm: 0.3 + 0.05 + rise + noise,
+                    resid_nm: 0.05 + rise + noise,
+                    first_row: k as u32,
+                }
+            })
+            .collect()
+    }
+
+    const CFG: OfflineConfig = OfflineConfig::DEFAULT;
+
+    #[test]
+    fn free_motion_arms_with_the_median_residual_as_offset() {
+        let b = trace(40, None, 0.0, 1e-4);
+        let (off, sigma) = free_window(&CFG, &b[..25]).expect("free motion");
+        assert!((off - 0.05).abs() < 1e-4, "offset {off}");
+        assert!(sigma > 0.0 && sigma < 2e-4, "σ {sigma}");
+        // A stall (θa still) is not free motion.
+        let stall = trace(40, None, 0.0, 0.0);
+        assert_eq!(free_window(&CFG, &stall[..25]), None);
+    }
+
+    #[test]
+    fn detects_the_rise_after_the_knee_against_the_approach_offset() {
+        let b = trace(200, Some(100), 10.0, 1e-4);
+        let d = detect_rise(&CFG, &b, 0, 25, 5).expect("a contact");
+        // 10 N·m/rad at 0.1 mrad per block crosses the 12 mN·m threshold 12 blocks after
+        // the knee; confirmed 5 blocks later.
+        assert!(d.first_above > 100 && d.first_above <= 115, "{d:?}");
+        assert_eq!(d.detect, d.first_above + 4);
+        assert!((d.offset_nm - 0.05).abs() < 1e-4, "{d:?}");
+    }
+
+    #[test]
+    fn no_rise_is_no_contact_and_no_motion_never_arms() {
+        let flat = trace(200, None, 0.0, 1e-4);
+        assert_eq!(
+            detect_rise(&CFG, &flat, 0, 25, 5),
+            Err(OfflineError::NoContact)
+        );
+        let still = trace(200, None, 0.0, 0.0);
+        assert_eq!(
+            detect_rise(&CFG, &still, 0, 25, 5),
+            Err(OfflineError::NoFreeMotion)
+        );
+    }
+
+    #[test]
+    fn the_knee_is_the_rise_extrapolated_back_to_the_offset() {
+        let b = trace(200, Some(100), 10.0, 1e-4);
+        let d = detect_rise(&CFG, &b, 0, 25, 5).expect("a contact");
+        let (k_lo, th_lo, theta_c) = knee_theta(&CFG, &b, 0, &d, 5);
+        // The last block still at the offset, and θa,c extrapolated behind it (not before
+        // its θa − 5 mrad).
+        assert!(k_lo < d.first_above, "{k_lo} {d:?}");
+        assert!(
+            theta_c >= th_lo - 5e-3 && theta_c <= th_lo,
+            "{th_lo} {theta_c}"
+        );
+        let truth = b[100].theta_a_rad;
+        // Within 2 blocks of travel (the scatter moves the line a little).
+        assert!((theta_c - truth).abs() < 2e-4, "θa,c {theta_c} vs {truth}");
+        // Its knee block is the last one at or below θa,c, T_a,c on the shifted curve.
+        let t_free = |th: f64| Some(th + 1.0);
+        let (knee, kb, ta_c) = knee_point(&b, 0, k_lo, theta_c, d.offset_nm, &t_free).unwrap();
+        assert!(
+            kb.theta_a_rad <= theta_c && b[knee + 1].theta_a_rad > theta_c,
+            "{knee}"
+        );
+        assert!((ta_c - (theta_c + 1.0 + 0.05)).abs() < 2e-4, "T_a,c {ta_c}");
+    }
+}

@@ -1,0 +1,204 @@
+//! The drive's nuisance parameters (inertia, viscous term, offset) identified on a contact's
+//! free-motion approach, where the model knows the statics.
+
+use heapless::Vec;
+use pts::Model;
+
+use super::Block;
+
+/// Prior knowledge of the drive (from the finger file) for [`identify_drive`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DrivePrior {
+    /// Effective inertia the measured torque carries at the crank (kg·m²).
+    pub inertia_kgm2: f64,
+    /// σ of that prior (kg·m²); ≤ 0 or non-finite: no prior.
+    pub sigma_inertia_kgm2: f64,
+}
+
+/// The drive's nuisance parameters identified from the free-motion approach of one contact:
+/// there the model knows the statics (T_free(θa)), so the measured residual
+/// T_a − T_free(θa) = offset + viscous·θ̇a + inertia·θ̈a + noise is linear in them.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct DriveId {
+    /// Effective inertia at the crank (kg·m²), ≥ 0.
+    pub inertia_kgm2: f64,
+    /// Its σ (kg·m²), prior included.
+    pub sigma_inertia_kgm2: f64,
+    /// Viscous term (N·m·s/rad).
+    pub viscous_nm_s_per_rad: f64,
+    /// Sliding friction plus measurement offset (N·m) at zero speed: the residual's constant.
+    pub offset_nm: f64,
+    /// Robust σ of the residual about the model (N·m, per block).
+    pub noise_nm: f64,
+    /// Blocks used.
+    pub blocks: u32,
+    /// Range of θ̈a seen (rad/s²): 0 when the approach never accelerated.
+    pub accel_span_rad_s2: f64,
+}
+
+/// Identifies [`DriveId`] on the approach blocks `lo..hi` (free motion, moving: blocks where
+/// θa stands still are skipped, a stuck transmission's torque is anywhere in its stiction
+/// band). Speed and acceleration from differences across ±2 blocks (quantisation noise on θ̈a
+/// would otherwise bias the inertia low). Huber-weighted least squares, the inertia with its
+/// prior and kept ≥ 0. `None` with fewer than 8 usable blocks.
+pub fn identify_drive<R: pts::Real>(
+    model: &Model<R>,
+    blocks: &[Block],
+    lo: usize,
+    hi: usize,
+    quantum_rad: f64,
+    prior: &DrivePrior,
+) -> Option<DriveId> {
+    const S: usize = 2;
+    let t_free = |th: f64| -> Option<f64> {
+        model
+            .free_from_theta_a(R::try_from_f64(th)?)
+            .ok()
+            .map(|c| c.ta.to_f64())
+    };
+    // (residual, ω, α) per usable block; at most 1024 of the latest.
+    let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
+    let lo = lo.max(S);
+    let hi = hi.min(blocks.len().saturating_sub(S));
+    let start = hi.saturating_sub(1024).max(lo);
+    let still = 0.5 * quantum_rad.max(1e-9);
+    for k in start..hi {
+        let (Some(a), Some(b), Some(c)) = (blocks.get(k - S), blocks.get(k), blocks.get(k + S))
+        else {
+            continue;
+        };
+        if (c.theta_a_rad - a.theta_a_rad).abs() <= still {
+            continue;
+        }
+        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+        if !(d1 > 0.0 && d2 > 0.0) {
+            continue;
+        }
+        let (v1, v2) = (
+            (b.theta_a_rad - a.theta_a_rad) / d1,
+            (c.theta_a_rad - b.theta_a_rad) / d2,
+        );
+        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+        let acc = 2.0 * (v2 - v1) / (d1 + d2);
+        let Some(tf) = t_free(b.theta_a_rad) else {
+            continue;
+        };
+        let r = b.torque_nm - tf;
+        if r.is_finite() && w.is_finite() && acc.is_finite() {
+            let _ = pts.push((r, w, acc));
+        }
+    }
+    if pts.len() < 8 {
+        return None;
+    }
+    let (amin, amax) = pts
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p.2), h.max(p.2))
+        });
+    let prior_on = prior.sigma_inertia_kgm2.is_finite() && prior.sigma_inertia_kgm2 > 0.0;
+    // IRLS: Huber weights at 2 σ, σ from the MAD of the residuals.
+    let mut x = [0.0f64; 3];
+    let mut scale = f64::INFINITY;
+    let mut cov_jj = f64::INFINITY;
+    for _ in 0..6 {
+        let mut a = [[0.0f64; 3]; 3];
+        let mut g = [0.0f64; 3];
+        for &(r, w, acc) in pts.iter() {
+            let e = r - x[0] - x[1] * w - x[2] * acc;
+            let wt = if scale.is_finite() && e.abs() > 2.0 * scale {
+                2.0 * scale / e.abs()
+            } else {
+                1.0
+            };
+            let row = [1.0, w, acc];
+            for i in 0..3 {
+                g[i] += wt * row[i] * r;
+                for j in 0..3 {
+                    a[i][j] += wt * row[i] * row[j];
+                }
+            }
+        }
+        // Noise per block for the prior's weight (first pass: a guess of 2 mN·m).
+        let s2 = if scale.is_finite() {
+            scale * scale
+        } else {
+            4e-6
+        };
+        if prior_on {
+            let wp = s2 / (prior.sigma_inertia_kgm2 * prior.sigma_inertia_kgm2);
+            a[2][2] += wp;
+            g[2] += wp * prior.inertia_kgm2;
+        }
+        // Tiny ridge on the viscous term: a constant-speed approach cannot separate it from
+        // the offset.
+        a[1][1] += 1e-9 * (a[0][0] + 1.0);
+        let inv = inv3(&a)?;
+        for i in 0..3 {
+            x[i] = (0..3).map(|j| inv[i][j] * g[j]).sum();
+        }
+        if x[2] < 0.0 {
+            // Inertia ≥ 0: refit the other two with it at zero.
+            x[2] = 0.0;
+            let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
+            if !(det.abs() > 0.0) {
+                return None;
+            }
+            x[0] = (a[1][1] * g[0] - a[0][1] * g[1]) / det;
+            x[1] = (a[0][0] * g[1] - a[1][0] * g[0]) / det;
+        }
+        let res = pts
+            .iter()
+            .map(|&(r, w, acc)| r - x[0] - x[1] * w - x[2] * acc);
+        scale = mad_sigma(res).max(1e-5);
+        cov_jj = inv[2][2] * scale * scale;
+    }
+    Some(DriveId {
+        inertia_kgm2: x[2],
+        sigma_inertia_kgm2: <f64 as pts::Real>::sqrt(cov_jj.max(0.0)),
+        viscous_nm_s_per_rad: x[1],
+        offset_nm: x[0],
+        noise_nm: scale,
+        blocks: pts.len() as u32,
+        accel_span_rad_s2: amax - amin,
+    })
+}
+
+/// 1.4826 × the median absolute value (≈ σ for Gaussian noise); over up to 1024 values.
+fn mad_sigma(vals: impl Iterator<Item = f64>) -> f64 {
+    let mut buf: Vec<f64, 1024> = Vec::new();
+    for v in vals {
+        if v.is_finite() {
+            let _ = buf.push(v.abs());
+        }
+    }
+    if buf.is_empty() {
+        return f64::NAN;
+    }
+    buf.sort_unstable_by(|a, b| a.partial_cmp(b).unwrap_or(core::cmp::Ordering::Equal));
+    let n = buf.len();
+    let m = 0.5
+        * (buf.get((n - 1) / 2).copied().unwrap_or(0.0) + buf.get(n / 2).copied().unwrap_or(0.0));
+    1.4826 * m
+}
+
+fn inv3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+        - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+        + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+    if !(det.abs() > 0.0) || !det.is_finite() {
+        return None;
+    }
+    let c = |i: usize, j: usize| {
+        let (r0, r1) = ((i + 1) % 3, (i + 2) % 3);
+        let (c0, c1) = ((j + 1) % 3, (j + 2) % 3);
+        a[r0][c0] * a[r1][c1] - a[r0][c1] * a[r1][c0]
+    };
+    let mut m = [[0.0; 3]; 3];
+    for (i, row) in m.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = c(j, i) / det;
+        }
+    }
+    Some(m)
+}

@@ -1,0 +1,271 @@
+//! Offline segmentation of a recorded grasp: finds each contact in a time series
+//! (t, θa, T_a) that our controller did not produce, and builds the same
+//! [`EstimateRequest`] the controller builds, so that [`grasp::run_estimate`]
+//! (two-point or path fit) runs on it unchanged.
+//!
+//! A recorded grasp is free motion under a slowly rising torque, a first contact, a torque
+//! step or ramp of ΔT_a and a hold (maybe an unload and more contacts after it), with Coulomb
+//! friction and stiction, encoder quantization and current noise, at any sample rate.
+//!
+//! How a contact is found, all on block means (the trace is averaged into blocks of
+//! [`OfflineConfig::block_s`], like the controller's samples), with windows and medians, never
+//! a single sample:
+//!
+//! 1. **Free motion** (arming): a window of [`OfflineConfig::free_window`] blocks in which θa
+//!    advanced by at least [`OfflineConfig::arm_rad`] while the *free-motion residual*
+//!    r = T_a − T_free(θa) (T_free: the model's free-motion torque, `pts::Model::free_from_theta_a`)
+//!    stayed flat. Its median is the friction/gain offset of the approach (Coulomb friction
+//!    while closing, current-gain error), its MAD the noise. A stiction break-away at the start
+//!    (torque rising, θa still) does not arm.
+//! 2. **Contact**: r rises above the offset by more than the threshold for
+//!    [`OfflineConfig::confirm`] blocks in a row (the stiffness seen at the actuator jumped from
+//!    free motion, 0.55‥0.9 N·m/rad, to a contact's, ≥ 2.6). The **knee** is the last block
+//!    where the residual's rise against θa, extrapolated back, meets the shifted free-motion
+//!    curve (a threshold crossing would be late by the smooth start of the rise). A rise at
+//!    constant θa that goes back onto the free-motion curve once the finger moves again is a
+//!    stiction stall, not a contact.
+//! 3. **Segment end**: the torque (median-filtered) falls well below its running maximum
+//!    (unloading), or the trace ends.
+//! 4. **End point**: the last window before the segment end where θa and T_a are both static
+//!    (the settled hold after the step); with an undamped oscillation that never settles, the
+//!    mean over the late half of the constant-torque hold.
+//! 5. **Static points on the path** (the controller's `seat`/`seat2`): `seat` is the knee on
+//!    the shifted free-motion curve (δ_seat = 0, so the estimator's back-dating returns it);
+//!    `seat2` the quasi-static window nearest mid-step (θa linear in time within a band, and
+//!    not a stiction plateau where T_a rises at constant θa), or without one (a step right
+//!    at contact) the midpoint of the chord to the end point.
+//!
+//! The request then carries the free-motion history before the detection (`pre`), the blocks
+//! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`), the knee
+//! (`contact`), the static points and the measured ΔT_a; block ticks are block indices + 1
+//! and `dt_ns` the block length.
+//!
+//! The phases live in their own modules: [`blocks`] (averaging the trace), [`drive`] (the
+//! drive's nuisance parameters on the approach), [`contact`] (arming, detection, the knee and
+//! its back-dating), [`segment`] (segment end, end point, static points, the request) and
+//! [`estimate`] (the firmware's path fit on a segmented request). Host only (f64); no
+//! allocation (the caller provides the block scratch), no panics, typed [`OfflineError`]s.
+
+// `!(x > y)` is the NaN guard: it is true for NaN, `x <= y` is not.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
+pub mod blocks;
+pub mod contact;
+pub mod drive;
+pub mod estimate;
+pub mod segment;
+
+pub use blocks::make_blocks;
+pub use contact::refine_contact;
+pub use drive::{identify_drive, DriveId, DrivePrior};
+pub use estimate::path_fit_with;
+pub use segment::{find_contact, for_each_contact};
+
+use grasp::estimate::EstimateRequest;
+use grasp::Estimator;
+use pts::PtsError;
+
+/// One row of a recorded trace.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct TraceSample {
+    /// Time (s), non-decreasing.
+    pub t_s: f64,
+    /// θa, absolute model angle (rad; −0.8503608 at rest).
+    pub theta_a_rad: f64,
+    /// T_a at the actuator (N·m).
+    pub torque_nm: f64,
+}
+
+/// One block of the trace: means over [`OfflineConfig::block_s`].
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Block {
+    /// Index of the block from the trace start (tick = index + 1).
+    pub index: u32,
+    /// Mean time (s).
+    pub t_s: f64,
+    /// Mean θa (rad).
+    pub theta_a_rad: f64,
+    /// Mean T_a (N·m).
+    pub torque_nm: f64,
+    /// Free-motion residual T_a − T_free(θa) (N·m); NaN where the model has no free pose.
+    pub resid_nm: f64,
+    /// Index of the first trace row in the block.
+    pub first_row: u32,
+}
+
+/// Tuning of the segmenter. SI units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OfflineConfig {
+    /// Block length (s): the trace is averaged into blocks of this length (lengthened when
+    /// the scratch is too short for the trace).
+    pub block_s: f64,
+    /// Free-motion window (blocks).
+    pub free_window: usize,
+    /// Least θa travel in the free-motion window to arm (rad).
+    pub arm_rad: f64,
+    /// Free motion: largest change of the residual per radian of θa across a free-motion
+    /// window (N·m/rad); a contact adds at least K_c,proximal − K_free ≈ 2.
+    pub free_slope_nm_per_rad: f64,
+    /// End point: largest θa speed of the settled (or quasi-statically creeping) end (rad/s).
+    pub end_speed_rad_s: f64,
+    /// Least rise of the free-motion residual above the approach offset that counts as a
+    /// contact (N·m); the threshold is the larger of this and 8 σ of the residual.
+    pub detect_excess_nm: f64,
+    /// Consecutive blocks above the threshold (blocks).
+    pub confirm: usize,
+    /// Static / quasi-static window (blocks).
+    pub static_window: usize,
+    /// θa band of a static window (rad), on top of the encoder quantum.
+    pub static_band_rad: f64,
+    /// T_a band of a static hold (N·m); the larger of this and 6 σ of the residual.
+    pub torque_band_nm: f64,
+    /// A window whose dT_a/dθa exceeds this is a stiction plateau, not the path (N·m/rad).
+    pub plateau_stiffness_nm_per_rad: f64,
+    /// Unloading: the torque fell this far below its running maximum (N·m), or 30 % of the
+    /// rise since contact if larger.
+    pub unload_drop_nm: f64,
+    /// Smallest accepted ΔT_a = T_a,end − T_a,c (N·m).
+    pub min_step_nm: f64,
+    /// Estimator named in the request.
+    pub estimator: Estimator,
+    /// Detection stiffness carried in the request (N·m/rad; informative).
+    pub detect_stiffness_nm_per_rad: f64,
+}
+
+impl OfflineConfig {
+    /// Defaults: 4 ms blocks (the controller's sample), 100 ms windows.
+    pub const DEFAULT: OfflineConfig = OfflineConfig {
+        block_s: 4e-3,
+        free_window: 25,
+        arm_rad: 5e-4,
+        free_slope_nm_per_rad: 0.5,
+        end_speed_rad_s: 0.015,
+        detect_excess_nm: 0.012,
+        confirm: 5,
+        static_window: 25,
+        static_band_rad: 6e-5,
+        torque_band_nm: 0.004,
+        plateau_stiffness_nm_per_rad: 60.0,
+        unload_drop_nm: 0.03,
+        min_step_nm: 0.03,
+        estimator: Estimator::TwoPoint,
+        detect_stiffness_nm_per_rad: 1.5,
+    };
+
+    /// The defaults with another estimator.
+    pub const fn with_estimator(mut self, estimator: Estimator) -> Self {
+        self.estimator = estimator;
+        self
+    }
+}
+
+impl Default for OfflineConfig {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
+}
+
+/// Why no request could be built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OfflineError {
+    /// Too few rows or blocks for a free-motion window, a contact and a hold.
+    TooShort,
+    /// A value is NaN or infinite (row index).
+    NonFinite {
+        /// Row.
+        row: u32,
+    },
+    /// Time goes backwards at this row (sort the rows first).
+    NonMonotoneTime {
+        /// Row.
+        row: u32,
+    },
+    /// A configuration value is out of range.
+    BadConfig,
+    /// No free motion (θa advancing with a flat free-motion residual) before the end.
+    NoFreeMotion,
+    /// Free motion, but no contact after it.
+    NoContact,
+    /// The torque after the contact rose by less than the minimum (µN·m).
+    StepTooSmall {
+        /// T_a,end − T_a,c (µN·m).
+        delta_ta_unm: i32,
+    },
+    /// No static (or steady-torque) hold after the contact.
+    NotSettled,
+    /// A lone θa sample far off both its neighbours (which agree): a corrupted row. The
+    /// crank cannot leave and come back within two samples.
+    Outlier {
+        /// Row.
+        row: u32,
+    },
+    /// Fewer than [`MIN_RATE_HZ`] rows per second: the impact and the contact knee cannot be
+    /// told apart at this rate.
+    SampleRateTooLow {
+        /// Mean rate (Hz).
+        rate_hz: u32,
+    },
+    /// The model failed.
+    Model(PtsError),
+}
+
+/// Least mean sample rate [`make_blocks`] accepts (Hz).
+pub const MIN_RATE_HZ: f64 = 250.0;
+
+/// θa jump (rad) off both neighbours that marks a lone row as an outlier (while the
+/// neighbours agree within a quarter of it): 20 mrad in one sample is 5 rad/s at 250 Hz,
+/// beyond any crank speed of a grasp and far beyond a free-motion step.
+pub const OUTLIER_RAD: f64 = 0.02;
+
+impl OfflineError {
+    /// A stable snake_case name.
+    pub const fn kind(&self) -> &'static str {
+        match self {
+            OfflineError::TooShort => "trace_too_short",
+            OfflineError::NonFinite { .. } => "non_finite",
+            OfflineError::NonMonotoneTime { .. } => "non_monotone_time",
+            OfflineError::BadConfig => "bad_config",
+            OfflineError::NoFreeMotion => "no_free_motion",
+            OfflineError::NoContact => "no_contact",
+            OfflineError::StepTooSmall { .. } => "step_too_small",
+            OfflineError::NotSettled => "not_settled",
+            OfflineError::Outlier { .. } => "outlier_sample",
+            OfflineError::SampleRateTooLow { .. } => "sample_rate_too_low",
+            OfflineError::Model(e) => e.kind(),
+        }
+    }
+}
+
+impl From<PtsError> for OfflineError {
+    fn from(e: PtsError) -> Self {
+        OfflineError::Model(e)
+    }
+}
+
+/// A contact found in the blocks.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Segment {
+    /// Block of the knee (last block on the shifted free-motion curve).
+    pub knee: usize,
+    /// Block of the detection (residual confirmed above the threshold).
+    pub detect: usize,
+    /// Static end window: blocks `end.0 .. end.1`.
+    pub end: (usize, usize),
+    /// First block after this contact's segment (unloading began, or the end).
+    pub next: usize,
+    /// Trace time of the knee (s).
+    pub contact_t_s: f64,
+    /// θa,c at the knee (rad).
+    pub theta_a_c_rad: f64,
+    /// T_a,c on the shifted free-motion curve at the knee (N·m).
+    pub ta_c_nm: f64,
+    /// Approach friction/gain offset: median of T_a − T_free(θa) in free motion (N·m).
+    pub offset_nm: f64,
+    /// θa, T_a of the end point (rad, N·m).
+    pub end_point: (f64, f64),
+    /// Whether `seat2` came from a quasi-static window of the trace (else the midpoint of
+    /// the chord knee → end point).
+    pub static_path_points: bool,
+    /// The request, as the controller builds it.
+    pub request: EstimateRequest,
+}

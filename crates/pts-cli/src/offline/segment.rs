@@ -1,0 +1,484 @@
+//! Phases 3–5: the segment's end (unloading), its end point (the settled hold), the static
+//! points on the path, and the request the controller would have built; the loop over every
+//! contact of a trace.
+
+use grasp::config::HISTORY;
+use grasp::estimate::{to_micro as micro, EstimateRequest, Sample, PATH_CAPACITY};
+use heapless::Vec;
+use pts::Model;
+
+use super::blocks::{line_in_time, mean, median, range, sample_of, tick, window_sample};
+use super::contact::{back_date, detect_rise, knee_point, knee_theta};
+use super::{Block, OfflineConfig, OfflineError, Segment};
+
+/// Finds the next contact at or after block `from` and builds its request.
+/// `block_s` is the block length [`make_blocks`](super::make_blocks) returned; `quantum_rad`
+/// the encoder step (0 when unknown).
+pub fn find_contact<R: pts::Real>(
+    model: &Model<R>,
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    block_s: f64,
+    quantum_rad: f64,
+    from: usize,
+) -> Result<Segment, OfflineError> {
+    let wf = cfg.free_window.clamp(4, 64);
+    let wq = cfg.static_window.clamp(4, 64);
+    let conf = cfg.confirm.clamp(1, 64);
+    let n = blocks.len();
+    if n < from.saturating_add(wf + conf + wq) {
+        return Err(if from == 0 {
+            OfflineError::TooShort
+        } else {
+            OfflineError::NoContact
+        });
+    }
+    let t_free = |th: f64| -> Option<f64> {
+        model
+            .free_from_theta_a(R::try_from_f64(th)?)
+            .ok()
+            .map(|c| c.ta.to_f64())
+    };
+    // 1-2. Arm on free motion, detect the residual's rise, fit the knee.
+    let d = detect_rise(cfg, blocks, from, wf, conf)?;
+    let (det, offset, sigma) = (d.detect, d.offset_nm, d.sigma_nm);
+    let (k_lo, th_lo, mut theta_c) = knee_theta(cfg, blocks, from, &d, conf);
+    let (mut knee, mut kb, mut ta_c) = knee_point(blocks, from, k_lo, theta_c, offset, &t_free)?;
+
+    // 3. Segment end.
+    let thband = cfg.static_band_rad + 1.5 * quantum_rad.max(0.0);
+    let half = wq / 2;
+    let next = segment_end(cfg, blocks, det, ta_c, thband, half);
+
+    // 4. End point.
+    let tband = cfg.torque_band_nm.max(6.0 * sigma);
+    let end = end_window(cfg, blocks, det, next, wq, thband, tband)?;
+    let end_w = blocks.get(end.0..end.1).ok_or(OfflineError::NotSettled)?;
+    let end_s = window_sample(end_w).ok_or(OfflineError::NotSettled)?;
+    let t_end = f64::from(end_s.torque_unm) * 1e-6;
+    let th_end = f64::from(end_s.theta_a_urad) * 1e-6;
+    let dta = t_end - ta_c;
+    if !(dta >= cfg.min_step_nm) {
+        return Err(OfflineError::StepTooSmall {
+            delta_ta_unm: micro(dta),
+        });
+    }
+
+    // 5. Quasi-static windows on the path between the detection and the end window.
+    let margin = (0.05 * dta).max(2e-3);
+    let path = PathWindows {
+        cfg,
+        blocks,
+        wq,
+        thband,
+        tband,
+        ta_c_nm: ta_c,
+        t_end_nm: t_end,
+        margin_nm: margin,
+        end_lo: end.0,
+    };
+    // With static (or quasi-static) points on the path — a controller that held the torque
+    // after the contact, a slow ramp — back-date like the controller does: the parabola
+    // θa(T_a) through the first one, the one nearest mid-step and the end meets the shifted
+    // free-motion curve at the contact. This survives an impact that carries θa past the
+    // contact (the residual's rise then starts late). Otherwise the seat is the knee itself
+    // (δ_seat = 0, so the estimator's back-dating returns it) and the second point the
+    // quasi-static window nearest mid-step, else the midpoint of the chord to the end.
+    let mut static_seats: Option<(usize, usize)> = None;
+    if let Some((k1, t1, th1)) = path.first_above(f64::NEG_INFINITY, det + 1) {
+        if let Some((k2, tb, thb)) = path.nearest(0.5 * (t1 + t_end), t1 + margin, k1 + wq) {
+            if let Some((th, _)) = back_date(&t_free, offset, (t1, th1), (tb, thb), (t_end, th_end))
+            {
+                if th >= th_lo - 0.03 {
+                    theta_c = th;
+                    (knee, kb, ta_c) = knee_point(blocks, from, k_lo, theta_c, offset, &t_free)?;
+                    static_seats = Some((k1, k2));
+                }
+            }
+        }
+    }
+    let dta = t_end - ta_c;
+    if !(dta >= cfg.min_step_nm) {
+        return Err(OfflineError::StepTooSmall {
+            delta_ta_unm: micro(dta),
+        });
+    }
+    let want = 0.5 * (ta_c + t_end);
+    let contact = Sample {
+        tick: tick(&kb),
+        theta_a_urad: micro(theta_c),
+        torque_unm: micro(ta_c),
+        torque_ref_unm: micro(ta_c),
+    };
+    let mid = Sample {
+        tick: contact.tick.saturating_add(1),
+        theta_a_urad: micro(0.5 * (theta_c + th_end)),
+        torque_unm: micro(want),
+        torque_ref_unm: micro(want),
+    };
+    let (seat_s, seat2_s, static_pts) = match static_seats {
+        Some((k1, k2)) => {
+            let s1 = blocks.get(k1..k1 + wq).and_then(window_sample);
+            let s2 = blocks.get(k2..k2 + wq).and_then(window_sample);
+            match (s1, s2) {
+                (Some(a), Some(b)) => (a, b, true),
+                _ => (contact, mid, false),
+            }
+        }
+        None => {
+            let s2 = path
+                .nearest(want, ta_c + margin, det + 1)
+                .and_then(|(k2, _, _)| blocks.get(k2..k2 + wq))
+                .and_then(window_sample);
+            match s2 {
+                Some(b) => (contact, b, false),
+                None => (contact, mid, false),
+            }
+        }
+    };
+    let request = build_request(
+        cfg,
+        blocks,
+        (from, det, end.1),
+        block_s,
+        [contact, seat_s, seat2_s, end_s],
+        dta,
+    );
+    Ok(Segment {
+        knee,
+        detect: det,
+        end,
+        next,
+        contact_t_s: kb.t_s,
+        theta_a_c_rad: theta_c,
+        ta_c_nm: ta_c,
+        offset_nm: offset,
+        end_point: (th_end, t_end),
+        static_path_points: static_pts,
+        request,
+    })
+}
+
+/// Median of the torque over the static window centred on block `j` (`half` blocks each
+/// side): no electrical spike counts. NaN outside the blocks.
+fn torque_median(blocks: &[Block], j: usize, half: usize) -> f64 {
+    let lo = j.saturating_sub(half);
+    let hi = (j + half + 1).min(blocks.len());
+    blocks
+        .get(lo..hi)
+        .and_then(|w| median(w.iter().map(|b| b.torque_nm)))
+        .unwrap_or(f64::NAN)
+}
+
+/// Phase 3: the first block from the detection `det` where the median torque falls well below
+/// its running maximum (by the larger of `unload_drop_nm` and 30 % of the rise above `ta_c`)
+/// while the finger no longer advances (by more than `thband` over `half` blocks); the number
+/// of blocks when it never does.
+pub fn segment_end(
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    det: usize,
+    ta_c: f64,
+    thband: f64,
+    half: usize,
+) -> usize {
+    let n = blocks.len();
+    let theta_at = |j: usize| blocks.get(j.min(n - 1)).map_or(f64::NAN, |b| b.theta_a_rad);
+    let mut tmax = f64::NEG_INFINITY;
+    for j in det..n {
+        let t = torque_median(blocks, j, half);
+        if t > tmax {
+            tmax = t;
+        }
+        let drop = cfg.unload_drop_nm.max(0.3 * (tmax - ta_c));
+        if t < tmax - drop && !(theta_at(j + half) > theta_at(j) + thband) {
+            return j;
+        }
+    }
+    n
+}
+
+/// Phase 4: the end window `(lo, hi)` — the last window of `wq` blocks before `next` where
+/// the finger is static or creeps quasi-statically (θa linear in time within `thband`, slow),
+/// with a torque that moves only as the path allows (within `tband`, not a stiction plateau,
+/// not the start of an unload). Never static (an undamped oscillation): the late half of the
+/// steady-torque hold, at least `2 wq` blocks long, else [`OfflineError::NotSettled`].
+pub fn end_window(
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    det: usize,
+    next: usize,
+    wq: usize,
+    thband: f64,
+    tband: f64,
+) -> Result<(usize, usize), OfflineError> {
+    let end_ok = |w: &[Block]| -> bool {
+        let Some((slope, dev)) = line_in_time(w) else {
+            return false;
+        };
+        let dth = range(w, |b| b.theta_a_rad);
+        dev <= thband
+            && slope.abs() <= cfg.end_speed_rad_s
+            && range(w, |b| b.torque_nm) <= tband + cfg.plateau_stiffness_nm_per_rad * dth
+    };
+    let mut j = next;
+    while j >= det + wq {
+        if blocks.get(j - wq..j).is_some_and(end_ok) {
+            return Ok((j - wq, j));
+        }
+        j -= 1;
+    }
+    let half = wq / 2;
+    let last = next.checked_sub(1).ok_or(OfflineError::NotSettled)?;
+    let t_end = torque_median(blocks, last, half);
+    let mut s = last;
+    while s > det && (torque_median(blocks, s - 1, half) - t_end).abs() <= tband {
+        s -= 1;
+    }
+    let len = last + 1 - s;
+    if len < 2 * wq {
+        return Err(OfflineError::NotSettled);
+    }
+    Ok((s + len / 2, last + 1))
+}
+
+/// Phase 5: the quasi-static windows of `wq` blocks on the path, before the end window.
+struct PathWindows<'a> {
+    cfg: &'a OfflineConfig,
+    blocks: &'a [Block],
+    wq: usize,
+    thband: f64,
+    tband: f64,
+    /// T_a,c at the knee (N·m): a window below it (by 0.1 N·m) is not on the path.
+    ta_c_nm: f64,
+    /// T_a of the end point (N·m).
+    t_end_nm: f64,
+    /// A window must end this far below the end point (N·m).
+    margin_nm: f64,
+    /// First block of the end window.
+    end_lo: usize,
+}
+
+impl PathWindows<'_> {
+    /// (mean T_a, mean θa) of a window that is a static hold or a quasi-static stretch of the
+    /// path (θa linear in time, T_a rising no faster than the path allows), between the
+    /// contact and the end point.
+    fn quasi(&self, w: &[Block]) -> Option<(f64, f64)> {
+        let (slope, dev) = line_in_time(w)?;
+        if dev > self.thband {
+            return None;
+        }
+        let dtq = range(w, |b| b.torque_nm);
+        let dth = slope * (w.last()?.t_s - w.first()?.t_s);
+        let static_hold = dtq <= self.tband && dth.abs() <= self.thband;
+        let on_path = dth > 0.0 && dtq <= self.cfg.plateau_stiffness_nm_per_rad * dth;
+        if !(static_hold || on_path) {
+            return None;
+        }
+        let t = mean(w, |b| b.torque_nm);
+        (t > self.ta_c_nm - 0.1 && t < self.t_end_nm - self.margin_nm)
+            .then(|| (t, mean(w, |b| b.theta_a_rad)))
+    }
+
+    /// The first quasi-static window from block `k0` with a torque above `lo_t`:
+    /// (first block, T_a, θa).
+    fn first_above(&self, lo_t: f64, k0: usize) -> Option<(usize, f64, f64)> {
+        let mut k = k0;
+        while k + self.wq <= self.end_lo {
+            if let Some(w) = self.blocks.get(k..k + self.wq) {
+                if let Some((t, th)) = self.quasi(w) {
+                    if t > lo_t {
+                        return Some((k, t, th));
+                    }
+                }
+            }
+            k += 1;
+        }
+        None
+    }
+
+    /// The quasi-static window from block `k0` with a torque above `lo_t` nearest `want`
+    /// (the first of equals): (first block, T_a, θa).
+    fn nearest(&self, want: f64, lo_t: f64, k0: usize) -> Option<(usize, f64, f64)> {
+        let mut best: Option<(usize, f64, f64)> = None;
+        let mut k = k0;
+        while k + self.wq <= self.end_lo {
+            if let Some((t, th)) = self.blocks.get(k..k + self.wq).and_then(|w| self.quasi(w)) {
+                if t > lo_t && best.is_none_or(|b| (t - want).abs() < (b.1 - want).abs()) {
+                    best = Some((k, t, th));
+                }
+            }
+            k += 1;
+        }
+        best
+    }
+}
+
+/// The request as the controller builds it: the free-motion history up to the detection
+/// (`pre`, from `from`), the blocks after it up to the end window's last (`hi`) decimated into
+/// [`PATH_CAPACITY`], the four points (contact, seat, seat2, end) and ΔT_a.
+fn build_request(
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    (from, det, hi): (usize, usize, usize),
+    block_s: f64,
+    [contact, seat, seat2, end]: [Sample; 4],
+    dta: f64,
+) -> EstimateRequest {
+    let mut pre: Vec<Sample, HISTORY> = Vec::new();
+    let pre_lo = (det + 1).saturating_sub(HISTORY).max(from);
+    for b in blocks.get(pre_lo..=det).unwrap_or(&[]) {
+        let _ = pre.push(sample_of(b));
+    }
+    let path_blocks = blocks.get(det + 1..hi).unwrap_or(&[]);
+    let mut stride = 1usize;
+    while path_blocks.len().div_ceil(stride) > PATH_CAPACITY {
+        stride *= 2;
+    }
+    let mut path: Vec<Sample, PATH_CAPACITY> = Vec::new();
+    for chunk in path_blocks.chunks(stride) {
+        if let Some(s) = window_sample(chunk) {
+            let _ = path.push(s);
+        }
+    }
+    let dt_ns = (block_s * 1e9 + 0.5) as u32;
+    EstimateRequest {
+        contact,
+        seat,
+        seat2,
+        end,
+        pre,
+        path,
+        sample_ticks: 1,
+        path_stride: stride as u32,
+        delta_ta_cmd_unm: micro(dta),
+        detect_k_unm_per_rad: micro(cfg.detect_stiffness_nm_per_rad),
+        estimator: cfg.estimator,
+        dt_ns: dt_ns.max(1),
+    }
+}
+
+/// Every contact in the blocks, in order: calls `each` with each result (a contact's
+/// [`Segment`], or the error that ended the search; the first `NoContact`/`NoFreeMotion`
+/// after a contact is not reported). Returns the number of segments found.
+pub fn for_each_contact<R: pts::Real>(
+    model: &Model<R>,
+    cfg: &OfflineConfig,
+    blocks: &[Block],
+    block_s: f64,
+    quantum_rad: f64,
+    mut each: impl FnMut(Result<&Segment, OfflineError>),
+) -> usize {
+    let mut from = 0usize;
+    let mut found = 0usize;
+    while from < blocks.len() {
+        match find_contact(model, cfg, blocks, block_s, quantum_rad, from) {
+            Ok(seg) => {
+                found += 1;
+                each(Ok(&seg));
+                from = seg.next.max(seg.end.1).max(from + 1);
+            }
+            Err(OfflineError::NoContact | OfflineError::NoFreeMotion | OfflineError::TooShort)
+                if found > 0 =>
+            {
+                break;
+            }
+            Err(e) => {
+                each(Err(e));
+                // A refused contact: go on after its detection if there was one.
+                match e {
+                    OfflineError::StepTooSmall { .. } | OfflineError::NotSettled => {
+                        // Skip past this contact's rise.
+                        from = skip_contact(blocks, from).unwrap_or(blocks.len());
+                    }
+                    _ => break,
+                }
+            }
+        }
+    }
+    found
+}
+
+/// After a refused contact: the first block after `from` where the torque is back below the
+/// level it had at `from`'s free motion... approximated as the first block where θa decreases
+/// for good (the finger opened). `None` when it never does.
+fn skip_contact(blocks: &[Block], from: usize) -> Option<usize> {
+    let mut peak = f64::NEG_INFINITY;
+    let mut peak_i = from;
+    for (i, b) in blocks.iter().enumerate().skip(from) {
+        if b.theta_a_rad > peak {
+            peak = b.theta_a_rad;
+            peak_i = i;
+        } else if peak - b.theta_a_rad > 0.01 {
+            return Some(i.max(peak_i + 1));
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const CFG: OfflineConfig = OfflineConfig::DEFAULT;
+
+    fn blocks(
+        th: impl Fn(usize) -> f64,
+        t: impl Fn(usize) -> f64,
+        n: usize,
+    ) -> std::vec::Vec<Block> {
+        (0..n)
+            .map(|k| Block {
+                index: k as u32,
+                t_s: 0.004 * k as f64,
+                theta_a_rad: th(k),
+                torque_nm: t(k),
+                resid_nm: 0.0,
+                first_row: k as u32,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_segment_ends_where_the_median_torque_unloads() {
+        // Rise to 1 N·m over 50 blocks after the detection at 10, hold, unload at 150.
+        let b = blocks(
+            |k| -0.2 + 1e-4 * k.min(60) as f64,
+            |k| match k {
+                0..60 => 0.4 + 0.01 * k as f64,
+                60..150 => 1.0,
+                _ => 0.6,
+            },
+            250,
+        );
+        assert_eq!(segment_end(&CFG, &b, 10, 0.5, 1e-4, 12), 150);
+        // Never unloading: the segment runs to the end of the trace.
+        let hold = blocks(|_| -0.2, |_| 1.0, 120);
+        assert_eq!(segment_end(&CFG, &hold, 10, 0.5, 1e-4, 12), 120);
+    }
+
+    #[test]
+    fn the_end_point_is_the_last_static_window_before_the_segment_end() {
+        let b = blocks(
+            |k| -0.2 + 1e-4 * k.min(60) as f64,
+            |k| if k < 60 { 0.4 + 0.01 * k as f64 } else { 1.0 },
+            150,
+        );
+        assert_eq!(
+            end_window(&CFG, &b, 10, 150, 25, 1e-4, 4e-3),
+            Ok((125, 150))
+        );
+    }
+
+    #[test]
+    fn never_static_ends_on_the_late_half_of_the_steady_torque_hold() {
+        // θa rings (1 mrad) for ever: no static window; the torque is steady from the start.
+        let b = blocks(|k| -0.2 + 1e-3 * (0.9 * k as f64).sin(), |_| 1.0, 110);
+        assert_eq!(end_window(&CFG, &b, 10, 110, 25, 1e-4, 4e-3), Ok((60, 110)));
+        // A hold shorter than two windows has not settled.
+        assert_eq!(
+            end_window(&CFG, &b, 70, 110, 25, 1e-4, 4e-3),
+            Err(OfflineError::NotSettled)
+        );
+    }
+}
