@@ -24,11 +24,12 @@ mod app {
     use grasp::{ControlLoop, Controller, Link, State, Supervisor};
     use proto::{
         Command, DeviceMsg, DeviceState, Error, Event, EventKind, FrameError, ParamId, Reply,
-        Request, Unsupported, VERSION,
+        Request, StoreFailure, Unsupported, VERSION,
     };
     use rtic::mutex::prelude::*;
     use rtic_sync::channel::{Receiver, Sender};
     use rtic_sync::make_channel;
+    use settings::LoadStatus;
 
     use crate::ctl;
     use crate::device::{self, uart, Device, ACTIVE, HALT, HOST_LOST, LAST_RX_TICK};
@@ -43,6 +44,7 @@ mod app {
         lp: ControlLoop,
         board: Board,
         dev: Device,
+        store: Option<crate::settings_flash::Settings>,
     }
 
     #[local]
@@ -79,6 +81,24 @@ mod app {
             .fill(ctl::estimator_table(&cfg.finger, cfg.drive.dt_s));
         let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
+        let boot = crate::settings_flash::boot();
+        let mut dev = Device::new(crate::config::SCENE);
+        match boot
+            .status
+            .map_err(|_| StoreFailure::Flash)
+            .and_then(|st| decoded(st, &boot.payload))
+        {
+            Ok(s) => {
+                dev.settings = s;
+                dev.estimator = s.estimator;
+                device::set_decimation(s.telemetry_hz);
+                defmt::info!(
+                    "SETTINGS source=store dta_unm={=i32}",
+                    (s.delta_ta_nm * 1e6) as i32
+                );
+            }
+            Err(why) => defmt::warn!("SETTINGS source=defaults ({=str})", failure_name(why)),
+        }
         uart::init();
         host::spawn(tel_rx).ok();
         let mut board = board;
@@ -90,7 +110,8 @@ mod app {
                 sup,
                 lp,
                 board,
-                dev: Device::new(crate::config::SCENE),
+                dev,
+                store: boot.settings,
             },
             Local {
                 sup_tx: tel_tx.clone(),
@@ -256,7 +277,7 @@ mod app {
     }
 
     /// Bytes from the host: decoded into requests, each answered.
-    #[task(binds = UART0RX, priority = 1, shared = [dev, lp, board, link, sup])]
+    #[task(binds = UART0RX, priority = 1, shared = [dev, lp, board, link, sup, store])]
     fn uart_rx(cx: uart_rx::Context) {
         let mut sh = cx.shared;
         while let Some(b) = uart::read() {
@@ -283,8 +304,24 @@ mod app {
             }
         };
         let id = req.id;
+        let reboot = matches!(req.cmd, Command::Reboot);
         let result = command(sh, req.cmd);
         sh.dev.lock(|d| d.reply(id, result));
+        if reboot {
+            // The acknowledgement out first (bounded: the UART drains or we reset anyway),
+            // the bridge off, then a system reset: the RAM store and fault latch survive it.
+            sh.dev.lock(|d| {
+                for _ in 0..100_000 {
+                    d.flush();
+                    if d.tx.is_empty() {
+                        break;
+                    }
+                }
+            });
+            defmt::info!("REBOOT on command");
+            platform::safe_state();
+            cortex_m::peripheral::SCB::sys_reset();
+        }
     }
 
     /// The state the host sees: the controller's during a grasp, the device's otherwise.
@@ -410,12 +447,98 @@ mod app {
             Command::Calibrate => Err(Error::NotSupported {
                 what: Unsupported::Calibrate,
             }),
-            Command::Store | Command::Load => Err(Error::NotSupported {
-                what: Unsupported::SettingsStore,
-            }),
-            Command::Reboot => Err(Error::NotSupported {
-                what: Unsupported::Reboot,
-            }),
+            Command::Store => {
+                idle_or_busy(sh)?;
+                // Erasing flash stalls the CPU on the board: never with the bridge on.
+                if !sh.board.lock(|b| b.is_safe()) {
+                    return Err(Error::Busy { state: current(sh) });
+                }
+                let settings = sh.dev.lock(|d| d.settings);
+                let mut buf = [0u8; proto::Settings::MAX_BYTES];
+                let bytes = settings.to_bytes(&mut buf).map_err(|_| Error::Store {
+                    why: StoreFailure::Flash,
+                })?;
+                let r = sh.store.lock(|st| match st {
+                    Some(st) => st.store(bytes).map_err(|_| StoreFailure::Flash),
+                    None => Err(StoreFailure::Flash),
+                });
+                match r {
+                    Ok(seq) => {
+                        defmt::info!(
+                            "SETTINGS stored sequence={=u32} len={=usize}",
+                            seq,
+                            bytes.len()
+                        );
+                        Ok(Reply::Ack)
+                    }
+                    Err(why) => {
+                        defmt::error!("SETTINGS store failed ({=str})", failure_name(why));
+                        Err(Error::Store { why })
+                    }
+                }
+            }
+            Command::Load => {
+                idle_or_busy(sh)?;
+                let mut buf = [0u8; crate::settings_flash::MAX_PAYLOAD];
+                let r = sh.store.lock(|st| match st {
+                    Some(st) => {
+                        st.load(&mut buf)
+                            .map_err(|_| StoreFailure::Flash)
+                            .and_then(|status| match status.payload(&buf) {
+                                Some(p) => decoded(status, p),
+                                None => decoded(status, &[]),
+                            })
+                    }
+                    None => Err(StoreFailure::Flash),
+                });
+                match r {
+                    Ok(s) => {
+                        sh.dev.lock(|d| d.settings = s);
+                        device::set_decimation(s.telemetry_hz);
+                        defmt::info!(
+                            "SETTINGS source=store dta_unm={=i32}",
+                            (s.delta_ta_nm * 1e6) as i32
+                        );
+                        Ok(Reply::Ack)
+                    }
+                    Err(why) => {
+                        defmt::warn!("SETTINGS load failed ({=str})", failure_name(why));
+                        Err(Error::Store { why })
+                    }
+                }
+            }
+            // Answered by `handle`, which resets after the acknowledgement.
+            Command::Reboot => Ok(Reply::Ack),
+        }
+    }
+
+    /// The settings a load found, checked (range, and an estimator this build has).
+    fn decoded(status: LoadStatus, payload: &[u8]) -> Result<proto::Settings, StoreFailure> {
+        match status {
+            LoadStatus::Loaded { .. } => {}
+            LoadStatus::Empty => return Err(StoreFailure::Empty),
+            LoadStatus::Corrupt { .. } => return Err(StoreFailure::Corrupt),
+            LoadStatus::Foreign { .. } => return Err(StoreFailure::Foreign),
+        }
+        let s = proto::Settings::from_bytes(payload).map_err(|_| StoreFailure::Invalid)?;
+        if ctl::AVAILABLE
+            .iter()
+            .any(|e| ctl::proto_estimator(*e) == s.estimator)
+        {
+            Ok(s)
+        } else {
+            Err(StoreFailure::Invalid)
+        }
+    }
+
+    /// A store failure in words, for the log.
+    fn failure_name(why: StoreFailure) -> &'static str {
+        match why {
+            StoreFailure::Empty => "empty store",
+            StoreFailure::Corrupt => "corrupt store",
+            StoreFailure::Foreign => "foreign settings layout",
+            StoreFailure::Invalid => "stored settings invalid for this build",
+            StoreFailure::Flash => "flash error",
         }
     }
 

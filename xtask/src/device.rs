@@ -304,6 +304,11 @@ fn session(s: &Session) -> Res {
     if !seen_approach {
         errs.push("the grasp never showed Approach with the bridge on".into());
     }
+    // Erasing flash stalls the CPU on the board: store is refused with the bridge on.
+    let (code, v, _) = s.board(&["store"])?;
+    if code != 1 || v["error"].as_str().is_none_or(|e| !e.starts_with("busy")) {
+        errs.push(format!("store with the bridge on: exit {code}, {v}"));
+    }
     s.ok(&["stop"])?;
     let (state, bridge_on, _) = s.state()?;
     if state != "Stopped" || bridge_on {
@@ -404,12 +409,82 @@ fn session(s: &Session) -> Res {
             "one power-up expected: {boots} boots, {grasps:?} grasps (expected 5)"
         ));
     }
+    errs.extend(store_and_reboot(s)?);
     println!("device session: {:.1} s", t0.elapsed().as_secs_f64());
     if errs.is_empty() {
         Ok(())
     } else {
         Err(errs.join("\n"))
     }
+}
+
+/// ΔT_a stored before the reboot (N·m); differs from the build's default and the value set
+/// after the store, so only the stored record can give it back.
+const STORED_DTA: f64 = 0.55;
+
+/// ΔT_a of the parameter `get` reply (N·m).
+fn dta_of(v: &Value) -> Option<f64> {
+    v["reply"]["Param"]["DeltaTaNm"].as_f64()
+}
+
+/// Store, change, load gives the stored value back; store, change, reboot (a system reset:
+/// the RAM store survives it) boots with the stored value.
+fn store_and_reboot(s: &Session) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
+    let dta = STORED_DTA.to_string();
+    s.ok(&["set", "delta_ta_nm", &dta])?;
+    s.ok(&["store"])?;
+    s.ok(&["set", "delta_ta_nm", "0.9"])?;
+    s.ok(&["load"])?;
+    let got = dta_of(&s.ok(&["get", "delta_ta_nm"])?);
+    if got != Some(STORED_DTA) {
+        errs.push(format!(
+            "load after store: ΔT_a {got:?}, stored {STORED_DTA}"
+        ));
+    }
+    s.ok(&["set", "delta_ta_nm", "0.9"])?;
+    let boots = |s: &Session| -> Res<usize> {
+        Ok(s.frames()?
+            .iter()
+            .filter(|f| f.msg.starts_with("BOOT"))
+            .count())
+    };
+    let before = boots(s)?;
+    s.ok(&["reboot"])?;
+    let t = Instant::now();
+    while boots(s)? == before && t.elapsed() < Duration::from_secs(20) {
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let hello = loop {
+        match s.board(&["hello"]) {
+            Ok((0, v, _)) => break Some(v),
+            _ if t.elapsed() < Duration::from_secs(30) => {
+                std::thread::sleep(Duration::from_millis(200))
+            }
+            _ => break None,
+        }
+    };
+    if boots(s)? != before + 1 || hello.is_none() {
+        errs.push(format!(
+            "reboot: {} boots after it (expected {}), hello {hello:?}",
+            boots(s)?,
+            before + 1
+        ));
+        return Ok(errs);
+    }
+    let got = dta_of(&s.ok(&["get", "delta_ta_nm"])?);
+    let src = s
+        .frames()?
+        .iter()
+        .rfind(|f| f.msg.starts_with("SETTINGS source="))
+        .map(|f| f.msg.clone());
+    println!("after reboot: ΔT_a {got:?} N·m, log {src:?}");
+    if got != Some(STORED_DTA) || !src.as_deref().is_some_and(|m| m.contains("source=store")) {
+        errs.push(format!(
+            "reboot: ΔT_a {got:?} (stored {STORED_DTA}), log {src:?}"
+        ));
+    }
+    Ok(errs)
 }
 
 #[cfg(test)]

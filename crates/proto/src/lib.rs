@@ -429,6 +429,26 @@ pub enum Error {
         /// What.
         what: Unsupported,
     },
+    /// The settings store could not do a `store` or `load` (the settings in use are unchanged).
+    Store {
+        /// Why.
+        why: StoreFailure,
+    },
+}
+
+/// Why a `store` or `load` of the settings in flash failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum StoreFailure {
+    /// `load`: the store holds no settings yet.
+    Empty,
+    /// `load`: no slot holds a valid record (bad magic, length or CRC).
+    Corrupt,
+    /// `load`: the newest record is of another settings layout.
+    Foreign,
+    /// `load`: the record is intact but its settings do not decode or are out of range.
+    Invalid,
+    /// The flash refused an erase, program or read, or the store does not fit it.
+    Flash,
 }
 
 /// Features a build may lack.

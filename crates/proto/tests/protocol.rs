@@ -121,6 +121,9 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
         Err(Error::FaultLatched { fault }),
         Err(Error::VersionMismatch { host: 9, device: 1 }),
         Err(Error::ConfigRejected),
+        Err(Error::Store {
+            why: proto::StoreFailure::Corrupt,
+        }),
         Err(Error::NotSupported {
             what: Unsupported::Calibrate,
         }),

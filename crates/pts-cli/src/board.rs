@@ -113,6 +113,9 @@ pub fn describe(e: &Error) -> String {
             Unsupported::Estimator(e) => format!("estimator {e:?} is not in this firmware build"),
             other => format!("not supported by this firmware: {other:?}"),
         },
+        Error::Store { why } => {
+            format!("settings store: {why:?} (the settings in use are unchanged)")
+        }
     }
 }
 

@@ -174,6 +174,8 @@ enum BoardCmd {
     Store,
     /// Load the stored settings.
     Load,
+    /// Reset the firmware (bridge off first); stored settings apply after it.
+    Reboot,
     /// Send raw bytes (hex) and print whatever comes back within the timeout (protocol tests).
     #[command(hide = true)]
     Raw {
@@ -411,6 +413,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
         BoardCmd::Calibrate => proto::Command::Calibrate,
         BoardCmd::Store => proto::Command::Store,
         BoardCmd::Load => proto::Command::Load,
+        BoardCmd::Reboot => proto::Command::Reboot,
         BoardCmd::Raw { hex } => {
             let bytes: Result<Vec<u8>, _> = (0..hex.len() / 2)
                 .map(|i| u8::from_str_radix(hex.get(2 * i..2 * i + 2).unwrap_or("zz"), 16))
