@@ -260,7 +260,9 @@ fn session(s: &Session) -> Res {
     }
 
     // Bad input: each a typed error, the device still answering.
-    let malformed = s.raw(&[0x05, 0x00, 0xC8, 0x01, 0x0A, 0x0B, 0x00])?;
+    // One frame (one delimiter, so exactly one reply): its COBS code promises four bytes and
+    // only two follow before the delimiter.
+    let malformed = s.raw(&[0x05, 0xC8, 0x01, 0x00])?;
     if malformed["device_error"]["BadFrame"].is_null() {
         errs.push(format!("malformed frame: {malformed}"));
     }
