@@ -131,6 +131,22 @@ pub struct Frame {
     pub msg: String,
 }
 
+impl Frame {
+    /// A decoded defmt frame: timestamp back in ticks, level, formatted message.
+    fn from_decoded(frame: &defmt_decoder::Frame<'_>) -> Frame {
+        Frame {
+            ts: frame
+                .display_timestamp()
+                .and_then(|t| ticks_from_seconds(t.to_string().trim())),
+            level: frame
+                .level()
+                .map(|l| l.as_str().to_uppercase())
+                .unwrap_or_else(|| "PRINT".into()),
+            msg: frame.display_message().to_string(),
+        }
+    }
+}
+
 /// The firmware's control period, µs (src/telemetry.rs `TICK_US`).
 const TICK_US: u64 = 100;
 
@@ -216,16 +232,7 @@ pub fn run(elf: &Path, live: &mut dyn FnMut(&Frame)) -> Res<Run> {
         loop {
             match decoder.decode() {
                 Ok(frame) => {
-                    let f = Frame {
-                        ts: frame
-                            .display_timestamp()
-                            .and_then(|t| ticks_from_seconds(t.to_string().trim())),
-                        level: frame
-                            .level()
-                            .map(|l| l.as_str().to_uppercase())
-                            .unwrap_or_else(|| "PRINT".into()),
-                        msg: frame.display_message().to_string(),
-                    };
+                    let f = Frame::from_decoded(&frame);
                     live(&f);
                     frames.push(f);
                 }
@@ -303,16 +310,7 @@ pub fn decode_file(elf: &Path, log: &Path) -> Res<Vec<Frame>> {
     let mut frames = Vec::new();
     loop {
         match decoder.decode() {
-            Ok(frame) => frames.push(Frame {
-                ts: frame
-                    .display_timestamp()
-                    .and_then(|t| ticks_from_seconds(t.to_string().trim())),
-                level: frame
-                    .level()
-                    .map(|l| l.as_str().to_uppercase())
-                    .unwrap_or_else(|| "PRINT".into()),
-                msg: frame.display_message().to_string(),
-            }),
+            Ok(frame) => frames.push(Frame::from_decoded(&frame)),
             Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
             Err(defmt_decoder::DecodeError::Malformed) => {
                 if !table.encoding().can_recover() {
