@@ -27,6 +27,18 @@ const SWEEP: &[&str] = &[
     "--json",
 ];
 
+/// The heat map of the sweep a figure's first step wrote, on a common colour scale.
+const HEAT: &[&str] = &[
+    "plot",
+    "heat",
+    "--sweep",
+    "{tmp}/s.json",
+    "--max",
+    "40",
+    "-o",
+    "{out}",
+];
+
 const FIGURES: &[Figure] = &[
     Figure {
         file: "kc_k2.svg",
@@ -95,51 +107,15 @@ const FIGURES: &[Figure] = &[
     },
     Figure {
         file: "sweep_two-point.svg",
-        steps: &[
-            &["{sweep}", "--method", "two-point", ">{tmp}/s.json"],
-            &[
-                "plot",
-                "heat",
-                "--sweep",
-                "{tmp}/s.json",
-                "--max",
-                "40",
-                "-o",
-                "{out}",
-            ],
-        ],
+        steps: &[&["{sweep}", "--method", "two-point", ">{tmp}/s.json"], HEAT],
     },
     Figure {
         file: "sweep_pathfit.svg",
-        steps: &[
-            &["{sweep}", "--method", "pathfit", ">{tmp}/s.json"],
-            &[
-                "plot",
-                "heat",
-                "--sweep",
-                "{tmp}/s.json",
-                "--max",
-                "40",
-                "-o",
-                "{out}",
-            ],
-        ],
+        steps: &[&["{sweep}", "--method", "pathfit", ">{tmp}/s.json"], HEAT],
     },
     Figure {
         file: "sweep_ideal.svg",
-        steps: &[
-            &["{sweep}", "--ideal", ">{tmp}/s.json"],
-            &[
-                "plot",
-                "heat",
-                "--sweep",
-                "{tmp}/s.json",
-                "--max",
-                "40",
-                "-o",
-                "{out}",
-            ],
-        ],
+        steps: &[&["{sweep}", "--ideal", ">{tmp}/s.json"], HEAT],
     },
 ];
 

@@ -178,28 +178,12 @@ pub fn run(elf: &Path, live: &mut dyn FnMut(&Frame)) -> Res<Run> {
     let table = defmt_decoder::Table::parse(&bytes)
         .map_err(|e| format!("defmt table of {}: {e}", elf.display()))?
         .ok_or_else(|| format!("{} has no defmt table", elf.display()))?;
-    let mut cmd = Command::new("qemu-system-arm");
-    cmd.args([
-        "-cpu",
-        "cortex-m4",
-        "-machine",
-        "mps2-an386",
-        "-display",
-        "none",
-        "-monitor",
-        "none",
-        "-serial",
-        "null",
-        "-icount",
-        ICOUNT,
-        "-semihosting-config",
-        "enable=on,target=native",
-        "-kernel",
-    ])
-    .arg(elf)
-    .stdin(Stdio::null())
-    .stdout(Stdio::piped())
-    .stderr(Stdio::inherit());
+    let mut cmd = machine("null");
+    cmd.arg("-kernel")
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
     eprintln!("$ {}", util::show(&cmd));
     let start = Instant::now();
     let mut child = cmd
@@ -266,11 +250,9 @@ pub fn run(elf: &Path, live: &mut dyn FnMut(&Frame)) -> Res<Run> {
     })
 }
 
-/// Starts the device-mode firmware in QEMU with UART0 on a TCP server socket at
-/// 127.0.0.1:`port`; its defmt stream (semihosting stdout) goes to `log`. The caller kills it.
-pub fn spawn_device(elf: &Path, port: u16, log: &Path) -> Res<std::process::Child> {
-    ensure_qemu()?;
-    let out = std::fs::File::create(log).map_err(|e| format!("{}: {e}", log.display()))?;
+/// qemu-system-arm as every run uses it: the mps2-an386 Cortex-M4, no display or monitor,
+/// instruction counting (`ICOUNT`), semihosting on, UART0 to `serial`.
+fn machine(serial: &str) -> Command {
     let mut cmd = Command::new("qemu-system-arm");
     cmd.args([
         "-cpu",
@@ -282,17 +264,26 @@ pub fn spawn_device(elf: &Path, port: u16, log: &Path) -> Res<std::process::Chil
         "-monitor",
         "none",
         "-serial",
-        &format!("tcp:127.0.0.1:{port},server=on,wait=off"),
+        serial,
         "-icount",
         ICOUNT,
         "-semihosting-config",
         "enable=on,target=native",
-        "-kernel",
-    ])
-    .arg(elf)
-    .stdin(Stdio::null())
-    .stdout(out)
-    .stderr(Stdio::inherit());
+    ]);
+    cmd
+}
+
+/// Starts the device-mode firmware in QEMU with UART0 on a TCP server socket at
+/// 127.0.0.1:`port`; its defmt stream (semihosting stdout) goes to `log`. The caller kills it.
+pub fn spawn_device(elf: &Path, port: u16, log: &Path) -> Res<std::process::Child> {
+    ensure_qemu()?;
+    let out = std::fs::File::create(log).map_err(|e| format!("{}: {e}", log.display()))?;
+    let mut cmd = machine(&format!("tcp:127.0.0.1:{port},server=on,wait=off"));
+    cmd.arg("-kernel")
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(out)
+        .stderr(Stdio::inherit());
     eprintln!("$ {}", util::show(&cmd));
     cmd.spawn()
         .map_err(|e| format!("cannot start qemu-system-arm: {e}"))
