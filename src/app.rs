@@ -228,6 +228,7 @@ mod app {
                     torque_ref_unm: out.torque_ref_unm,
                     duty: out.duty,
                     state,
+                    raw: board.raw(),
                 });
             }
         }

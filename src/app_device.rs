@@ -181,6 +181,7 @@ mod app {
                         torque_ref_unm: out.torque_ref_unm,
                         duty: out.duty,
                         state,
+                        raw: board.raw(),
                     });
                 }
             }
@@ -255,6 +256,7 @@ mod app {
                     torque_ref_unm,
                     duty,
                     state,
+                    raw: (encoder_count, current_code),
                 } => d.sample(proto::Sample {
                     tick,
                     theta_a_urad,
@@ -262,6 +264,8 @@ mod app {
                     torque_ref_unm,
                     duty,
                     state: device::state(state),
+                    encoder_count,
+                    current_code,
                 }),
                 Msg::Event(ev) => d.event(&ev),
                 Msg::HostLost { tick, silent_ticks } => {
@@ -397,7 +401,11 @@ mod app {
                     .ok_or(Error::UnknownChoice { param: id })
             }),
             Command::Set(p) => {
-                idle_or_busy(sh)?;
+                // The telemetry rate changes nothing the controller does: settable any time
+                // (a recording raises it for one grasp and restores it while holding).
+                if !matches!(p, proto::Param::TelemetryHz(_)) {
+                    idle_or_busy(sh)?;
+                }
                 if let proto::Param::Scene(name) = &p {
                     if plant::scenes::by_name(name.as_str()).is_none() {
                         return Err(Error::UnknownChoice {
@@ -509,6 +517,15 @@ mod app {
             }
             // Answered by `handle`, which resets after the acknowledgement.
             Command::Reboot => Ok(Reply::Ack),
+            Command::Drive => {
+                let scene_name = sh.dev.lock(|d| d.scene.clone());
+                let scene = plant::scenes::by_name(scene_name.as_str())
+                    .map(ctl::finger_scene)
+                    .ok_or(Error::UnknownChoice {
+                        param: ParamId::Scene,
+                    })?;
+                Ok(Reply::Drive(device::drive(&ctl::scene_drive(&scene))))
+            }
         }
     }
 
@@ -566,17 +583,21 @@ mod app {
         let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
         let ctrl = Controller::new(cfg).map_err(|_| Error::ConfigRejected)?;
         let (lp_new, link_new, sup_new) = ctrl.into_parts();
-        let tick = tm::TICKS.load(Ordering::Relaxed);
-        LAST_RX_TICK.store(tick, Ordering::Relaxed);
-        (&mut sh.lp, &mut sh.board, &mut sh.link, &mut sh.sup).lock(|lp, board, link, sup| {
-            *lp = lp_new;
-            *link = link_new;
-            *sup = sup_new;
-            board.reset_plant(plant);
-            HOST_LOST.store(false, Ordering::SeqCst);
-            ACTIVE.store(true, Ordering::SeqCst);
-            HALT.store(false, Ordering::SeqCst);
-        });
+        // Read inside the lock (the sampling task cannot run meanwhile): the new controller's
+        // first tick is `tick + 1`, which a recording of this grasp starts from.
+        let tick =
+            (&mut sh.lp, &mut sh.board, &mut sh.link, &mut sh.sup).lock(|lp, board, link, sup| {
+                let tick = tm::TICKS.load(Ordering::Relaxed);
+                LAST_RX_TICK.store(tick, Ordering::Relaxed);
+                *lp = lp_new;
+                *link = link_new;
+                *sup = sup_new;
+                board.reset_plant(plant);
+                HOST_LOST.store(false, Ordering::SeqCst);
+                ACTIVE.store(true, Ordering::SeqCst);
+                HALT.store(false, Ordering::SeqCst);
+                tick
+            });
         sh.dev.lock(|d| {
             d.grasps = d.grasps.wrapping_add(1);
             d.estimator = settings.estimator;

@@ -242,6 +242,22 @@ impl Device {
     }
 }
 
+/// The protocol's view of the controller's drive constants.
+pub fn drive(d: &grasp::DriveConfig) -> proto::Drive {
+    proto::Drive {
+        dt_s: d.dt_s,
+        gear_ratio: d.gear_ratio,
+        efficiency: d.efficiency,
+        kt_nm_per_a: d.kt_nm_per_a,
+        resistance_ohm: d.resistance_ohm,
+        bus_v: d.bus_v,
+        counts_per_rev: d.encoder_counts_per_rev,
+        amps_per_code: d.amps_per_code,
+        zero_code: d.adc_zero_code,
+        theta_a_rest_rad: d.theta_a_rest_rad,
+    }
+}
+
 /// Sets the telemetry decimation for a rate (Hz) at the 10 kHz loop.
 pub fn set_decimation(hz: u16) {
     let n = if hz == 0 {

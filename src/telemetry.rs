@@ -92,6 +92,10 @@ pub enum Msg {
         duty: i16,
         /// State after the tick.
         state: State,
+        /// Raw encoder count and ADC code the tick read (sent to the host in device mode;
+        /// the defmt line leaves them out).
+        #[cfg_attr(not(feature = "device"), allow(dead_code))]
+        raw: (u16, u16),
     },
     /// A controller event, as it happened.
     Event(Event),
@@ -182,6 +186,7 @@ pub fn log(msg: &Msg) {
             torque_ref_unm,
             duty,
             state,
+            ..
         } => defmt::info!(
             "S tick={=u32} theta_a_urad={=i32} torque_unm={=i32} ref_unm={=i32} duty={=i16} state={}",
             tick,

@@ -52,6 +52,8 @@ static BRIDGE_SAFE: AtomicBool = AtomicBool::new(false);
 /// The board's drivers.
 pub struct Board {
     adc_code: u16,
+    /// The last encoder count handed to the controller (for telemetry).
+    last_count: u16,
     off: bool,
     wdg: IndependentWatchdog,
     /// Cycle stamp when the watchdog was started.
@@ -180,6 +182,7 @@ pub fn init(
     (
         Board {
             adc_code: 2048,
+            last_count: 0,
             off: true,
             wdg,
             wdg_start: 0,
@@ -189,6 +192,11 @@ pub fn init(
 }
 
 impl Board {
+    /// The encoder count and ADC code the controller read last.
+    pub fn raw(&self) -> (u16, u16) {
+        (self.last_count, self.adc_code)
+    }
+
     /// Acknowledges the end of the injected conversion and latches the current sample.
     pub fn ack_sample(&mut self) {
         // SAFETY: the sampling task is the only user of ADC1 after init; reading JDR1 and
@@ -243,7 +251,8 @@ fn tim1() -> &'static pac::tim1::RegisterBlock {
 impl Hardware for Board {
     fn encoder_count(&mut self) -> u16 {
         // SAFETY: read of TIM4's counter.
-        (unsafe { &*pac::TIM4::ptr() }.cnt().read().bits() & 0xFFFF) as u16
+        self.last_count = (unsafe { &*pac::TIM4::ptr() }.cnt().read().bits() & 0xFFFF) as u16;
+        self.last_count
     }
     fn current_raw(&mut self) -> u16 {
         self.adc_code

@@ -48,6 +48,8 @@ pub struct SimBoard {
     hw: sim_board::PlantBoard,
     /// Work stamp when the (modelled) watchdog was started.
     wdg_start: u32,
+    /// The last encoder count and ADC code handed to the controller (for telemetry).
+    raw: (u16, u16),
 }
 
 /// Brings up the simulated board for the build's scene and starts the sampling interrupt.
@@ -75,6 +77,7 @@ pub fn init(core: rtic::export::Peripherals) -> (Board, grasp::ControllerConfig)
         SimBoard {
             hw: sim_board::PlantBoard::new(plant),
             wdg_start: 0,
+            raw: (0, 0),
         },
         cfg,
     )
@@ -100,6 +103,11 @@ impl SimBoard {
     #[cfg(feature = "device")]
     pub fn reset_plant(&mut self, plant: plant::Plant) {
         self.hw = sim_board::PlantBoard::new(plant);
+    }
+
+    /// The encoder count and ADC code the controller read last.
+    pub fn raw(&self) -> (u16, u16) {
+        self.raw
     }
 
     /// Nothing to acknowledge: SysTick pended the line.
@@ -165,10 +173,12 @@ fn micro(v: f64) -> i32 {
 
 impl Hardware for SimBoard {
     fn encoder_count(&mut self) -> u16 {
-        self.hw.encoder_count()
+        self.raw.0 = self.hw.encoder_count();
+        self.raw.0
     }
     fn current_raw(&mut self) -> u16 {
-        self.hw.current_raw()
+        self.raw.1 = self.hw.current_raw();
+        self.raw.1
     }
     fn set_duty(&mut self, duty: i16) {
         self.hw.set_duty(duty);

@@ -399,6 +399,7 @@ fn session(s: &Session) -> Res {
             errs.push(format!("after release: {state}, bridge_on {bridge_on}"));
         }
     }
+    errs.extend(record_and_replay(s)?);
     let (_, _, v) = s.state()?;
     let grasps = v["reply"]["Status"]["grasps"].as_u64();
     let boots = s
@@ -406,9 +407,9 @@ fn session(s: &Session) -> Res {
         .iter()
         .filter(|f| f.msg.starts_with("BOOT"))
         .count();
-    if grasps != Some(5) || boots != 1 {
+    if grasps != Some(6) || boots != 1 {
         errs.push(format!(
-            "one power-up expected: {boots} boots, {grasps:?} grasps (expected 5)"
+            "one power-up expected: {boots} boots, {grasps:?} grasps (expected 6)"
         ));
     }
     errs.extend(store_and_reboot(s)?);
@@ -418,6 +419,59 @@ fn session(s: &Session) -> Res {
     } else {
         Err(errs.join("\n"))
     }
+}
+
+/// A grasp recorded at every control tick (`pts board record`, with a ΔT_a ramp and settings
+/// unlike the defaults) replays through `pts estimate --trace` to the device's own k2.
+fn record_and_replay(s: &Session) -> Res<Vec<String>> {
+    let mut errs = vec![];
+    s.ok(&["set", "scene", "cyl10_k2_20"])?;
+    s.ok(&["set", "delta_ta_nm", "0.7"])?;
+    s.ok(&["set", "estimator", "two-point"])?;
+    s.ok(&["set", "step_ramp_nm_per_s", "4"])?;
+    let csv = util::root().join("target").join("device-record.csv");
+    let csv_s = csv.display().to_string();
+    let t = Instant::now();
+    let v = s.ok(&["record", "-o", &csv_s, "--grasp-timeout", GRASP_WALL_S])?;
+    let k2_dev = v["contact"]["k2_um"]
+        .as_i64()
+        .ok_or_else(|| format!("record: no k2 in {v}"))?;
+    s.ok(&["release"])?;
+    s.ok(&["set", "step_ramp_nm_per_s", "step"])?;
+    let out = Command::new(&s.pts)
+        .args(["estimate", "--trace", &csv_s, "--json"])
+        .output()
+        .map_err(|e| format!("cannot run pts estimate: {e}"))?;
+    let text = String::from_utf8_lossy(&out.stdout);
+    let est: Value = serde_json::from_str(text.lines().last().unwrap_or("null"))
+        .map_err(|e| format!("pts estimate --json: {e}: {text}"))?;
+    let k2_replay = est["contacts"][0]["k2"]
+        .as_f64()
+        .map(|k| (k * 1e6).round() as i64);
+    let rows = est["rows"].as_u64().unwrap_or(0);
+    let l2_um = s
+        .frames()?
+        .iter()
+        .find(|f| f.msg.starts_with("BOOT"))
+        .and_then(|f| int(&f.msg, "l2_um"))
+        .ok_or("no l2_um in the firmware's BOOT line")? as f64;
+    println!(
+        "record: {rows} ticks in {csv_s} ({:.1} s); k2 device {k2_dev} µm, replay {k2_replay:?} µm, exact replay {}",
+        t.elapsed().as_secs_f64(),
+        est["exact_replay"]
+    );
+    match k2_replay {
+        Some(k) if ((k - k2_dev).abs() as f64) <= K2_TOL_REL_L2 * l2_um => {}
+        _ => errs.push(format!(
+            "recorded grasp: device k2 {k2_dev} µm, `pts estimate --trace` {est}"
+        )),
+    }
+    if est["exact_replay"] != Value::Bool(true) || est["method"] != "two-point" {
+        errs.push(format!(
+            "recorded grasp not replayed exactly with its estimator: {est}"
+        ));
+    }
+    Ok(errs)
 }
 
 /// ΔT_a stored before the reboot (N·m); differs from the build's default and the value set

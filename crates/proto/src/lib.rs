@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 /// Protocol version: the first byte of every frame and the value of the hello exchange.
 /// Raised whenever a message's encoding changes.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 
 /// A scene name of the simulated build (the plant's scene catalogue), at most 24 bytes.
 pub type SceneName = heapless::String<24>;
@@ -51,7 +51,8 @@ pub enum Command {
     Status,
     /// One parameter's value ([`Reply::Param`]).
     Get(ParamId),
-    /// Sets one parameter (idle only; [`Error::Busy`] during a grasp).
+    /// Sets one parameter (idle only, [`Error::Busy`] during a grasp; the telemetry rate any
+    /// time).
     Set(Param),
     /// Calibrate the finger (rest pose, current offset).
     Calibrate,
@@ -67,11 +68,15 @@ pub enum Command {
     Load,
     /// Reset the controller.
     Reboot,
+    /// The drive constants and control period the controller converts its readings with
+    /// ([`Reply::Drive`]): what a host needs to turn recorded raw samples back into θa and
+    /// T_a, or to replay them through the same controller.
+    Drive,
 }
 
 impl Command {
     /// Number of command variants (the wire tags are `0..COUNT`).
-    pub const COUNT: u32 = 11;
+    pub const COUNT: u32 = 12;
 }
 
 /// A settable parameter's name.
@@ -362,6 +367,34 @@ pub enum Reply {
     Status(Status),
     /// A parameter's value.
     Param(Param),
+    /// The drive constants of the next (or current) grasp.
+    Drive(Drive),
+}
+
+/// The controller's drive constants and control period, as the firmware uses them (the
+/// values of the build's finger file, or of the selected scene on the simulated board).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Drive {
+    /// Control period (s).
+    pub dt_s: f64,
+    /// Motor turns per turn of the input crank.
+    pub gear_ratio: f64,
+    /// Transmission efficiency, (0, 1].
+    pub efficiency: f64,
+    /// Motor torque constant (N·m/A).
+    pub kt_nm_per_a: f64,
+    /// Motor terminal resistance (Ω).
+    pub resistance_ohm: f64,
+    /// Bridge supply at full duty (V).
+    pub bus_v: f64,
+    /// Encoder counts per motor turn, quadrature ×4.
+    pub counts_per_rev: f64,
+    /// Motor current per ADC code (A/code).
+    pub amps_per_code: f64,
+    /// ADC code at zero current.
+    pub zero_code: f64,
+    /// Absolute model angle θa at the rest pose, where the encoder reads zero (rad).
+    pub theta_a_rest_rad: f64,
 }
 
 /// The device's status.
@@ -570,6 +603,11 @@ pub struct Sample {
     pub duty: i16,
     /// The state.
     pub state: DeviceState,
+    /// Raw encoder count the tick read (×4 quadrature, wrapping): with `current_code`, what
+    /// an exact replay of the controller needs.
+    pub encoder_count: u16,
+    /// Raw current-sense ADC code the tick read.
+    pub current_code: u16,
 }
 
 impl Message for DeviceMsg {}

@@ -46,6 +46,7 @@ fn all_commands() -> Vec<Command> {
         Command::Store,
         Command::Load,
         Command::Reboot,
+        Command::Drive,
     ];
     v.extend(ParamId::ALL.into_iter().map(Command::Get));
     v.extend(all_params().into_iter().map(Command::Set));
@@ -105,6 +106,18 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
             settings: settings(),
             scene: Some(scene("table2")),
             bridge_on: true,
+        })),
+        Ok(Reply::Drive(proto::Drive {
+            dt_s: 100e-6,
+            gear_ratio: 256.0,
+            efficiency: 0.7,
+            kt_nm_per_a: 8.2e-3,
+            resistance_ohm: f64::MAX,
+            bus_v: 5.0,
+            counts_per_rev: 64.0,
+            amps_per_code: -1e-300,
+            zero_code: 2048.0,
+            theta_a_rest_rad: -0.8503608,
         })),
         Err(Error::UnknownCommand { tag: 77 }),
         Err(Error::BadValue {
@@ -215,6 +228,8 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
             torque_ref_unm: 0,
             duty: -4000,
             state,
+            encoder_count: u16::MAX,
+            current_code: 2048,
         }));
     }
     v

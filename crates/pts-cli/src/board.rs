@@ -56,6 +56,8 @@ pub struct Board {
     timeout: Duration,
     /// Every unasked message seen (events, contacts, samples), in order.
     pub log: Vec<DeviceMsg>,
+    /// Decoded messages not yet handled (a read can bring a reply and what followed it).
+    pending: std::collections::VecDeque<Result<DeviceMsg, FrameError>>,
 }
 
 /// Why a command failed.
@@ -69,6 +71,8 @@ pub enum BoardError {
     Device(Error),
     /// A frame from the device could not be read.
     Frame(FrameError),
+    /// A recording is incomplete.
+    Record(RecordError),
 }
 
 impl std::fmt::Display for BoardError {
@@ -78,6 +82,7 @@ impl std::fmt::Display for BoardError {
             BoardError::Timeout(t) => write!(f, "no reply within {:.1} s", t.as_secs_f64()),
             BoardError::Device(e) => write!(f, "{}", describe(e)),
             BoardError::Frame(e) => write!(f, "bad frame from the device: {e:?}"),
+            BoardError::Record(e) => write!(f, "recording: {e}"),
         }
     }
 }
@@ -149,6 +154,7 @@ impl Board {
             next_id: 1,
             timeout,
             log: Vec::new(),
+            pending: Default::default(),
         };
         // A delimiter first: the device drops whatever partial frame it held.
         b.write(&[0])?;
@@ -162,13 +168,22 @@ impl Board {
             .map_err(|e| BoardError::Io(e.to_string()))
     }
 
-    /// Reads what is there (up to the socket's short timeout): decoded messages.
+    /// Reads what is there (up to the socket's short timeout): decoded messages, after any
+    /// not yet handled.
     pub fn poll(&mut self) -> Result<Vec<Result<DeviceMsg, FrameError>>, BoardError> {
+        self.fill()?;
+        Ok(self.pending.drain(..).collect())
+    }
+
+    /// One read of the link into the pending messages.
+    fn fill(&mut self) -> Result<(), BoardError> {
         let mut buf = [0u8; 4096];
-        let mut out = Vec::new();
         match self.stream.read(&mut buf) {
             Ok(0) => return Err(BoardError::Io("the device closed the link".into())),
-            Ok(n) => self.dec.feed(&buf[..n], |r| out.push(r)),
+            Ok(n) => {
+                let pending = &mut self.pending;
+                self.dec.feed(&buf[..n], |r| pending.push_back(r));
+            }
             Err(e)
                 if matches!(
                     e.kind(),
@@ -176,7 +191,17 @@ impl Board {
                 ) => {}
             Err(e) => return Err(BoardError::Io(e.to_string())),
         }
-        Ok(out)
+        Ok(())
+    }
+
+    /// The next message, reading the link when none is pending; `None` when nothing arrived
+    /// within the socket's short timeout. Messages after the one returned stay pending, so
+    /// a caller that stops at a reply loses nothing that came with it.
+    fn next(&mut self) -> Result<Option<Result<DeviceMsg, FrameError>>, BoardError> {
+        if self.pending.is_empty() {
+            self.fill()?;
+        }
+        Ok(self.pending.pop_front())
     }
 
     /// Sends a request; returns its id.
@@ -194,14 +219,13 @@ impl Board {
     pub fn wait_reply(&mut self, id: u16) -> Result<Reply, BoardError> {
         let t0 = Instant::now();
         while t0.elapsed() < self.timeout {
-            for m in self.poll()? {
-                match m {
-                    Ok(DeviceMsg::Reply { id: rid, result }) if rid == id || rid == 0 => {
-                        return result.map_err(BoardError::Device);
-                    }
-                    Ok(other) => self.log.push(other),
-                    Err(e) => return Err(BoardError::Frame(e)),
+            match self.next()? {
+                Some(Ok(DeviceMsg::Reply { id: rid, result })) if rid == id || rid == 0 => {
+                    return result.map_err(BoardError::Device);
                 }
+                Some(Ok(other)) => self.log.push(other),
+                Some(Err(e)) => return Err(BoardError::Frame(e)),
+                None => {}
             }
         }
         Err(BoardError::Timeout(self.timeout))
@@ -211,6 +235,56 @@ impl Board {
     pub fn request(&mut self, cmd: Command) -> Result<Reply, BoardError> {
         let id = self.send(cmd)?;
         self.wait_reply(id)
+    }
+
+    /// Records one grasp at the control rate ([`Recording`]): telemetry set to one sample per
+    /// tick for the grasp, then back to the rate it had. Fails with [`RecordError`] (as a
+    /// [`BoardError::Record`]) when a tick has no sample.
+    pub fn record(&mut self, give_up: Duration) -> Result<Recording, BoardError> {
+        let Reply::Drive(drive) = self.request(Command::Drive)? else {
+            return Err(BoardError::Io(
+                "the device answered `drive` with another reply".into(),
+            ));
+        };
+        let Reply::Status(status) = self.request(Command::Status)? else {
+            return Err(BoardError::Io(
+                "the device answered `status` with another reply".into(),
+            ));
+        };
+        let control_hz = (1.0 / drive.dt_s).round();
+        let max_hz = ParamId::TelemetryRate.range().map_or(0.0, |r| r.max);
+        if !(control_hz > 0.0 && control_hz <= max_hz) {
+            return Err(BoardError::Record(RecordError::RateTooHigh {
+                control_hz,
+                max_hz,
+            }));
+        }
+        let before = status.settings.telemetry_hz;
+        self.request(Command::Set(Param::TelemetryHz(control_hz as u16)))?;
+        self.log.clear();
+        let outcome = self.grasp(give_up);
+        // Back to the previous rate whatever happened (best effort: the grasp's error wins).
+        let restored = self.request(Command::Set(Param::TelemetryHz(before)));
+        let outcome = outcome?;
+        restored?;
+        // The sample of the tick that ended the grasp may still be on its way.
+        let t0 = Instant::now();
+        let samples = loop {
+            match grasp_samples(&self.log) {
+                Err(RecordError::NoEnd) if t0.elapsed() < self.timeout => {
+                    if let Some(Ok(m)) = self.next()? {
+                        self.log.push(m);
+                    }
+                }
+                r => break r.map_err(BoardError::Record)?,
+            }
+        };
+        Ok(Recording {
+            outcome,
+            drive,
+            settings: status.settings,
+            samples,
+        })
     }
 
     /// Starts a grasp and waits for its end: the contact estimate, a fault or a stop. Polls
@@ -226,7 +300,7 @@ impl Board {
                 pending = Some(self.send(Command::Status)?);
                 last_poll = Instant::now();
             }
-            for m in self.poll()? {
+            if let Some(m) = self.next()? {
                 match m {
                     Ok(DeviceMsg::Reply { id, result }) => {
                         if Some(id) == pending {
@@ -259,6 +333,170 @@ impl Board {
             }
         }
         Err(BoardError::Timeout(give_up))
+    }
+}
+
+/// One grasp recorded at the control rate: every tick's sample from the grasp's first tick to
+/// the event that ended it, with the drive constants and settings the controller ran with.
+#[derive(Clone, Debug)]
+pub struct Recording {
+    /// How the grasp ended.
+    pub outcome: Outcome,
+    /// The device's drive constants and control period.
+    pub drive: proto::Drive,
+    /// The settings of the grasp.
+    pub settings: proto::Settings,
+    /// One sample per control tick, consecutive ticks.
+    pub samples: Vec<proto::Sample>,
+}
+
+/// Why a recording is incomplete.
+#[derive(Clone, Debug, PartialEq)]
+pub enum RecordError {
+    /// The control rate is above what the telemetry can carry (Hz).
+    RateTooHigh {
+        /// The control rate 1/dt (Hz).
+        control_hz: f64,
+        /// The largest telemetry rate (Hz).
+        max_hz: f64,
+    },
+    /// No `GraspStarted` event was seen.
+    NoStart,
+    /// No sample in a state that ends the grasp (holding, a fault, stopped) was seen.
+    NoEnd,
+    /// Samples are missing (the telemetry queue or the link could not keep up).
+    Lost {
+        /// Ticks without a sample.
+        missing: u64,
+        /// Ticks the grasp lasted.
+        of: u64,
+        /// The first missing tick.
+        first: u32,
+    },
+}
+
+impl std::fmt::Display for RecordError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RecordError::RateTooHigh { control_hz, max_hz } => write!(
+                f,
+                "the control rate {control_hz} Hz is above the largest telemetry rate {max_hz} Hz: \
+                 the grasp cannot be recorded at every tick"
+            ),
+            RecordError::NoStart => write!(f, "the device did not report the grasp's start"),
+            RecordError::NoEnd => write!(f, "no sample shows the grasp's end"),
+            RecordError::Lost { missing, of, first } => write!(
+                f,
+                "{missing} of {of} control ticks have no sample (first missing tick {first}): the \
+                 telemetry could not keep up; the recording would not replay exactly"
+            ),
+        }
+    }
+}
+
+/// True for the states a grasp ends in: its last recorded tick is the first in one of them.
+fn ends_grasp(s: proto::DeviceState) -> bool {
+    use proto::DeviceState as D;
+    matches!(
+        s,
+        D::Holding | D::Releasing | D::Opening | D::Idle | D::Stopped | D::Fault(_)
+    )
+}
+
+/// The samples of one grasp out of a message log: those after the last `GraspStarted` event
+/// (whose tick is the device's last tick before the grasp) up to the first in a state that
+/// ends the grasp, checked to cover every tick.
+pub fn grasp_samples(log: &[DeviceMsg]) -> Result<Vec<proto::Sample>, RecordError> {
+    let start = log
+        .iter()
+        .rev()
+        .find_map(|m| match m {
+            DeviceMsg::Event(proto::Event {
+                tick,
+                kind: EventKind::GraspStarted { .. },
+            }) => Some(*tick),
+            _ => None,
+        })
+        .ok_or(RecordError::NoStart)?;
+    let mut v: Vec<proto::Sample> = log
+        .iter()
+        .filter_map(|m| match m {
+            DeviceMsg::Sample(s) if s.tick > start => Some(*s),
+            _ => None,
+        })
+        .collect();
+    v.sort_by_key(|s| s.tick);
+    v.dedup_by_key(|s| s.tick);
+    let end = v
+        .iter()
+        .position(|s| ends_grasp(s.state))
+        .ok_or(RecordError::NoEnd)?;
+    v.truncate(end + 1);
+    let of = u64::from(v[end].tick - start);
+    let missing = of - v.len() as u64;
+    if missing > 0 {
+        let first = v
+            .iter()
+            .zip(start + 1..)
+            .find(|(s, t)| s.tick != *t)
+            .map_or(start + 1, |(_, t)| t);
+        return Err(RecordError::Lost { missing, of, first });
+    }
+    Ok(v)
+}
+
+impl Recording {
+    /// The recording as a trace CSV that `pts estimate --trace` replays through the
+    /// controller: the `# pts-sim` line with the drive constants and settings, then one row
+    /// per tick with the raw encoder count and ADC code.
+    pub fn write_csv(&self, out: &mut impl Write) -> std::io::Result<()> {
+        use crate::replay::{MetaController, MetaDrive, TraceMeta};
+        let d = &self.drive;
+        let s = &self.settings;
+        let meta = TraceMeta {
+            dta_nm: s.delta_ta_nm,
+            dt_s: d.dt_s,
+            drive: Some(MetaDrive {
+                gear_ratio: d.gear_ratio,
+                efficiency: d.efficiency,
+                kt_nm_per_a: d.kt_nm_per_a,
+                resistance_ohm: d.resistance_ohm,
+                bus_v: d.bus_v,
+                counts_per_rev: d.counts_per_rev,
+                amps_per_code: d.amps_per_code,
+                zero_code: d.zero_code,
+            }),
+            controller: MetaController {
+                estimator: Some(match s.estimator {
+                    proto::Estimator::TwoPoint => crate::method::Method::TwoPoint,
+                    proto::Estimator::PathFit => crate::method::Method::Pathfit,
+                }),
+                step_ramp_nm_per_s: Some(match s.step_shape {
+                    StepShape::Step => 0.0,
+                    StepShape::RampNmPerS(r) => r,
+                }),
+                approach_speed_rad_s: Some(s.approach_speed_rad_s),
+                approach_max_nm: Some(s.approach_max_nm),
+            },
+        };
+        writeln!(out, "{} source=pts-board-record", meta.line())?;
+        let t0 = self.samples.first().map_or(0, |x| x.tick);
+        let rows: Vec<crate::trace::TraceRow> = self
+            .samples
+            .iter()
+            .map(|x| crate::trace::TraceRow {
+                t_s: f64::from(x.tick.wrapping_sub(t0)) * d.dt_s,
+                theta_a_rad: f64::from(x.theta_a_urad) * 1e-6,
+                torque_nm: f64::from(x.torque_unm) * 1e-6,
+                torque_ref_nm: Some(f64::from(x.torque_ref_unm) * 1e-6),
+                duty: Some(f64::from(x.duty) / f64::from(grasp::DUTY_MAX)),
+                state: Some(x.state.name().to_string()),
+                encoder_count: Some(x.encoder_count),
+                current_code: Some(x.current_code),
+                ..Default::default()
+            })
+            .collect();
+        crate::trace::write_csv(&rows, out)
     }
 }
 
@@ -356,5 +594,121 @@ mod tests {
             describe(&e),
             "delta_ta_nm = 9 is outside the allowed range 0.05..=1.5"
         );
+    }
+
+    fn sample(tick: u32) -> DeviceMsg {
+        DeviceMsg::Sample(proto::Sample {
+            tick,
+            theta_a_urad: -850_000 + tick as i32,
+            torque_unm: 1000,
+            torque_ref_unm: 1200,
+            duty: -50,
+            state: proto::DeviceState::Approach,
+            encoder_count: tick as u16,
+            current_code: 2040,
+        })
+    }
+
+    fn started(tick: u32) -> DeviceMsg {
+        DeviceMsg::Event(proto::Event {
+            tick,
+            kind: EventKind::GraspStarted { grasp: 1 },
+        })
+    }
+
+    /// The grasp's samples are those after its start event up to its end; a tick without a
+    /// sample is an error naming how many and the first, never a silently shorter trace.
+    #[test]
+    fn grasp_samples_cover_every_tick_or_say_what_is_missing() {
+        let mut log: Vec<DeviceMsg> = (90..=100).map(sample).collect();
+        log.push(started(100));
+        log.extend((101..=120).map(sample));
+        // Ticks 110… are the holding state: the grasp ends at 110.
+        for m in &mut log {
+            if let DeviceMsg::Sample(s) = m {
+                if s.tick >= 110 {
+                    s.state = proto::DeviceState::Holding;
+                }
+            }
+        }
+        let v = grasp_samples(&log).unwrap();
+        assert_eq!(v.len(), 10);
+        assert_eq!(v.first().map(|s| s.tick), Some(101));
+        assert_eq!(v.last().map(|s| s.tick), Some(110));
+        let mut gaps = log.clone();
+        gaps.retain(|m| !matches!(m, DeviceMsg::Sample(s) if s.tick == 105 || s.tick == 107));
+        assert_eq!(
+            grasp_samples(&gaps),
+            Err(RecordError::Lost {
+                missing: 2,
+                of: 10,
+                first: 105
+            })
+        );
+        let no_start: Vec<DeviceMsg> = (1..20).map(sample).collect();
+        assert_eq!(grasp_samples(&no_start), Err(RecordError::NoStart));
+        // Started, but never ended (or the end's samples never came): an error, not a short trace.
+        let mut no_end: Vec<DeviceMsg> = vec![started(100)];
+        no_end.extend((101..=105).map(sample));
+        assert_eq!(grasp_samples(&no_end), Err(RecordError::NoEnd));
+    }
+
+    /// A recording's CSV reads back as a trace with the raw columns, the control period and
+    /// the settings it was taken with (what makes the replay exact).
+    #[test]
+    fn recording_csv_carries_what_the_replay_needs() {
+        let settings = proto::Settings {
+            delta_ta_nm: 0.6,
+            step_shape: StepShape::RampNmPerS(2.5),
+            estimator: proto::Estimator::PathFit,
+            approach_speed_rad_s: 0.3,
+            approach_max_nm: 1.2,
+            layout: proto::Settings::LAYOUT,
+            telemetry_hz: 50,
+        };
+        let rec = Recording {
+            outcome: Outcome::Stopped,
+            drive: proto::Drive {
+                dt_s: 1e-4,
+                gear_ratio: 256.0,
+                efficiency: 0.7,
+                kt_nm_per_a: 8.23e-3,
+                resistance_ohm: 8.0,
+                bus_v: 5.0,
+                counts_per_rev: 64.0,
+                amps_per_code: 1.0 / 4096.0,
+                zero_code: 2048.0,
+                theta_a_rest_rad: -0.85,
+            },
+            settings,
+            samples: (101..=110)
+                .map(|t| match sample(t) {
+                    DeviceMsg::Sample(s) => s,
+                    _ => unreachable!(),
+                })
+                .collect(),
+        };
+        let mut out = Vec::new();
+        rec.write_csv(&mut out).unwrap();
+        let text = String::from_utf8(out).unwrap();
+        let meta = crate::replay::TraceMeta::find(&text).expect("meta line");
+        assert_eq!(meta.dta_nm, 0.6);
+        assert_eq!(meta.dt_s, 1e-4);
+        let d = meta.drive.expect("drive constants");
+        assert_eq!(
+            (d.gear_ratio, d.amps_per_code, d.zero_code),
+            (256.0, 1.0 / 4096.0, 2048.0)
+        );
+        let c = meta.controller;
+        assert_eq!(c.estimator, Some(crate::method::Method::Pathfit));
+        assert_eq!(c.step_ramp_nm_per_s, Some(2.5));
+        assert_eq!(c.approach_speed_rad_s, Some(0.3));
+        assert_eq!(c.approach_max_nm, Some(1.2));
+        let tr = crate::trace::read_csv(&text, &|i| i).unwrap();
+        assert_eq!(tr.rows.len(), 10);
+        assert_eq!(tr.rows[3].encoder_count, Some(104));
+        assert_eq!(tr.rows[3].current_code, Some(2040));
+        assert!((tr.rows[3].t_s - 3e-4).abs() < 1e-12);
+        assert!((tr.rows[3].theta_a_rad - (-0.849_896)).abs() < 1e-12);
     }
 }

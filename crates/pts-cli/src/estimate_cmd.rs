@@ -92,7 +92,8 @@ pub fn replay_text(
         }
     }
     let dt_s = dt_s.or(meta.map(|m| m.dt_s));
-    let rep = replay::replay(&tr, &file, dta, dt_s, method)
+    let settings = meta.map(|m| m.controller).unwrap_or_default();
+    let rep = replay::replay(&tr, &file, dta, dt_s, method, &settings)
         .map_err(|e| format!("{}: {e}", path.display()))?;
     Ok((tr, rep, dta))
 }
@@ -130,7 +131,9 @@ pub fn run(
         let method = method.unwrap_or(Method::Pathfit);
         return run_segmented(path, &text, finger, dta, dt_s, json_out, method);
     }
-    let method = method.unwrap_or(Method::TwoPoint);
+    // The recording's own estimator unless the user names one.
+    let recorded = TraceMeta::find(&text).and_then(|m| m.controller.estimator);
+    let method = method.or(recorded).unwrap_or(Method::TwoPoint);
     let (tr, rep, dta) = replay_text(path, &text, finger, dta, dt_s, method)?;
     let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
     let fault = match rep.state {

@@ -164,6 +164,18 @@ enum BoardCmd {
         #[arg(long, default_value = "300")]
         grasp_timeout: f64,
     },
+    /// Record one grasp at the control rate (one row per tick, raw encoder and ADC readings)
+    /// into a CSV that `pts estimate --trace` replays to the firmware's answer.
+    Record {
+        /// Output CSV.
+        #[arg(short, long)]
+        output: std::path::PathBuf,
+        /// Seconds to wait for the grasp's end.
+        #[arg(long, default_value = "300")]
+        grasp_timeout: f64,
+    },
+    /// The drive constants and control period the firmware converts readings with.
+    Drive,
     /// Let go (torque off, the finger opens to rest), back to idle.
     Release,
     /// Torque off now, from any state; acknowledges a latched fault.
@@ -408,6 +420,38 @@ fn run_board(a: BoardArgs) -> ExitCode {
                 };
             }
         }
+        BoardCmd::Record {
+            output,
+            grasp_timeout,
+        } => {
+            let give_up = Duration::from_secs_f64(grasp_timeout.clamp(0.01, 86_400.0));
+            let rec = match b.record(give_up) {
+                Ok(r) => r,
+                Err(e) => return fail(e),
+            };
+            let written = std::fs::File::create(&output).and_then(|f| {
+                let mut w = std::io::BufWriter::new(f);
+                rec.write_csv(&mut w)?;
+                std::io::Write::flush(&mut w)
+            });
+            if let Err(e) = written {
+                eprintln!("pts board record: writing {}: {e}", output.display());
+                return ExitCode::FAILURE;
+            }
+            eprintln!(
+                "wrote {} ({} ticks at {} s)",
+                output.display(),
+                rec.samples.len(),
+                rec.drive.dt_s
+            );
+            show(&rec.outcome);
+            return match rec.outcome {
+                Outcome::Contact(_) => ExitCode::SUCCESS,
+                Outcome::Fault(_) => ExitCode::from(2),
+                Outcome::Stopped => ExitCode::from(3),
+            };
+        }
+        BoardCmd::Drive => proto::Command::Drive,
         BoardCmd::Release => proto::Command::Release,
         BoardCmd::Stop => proto::Command::Stop,
         BoardCmd::Calibrate => proto::Command::Calibrate,
@@ -487,6 +531,20 @@ mod erased {
                     s.settings
                 ),
                 Reply::Param(p) => format!("{p:?}"),
+                Reply::Drive(d) => format!(
+                    "control period {} s; gear {} × η {}, kt {} N·m/A, R {} Ω, bus {} V; \
+                     {} counts/rev; {} A/code, zero at code {}; θa,rest {} rad",
+                    d.dt_s,
+                    d.gear_ratio,
+                    d.efficiency,
+                    d.kt_nm_per_a,
+                    d.resistance_ohm,
+                    d.bus_v,
+                    d.counts_per_rev,
+                    d.amps_per_code,
+                    d.zero_code,
+                    d.theta_a_rest_rad
+                ),
             }
         }
     }

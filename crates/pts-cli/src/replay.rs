@@ -11,9 +11,10 @@ use crate::trace::{state_name, Trace};
 use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State};
 use pts::config::FingerFile;
 
-/// Settings of a `pts sim` run, written as a `# pts-sim key=value …` comment line at the top
-/// of the CSV so that a replay uses the same controller settings and drive constants.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Settings of a `pts sim` run or a `pts board record`ing, written as a `# pts-sim key=value …`
+/// comment line at the top of the CSV so that a replay uses the same controller settings and
+/// drive constants.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TraceMeta {
     /// ΔT_a commanded (N·m).
     pub dta_nm: f64,
@@ -21,6 +22,45 @@ pub struct TraceMeta {
     pub dt_s: f64,
     /// The drive constants the controller was built with, when recorded.
     pub drive: Option<MetaDrive>,
+    /// Controller settings that differed from grasp's defaults, when recorded.
+    pub controller: MetaController,
+}
+
+/// Controller settings in a `# pts-sim` line (a device's settings at the recorded grasp);
+/// `None` = grasp's default.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MetaController {
+    /// The estimator the recording ran.
+    pub estimator: Option<crate::method::Method>,
+    /// ΔT_a ramp rate (N·m/s); 0 = a step in one tick.
+    pub step_ramp_nm_per_s: Option<f64>,
+    /// Largest approach speed (rad/s).
+    pub approach_speed_rad_s: Option<f64>,
+    /// Approach torque ceiling (N·m).
+    pub approach_max_nm: Option<f64>,
+}
+
+impl MetaController {
+    /// These settings applied to a controller configuration.
+    pub fn apply(&self, mut c: ControllerConfig) -> ControllerConfig {
+        if let Some(m) = self.estimator {
+            c.estimator = m.estimator();
+        }
+        if let Some(r) = self.step_ramp_nm_per_s {
+            c.step_shape = if r > 0.0 {
+                grasp::StepShape::Ramp(r)
+            } else {
+                grasp::StepShape::Step
+            };
+        }
+        if let Some(v) = self.approach_speed_rad_s {
+            c.approach_speed_max_rad_s = v;
+        }
+        if let Some(v) = self.approach_max_nm {
+            c.approach_max_nm = v;
+        }
+        c
+    }
 }
 
 /// Drive constants in a `# pts-sim` line.
@@ -96,6 +136,19 @@ impl TraceMeta {
                 d.zero_code
             );
         }
+        let c = &self.controller;
+        if let Some(m) = c.estimator {
+            s += &format!(" estimator={}", m.name());
+        }
+        for (k, v) in [
+            ("step_ramp_nm_per_s", c.step_ramp_nm_per_s),
+            ("approach_speed_rad_s", c.approach_speed_rad_s),
+            ("approach_max_nm", c.approach_max_nm),
+        ] {
+            if let Some(v) = v {
+                s += &format!(" {k}={v}");
+            }
+        }
         s
     }
 
@@ -120,10 +173,20 @@ impl TraceMeta {
                 zero_code: get("zero_code")?,
             })
         })();
+        let estimator = line
+            .split_whitespace()
+            .find_map(|w| w.strip_prefix("estimator="))
+            .and_then(|v| <crate::method::Method as clap::ValueEnum>::from_str(v, true).ok());
         Some(TraceMeta {
             dta_nm: get("dta_nm").filter(|v| *v > 0.0)?,
             dt_s: get("dt_s").filter(|v| *v > 0.0)?,
             drive,
+            controller: MetaController {
+                estimator,
+                step_ramp_nm_per_s: get("step_ramp_nm_per_s"),
+                approach_speed_rad_s: get("approach_speed_rad_s").filter(|v| *v > 0.0),
+                approach_max_nm: get("approach_max_nm").filter(|v| *v > 0.0),
+            },
         })
     }
 }
@@ -203,16 +266,18 @@ pub fn replay(
     dta_nm: f64,
     dt_s: Option<f64>,
     method: crate::method::Method,
+    settings: &MetaController,
 ) -> Result<Replay, String> {
     let mut warnings = vec![];
     let dt = match dt_s.or_else(|| median_dt(trace)) {
         Some(dt) => dt,
         None => return Err("the trace needs at least two rows with increasing t_s".into()),
     };
-    let cfg = ControllerConfig {
-        estimator: method.estimator(),
-        ..controller_config(finger, dt)?
+    let cfg = MetaController {
+        estimator: Some(method),
+        ..*settings
     }
+    .apply(controller_config(finger, dt)?)
     .with_delta_ta(dta_nm);
     let mut ctl = Controller::new(cfg).map_err(|e| {
         format!("controller configuration for dt = {dt} s, ΔT_a = {dta_nm} N·m: {e:?}")

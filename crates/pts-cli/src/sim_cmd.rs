@@ -102,6 +102,7 @@ pub fn run(a: &Args) -> Result<(), String> {
             dta_nm: a.dta[0],
             dt_s: rep.dt_s,
             drive: Some(crate::replay::MetaDrive::of(&rep.drive)),
+            controller: Default::default(),
         };
         writeln!(w, "{}", meta.line())
             .and_then(|()| write_csv(&rep.rows, &mut w))

@@ -134,7 +134,7 @@ fn grasp_errors(
     files
         .iter()
         .map(|f| {
-            let r = match replay(&trace, f, 0.8, Some(rep.dt_s), method) {
+            let r = match replay(&trace, f, 0.8, Some(rep.dt_s), method, &Default::default()) {
                 Ok(r) => r,
                 Err(e) => {
                     eprintln!("    {}: replay failed: {e}", f.name);
