@@ -400,6 +400,15 @@ fn session(s: &Session) -> Res {
         }
     }
     errs.extend(record_and_replay(s)?);
+    // The live view, non-interactive: summary lines, then the telemetry rate it found.
+    let before = s.state()?.2["reply"]["Status"]["settings"]["telemetry_hz"].clone();
+    let (code, _, lines) = s.board(&["watch", "--seconds", "1.5", "--rate", "1000"])?;
+    let after = s.state()?.2["reply"]["Status"]["settings"]["telemetry_hz"].clone();
+    if code != 0 || !lines.contains("state idle") || before != after {
+        errs.push(format!(
+            "watch: exit {code}, telemetry_hz {before} -> {after}, lines {lines}"
+        ));
+    }
     let (_, _, v) = s.state()?;
     let grasps = v["reply"]["Status"]["grasps"].as_u64();
     let boots = s

@@ -26,6 +26,7 @@ pub mod sim;
 pub mod sim_cmd;
 pub mod sweep;
 pub mod trace;
+pub mod watch;
 
 use pts::config::FingerFile;
 use std::path::Path;

@@ -176,6 +176,22 @@ enum BoardCmd {
     },
     /// The drive constants and control period the firmware converts readings with.
     Drive,
+    /// θa, T_a, the live K̂c and the state drawn in the terminal as they arrive (`q` quits);
+    /// one summary line per half second when stdout is not a terminal.
+    Watch {
+        /// Start a grasp and stop watching at its end.
+        #[arg(long)]
+        grasp: bool,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        seconds: Option<f64>,
+        /// Telemetry rate while watching (Hz, 1..=10000); the previous rate is restored after.
+        #[arg(long, default_value = "200")]
+        rate: u16,
+        /// Seconds of samples on the charts.
+        #[arg(long, default_value = "10")]
+        window: f64,
+    },
     /// Let go (torque off, the finger opens to rest), back to idle.
     Release,
     /// Torque off now, from any state; acknowledges a latched fault.
@@ -452,6 +468,47 @@ fn run_board(a: BoardArgs) -> ExitCode {
             };
         }
         BoardCmd::Drive => proto::Command::Drive,
+        BoardCmd::Watch {
+            grasp,
+            seconds,
+            rate,
+            window,
+        } => {
+            if !(1..=10_000).contains(&rate) || !(window > 0.0 && window <= 3600.0) {
+                eprintln!(
+                    "pts board watch: --rate {rate} must be in 1..=10000 Hz and --window {window} in (0, 3600] s"
+                );
+                return ExitCode::FAILURE;
+            }
+            let o = pts_cli::watch::WatchOptions {
+                grasp,
+                seconds: seconds.filter(|s| s.is_finite() && *s > 0.0),
+                rate_hz: rate,
+                window_s: window,
+                json: a.json,
+            };
+            use std::io::IsTerminal;
+            let tty = std::io::stdout().is_terminal() && !a.json;
+            return match pts_cli::watch::run(&mut b, &o, tty) {
+                Ok(w) => {
+                    match (&w.estimate, w.state) {
+                        (Some(c), _) if a.json => {
+                            println!("{}", serde_json::json!({"ok": true, "contact": c}))
+                        }
+                        (_, Some(proto::DeviceState::Fault(f))) if a.json => {
+                            println!("{}", serde_json::json!({"ok": false, "fault": f}))
+                        }
+                        _ if a.json => println!("{}", serde_json::json!({"ok": true})),
+                        _ => println!("{}", w.summary()),
+                    }
+                    match w.state {
+                        Some(proto::DeviceState::Fault(_)) => ExitCode::from(2),
+                        _ => ExitCode::SUCCESS,
+                    }
+                }
+                Err(e) => fail(e),
+            };
+        }
         BoardCmd::Release => proto::Command::Release,
         BoardCmd::Stop => proto::Command::Stop,
         BoardCmd::Calibrate => proto::Command::Calibrate,
