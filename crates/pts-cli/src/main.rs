@@ -474,7 +474,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
             rate,
             window,
         } => {
-            if !(1..=10_000).contains(&rate) || !(window > 0.0 && window <= 3600.0) {
+            if !((1..=10_000).contains(&rate) && window > 0.0 && window <= 3600.0) {
                 eprintln!(
                     "pts board watch: --rate {rate} must be in 1..=10000 Hz and --window {window} in (0, 3600] s"
                 );
