@@ -1337,3 +1337,243 @@ impl Supervisor {
         });
     }
 }
+
+#[cfg(test)]
+#[allow(clippy::float_arithmetic)]
+mod tests {
+    //! Contact detection, settling and the contact back-dating against synthetic samples whose
+    //! contact instant, free-motion line and still window are known by construction.
+
+    use super::*;
+    use crate::ControllerConfig;
+
+    /// Ticks per sample in these tests (the controller's default: 4 ms at 10 kHz).
+    const ST: u32 = 40;
+
+    fn sample(tick: u32, theta_a_urad: i32, torque_unm: i32) -> Sample {
+        Sample {
+            tick,
+            theta_a_urad,
+            torque_unm,
+            torque_ref_unm: torque_unm,
+        }
+    }
+
+    /// A ring of samples labelled ST, 2·ST, … whose θa and T_a are the means over each
+    /// sample's ticks of `theta(t)` and `torque(t)` (t in ticks), as the loop sums them.
+    fn ring_of(n: u32, theta: impl Fn(f64) -> f64, torque: impl Fn(f64) -> f64) -> Ring {
+        let mut r = Ring::new();
+        for k in 1..=n {
+            let label = k * ST;
+            let ticks = (label - ST + 1)..=label;
+            let mean = |f: &dyn Fn(f64) -> f64| {
+                ticks.clone().map(|t| f(f64::from(t))).sum::<f64>() / f64::from(ST)
+            };
+            r.push(sample(
+                label,
+                mean(&theta).round() as i32,
+                mean(&torque).round() as i32,
+            ));
+        }
+        r
+    }
+
+    fn cube(x: f64) -> f64 {
+        x * x * x
+    }
+
+    /// Free motion: θa creeping up at 20 µrad/tick, slightly accelerating (the approach's
+    /// ramp); T_a rising linearly in time.
+    fn free_theta(t: f64) -> f64 {
+        -400_000.0 + 20.0 * t + 0.5 * 2e-4 * t * t
+    }
+    fn free_torque(t: f64) -> f64 {
+        300_000.0 + 15.0 * t
+    }
+
+    #[test]
+    fn contact_instant_finds_the_start_of_a_cubic_deficit() {
+        // After the contact at tc the finger decelerates on the contact stiffness:
+        // θa = free − c·(t − tc)³ (J θ̈ = −K v (t − tc), c = K v / 6J).
+        let tc = 1913.0;
+        let c = 1e-5;
+        let theta = |t: f64| free_theta(t) - if t > tc { c * cube(t - tc) } else { 0.0 };
+        // The newest sample is 12 samples after the contact: within the 2w = 20 the search
+        // may look back, and the free-motion samples 2w..4w back are all before it.
+        let hist = ring_of(60, theta, free_torque);
+        let got = contact_instant(&hist, 10, ST, 2_094_395).expect("a deficit of ~1 mrad");
+        // A quarter of a sample: the crossing is interpolated linearly between samples.
+        assert!(
+            (f64::from(got.tick) - tc).abs() <= f64::from(ST) / 4.0,
+            "contact at {} ticks, built at {tc}",
+            got.tick
+        );
+        // θa,c on the free motion and T_a,c on the free torque line, at the instant found,
+        // within one tick of travel on either (20 µrad, 15 µN·m): a sample's mean sits half
+        // a tick off the middle of its interval as the labels count it.
+        let at = f64::from(got.tick);
+        assert!((f64::from(got.theta_a_urad) - free_theta(at)).abs() <= 20.0);
+        assert!((f64::from(got.torque_unm) - free_torque(at)).abs() <= 15.0);
+    }
+
+    #[test]
+    fn contact_instant_needs_a_deficit_of_four_counts() {
+        // Pure free motion: nothing to time.
+        let hist = ring_of(60, free_theta, free_torque);
+        assert_eq!(contact_instant(&hist, 10, ST, 2_094_395), None);
+        // A deficit of 100 µrad at the newest sample is below 4 counts (4 × 31.96 µrad).
+        let tc = 2000.0;
+        let c = 100.0 / cube(2400.0 - 20.0 - tc);
+        let theta = |t: f64| free_theta(t) - if t > tc { c * cube(t - tc) } else { 0.0 };
+        let hist = ring_of(60, theta, free_torque);
+        assert_eq!(contact_instant(&hist, 10, ST, 2_094_395), None);
+        // Too little history for the free-motion parabola (4w + 1 samples).
+        let hist = ring_of(40, free_theta, free_torque);
+        assert_eq!(contact_instant(&hist, 10, ST, 2_094_395), None);
+    }
+
+    #[test]
+    fn knee_is_on_the_free_motion_line_at_the_detection_angle() {
+        // Free motion along T = 0.3 N·m + 0.7 N·m/rad (θ − θ0), 800 µrad per sample; the
+        // contact at sample 50 stiffens it to 10 N·m/rad.
+        let (theta0, k_free) = (-400_000.0, 0.7);
+        let mut hist = Ring::new();
+        let mut s = sample(0, 0, 0);
+        for k in 1..=58u32 {
+            let th = if k <= 50 {
+                theta0 + 800.0 * f64::from(k)
+            } else {
+                theta0 + 800.0 * 50.0 + 56.0 * f64::from(k - 50)
+            };
+            let tq = if k <= 50 {
+                300_000.0 + k_free * (th - theta0)
+            } else {
+                300_000.0 + k_free * 800.0 * 50.0 + 10.0 * (th - (theta0 + 40_000.0))
+            };
+            s = sample(k * ST, th as i32, tq as i32);
+            hist.push(s);
+        }
+        let got = knee(&hist, s, 10);
+        let want = 300_000.0 + k_free * (f64::from(s.theta_a_urad) - theta0);
+        assert_eq!(got.theta_a_urad, s.theta_a_urad);
+        assert!(
+            (f64::from(got.torque_unm) - want).abs() <= 1.0,
+            "{} vs {want}",
+            got.torque_unm
+        );
+        assert!(
+            got.torque_unm < s.torque_unm,
+            "below the measured (stiff) torque"
+        );
+    }
+
+    fn supervisor() -> Supervisor {
+        let p = ControllerConfig::default()
+            .params()
+            .expect("default config");
+        let mut sup = Supervisor::new(&p);
+        sup.handle(Input::Started);
+        sup.handle(Input::Calibrated {
+            tick: 200,
+            offset_q8: 0,
+        });
+        sup
+    }
+
+    /// One sample of means (θa, T_a) ending at `tick`, as the loop's sums; the bridge off
+    /// and the encoder still, so the back-EMF check agrees.
+    fn sums(tick: u32, theta_a_urad: i32, torque_unm: i32) -> Input {
+        let n = ST as i32;
+        Input::Sample(SampleSums {
+            tick,
+            n: ST,
+            theta_urad: theta_a_urad * n,
+            torque_unm: torque_unm * n,
+            duty: 0,
+            ua: 0,
+            counts: 0,
+            torque_ref_unm: torque_unm,
+        })
+    }
+
+    /// Feeds a quasi-static approach: T_a rises 560 µN·m per sample; θa follows the free
+    /// motion (0.7 N·m/rad, 800 µrad per sample) until sample `contact`, then a 10 N·m/rad
+    /// contact (56 µrad per sample). Returns the tick of the ContactDetected event.
+    fn approach(sup: &mut Supervisor, contact: u32, samples: u32) -> Option<u32> {
+        let mut theta = -600_000;
+        let mut torque = 200_000;
+        for k in 1..=samples {
+            theta += if k <= contact { 800 } else { 56 };
+            torque += 560;
+            sup.handle(sums(200 + k * ST, theta, torque));
+            while let Some(e) = sup.poll_event() {
+                if let Event::ContactDetected { tick, .. } = e {
+                    return Some(tick);
+                }
+            }
+        }
+        None
+    }
+
+    #[test]
+    fn detection_fires_when_the_window_turns_stiff_twice() {
+        let mut sup = supervisor();
+        let tick = approach(&mut sup, 30, 60).expect("a contact");
+        // By hand: with j of the window's 10 samples past the contact, Δθ = 800(10 − j) +
+        // 56 j and ΔT = 5600 µN·m, so ΔT/Δθ ≥ 1.5 N·m/rad from j = 6 (Δθ = 3536 µrad); the
+        // second stiff window in a row (j = 7) confirms.
+        assert_eq!(tick, 200 + (30 + 7) * ST);
+        assert_eq!(sup.state(), State::Seating);
+        // Seating presses at T_a,c + δ_seat at once.
+        assert!(matches!(sup.setpoint().reference, Reference::Set(_)));
+    }
+
+    #[test]
+    fn detection_needs_free_motion_first_and_ignores_free_motion() {
+        // Pressed from the first sample (never armed): no contact, whatever the stiffness.
+        let mut sup = supervisor();
+        assert_eq!(approach(&mut sup, 0, 60), None);
+        assert_eq!(sup.state(), State::Approach);
+        // Free motion only: no contact.
+        let mut sup = supervisor();
+        assert_eq!(approach(&mut sup, 1000, 200), None);
+        assert_eq!(sup.state(), State::Approach);
+    }
+
+    /// A full ring whose newest `window` samples sit at θa = 1000 + `offsets`[i] µrad,
+    /// T_a = 50 000 + 10·i µN·m, labelled from `first` on.
+    fn still_ring(first: u32, offsets: &[i32]) -> Ring {
+        let mut r = Ring::new();
+        for (i, d) in offsets.iter().enumerate() {
+            let i32_i = i as i32;
+            r.push(sample(first + i as u32 * ST, 1000 + d, 50_000 + 10 * i32_i));
+        }
+        r
+    }
+
+    #[test]
+    fn still_mean_averages_a_window_inside_the_band() {
+        // 5 samples at 1000 ± 25 µrad (band 50): mean θ 1000 µrad by symmetry; torques
+        // 50 000, …, 50 040: mean 50 020 µN·m.
+        let r = still_ring(400, &[-25, 25, 0, 25, -25]);
+        assert_eq!(still_mean(&r, 400, 5, 50), Some((1000, 50_020)));
+        // The same window is not still for a band of 49 µrad.
+        assert_eq!(still_mean(&r, 400, 5, 49), None);
+        // A sample labelled before `since` (the stage's start) is not part of it.
+        assert_eq!(still_mean(&r, 401, 5, 50), None);
+        // Fewer samples than the window.
+        assert_eq!(still_mean(&r, 400, 6, 50), None);
+    }
+
+    #[test]
+    fn settling_needs_the_minimum_wait_and_a_still_window() {
+        // The settle window (25 samples = 100 ms) must lie after `since`: a still finger
+        // reports its mean only once 25 samples have passed since the stage began.
+        let offsets = [0i32; 30];
+        let r = still_ring(40, &offsets);
+        let newest_label = 40 + 29 * ST;
+        let oldest_in_window = newest_label - 24 * ST;
+        assert!(still_mean(&r, oldest_in_window, 25, 50).is_some());
+        assert_eq!(still_mean(&r, oldest_in_window + 1, 25, 50), None);
+    }
+}
