@@ -11,26 +11,33 @@ use grasp::Controller;
 
 use crate::ctl;
 
-/// The TRUTH log line of the simulated finger now (as src/sim prints it).
-fn truth_line(plant: &plant::Plant, at: &str) -> String {
-    let t = plant.truth();
-    format!(
-        "TRUTH at={at} t_us={} theta_a_urad={} torque_unm={} contact={} k_um={}",
-        (t.t_s * 1e6) as u32,
-        micro(t.theta_a_rad),
-        micro(t.torque_a_nm),
-        t.contact.name(),
-        micro(t.k_m)
+/// One log line of `fmt` (`proto::log`), as a defmt decoder prints the firmware's.
+fn line(fmt: &str, args: &[&dyn std::fmt::Display]) -> String {
+    let mut s = String::new();
+    // Writing into a String cannot fail.
+    let _ = proto::log::render(&mut s, fmt, args);
+    s
+}
+
+/// The truth line of the simulated finger now.
+fn truth_line(plant: &plant::Plant, at: &'static str) -> String {
+    let t = sim_board::log::TruthLine::of(plant, at);
+    line(
+        proto::log::TRUTH,
+        &[
+            &t.at,
+            &t.t_us,
+            &t.theta_a_urad,
+            &t.torque_unm,
+            &t.contact,
+            &t.k_um,
+        ],
     )
 }
 
-fn micro(v: f64) -> i32 {
-    let x = v * 1e6;
-    if x.is_nan() {
-        0
-    } else {
-        x.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
-    }
+/// A controller event's line.
+fn event_line(ev: &grasp::Event) -> String {
+    line(proto::log::EVENT, &[&format_args!("{ev:?}")])
 }
 
 /// Runs one scene to the end; prints the log lines; returns the firmware's exit status.
@@ -99,28 +106,45 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     for tick in 1..=max_ticks {
         let out = ctrl.tick(&mut board);
         while let Some(ev) = ctrl.poll_event() {
-            println!("E {ev:?}");
+            println!("{}", event_line(&ev));
             if matches!(ev, grasp::Event::Settled { .. }) {
                 println!("{}", truth_line(&board.plant, "settled"));
             }
         }
         let finished = ctl::finished(out.state);
         if tick % decimation == 0 || finished {
-            println!(
-                "S tick={tick} theta_a_urad={} torque_unm={} ref_unm={} duty={} state={:?}",
-                out.theta_a_urad, out.torque_unm, out.torque_ref_unm, out.duty, out.state
+            let sample = line(
+                proto::log::SAMPLE,
+                &[
+                    &tick,
+                    &out.theta_a_urad,
+                    &out.torque_unm,
+                    &out.torque_ref_unm,
+                    &out.duty,
+                    &format_args!("{:?}", out.state),
+                ],
             );
+            println!("{sample}");
         }
         board.advance();
         while let Some(e) = board.plant.poll_event() {
-            println!("P {} t_us={}", e.kind.name(), (e.t_s * 1e6) as u32);
+            let p = sim_board::log::PlantEventLine::of(&e);
+            let args: [&dyn std::fmt::Display; 6] = [
+                &p.kind,
+                &p.t_us,
+                &p.theta_a_urad,
+                &p.torque_unm,
+                &p.phalanx,
+                &p.k_um,
+            ];
+            println!("{}", line(proto::log::PLANT, &args));
         }
         if out.estimate_ready {
             if let Some(req) = ctrl.take_request() {
                 let result = ctl::run_estimate_as(&cfg.finger, &req, table.as_ref());
                 ctrl.deliver(&mut board, result);
                 while let Some(ev) = ctrl.poll_event() {
-                    println!("E {ev:?}");
+                    println!("{}", event_line(&ev));
                 }
             }
         }

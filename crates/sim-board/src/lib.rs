@@ -7,6 +7,8 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
+pub mod log;
+
 use grasp::{DriveConfig, Hardware, DUTY_MAX};
 use plant::{Plant, Scene};
 
