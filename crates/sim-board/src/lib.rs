@@ -8,6 +8,7 @@
 #![forbid(unsafe_code)]
 
 pub mod log;
+pub mod run;
 
 use grasp::{DriveConfig, Hardware, DUTY_MAX};
 use plant::{Plant, Scene};
