@@ -280,11 +280,13 @@ mod app {
         let p0 = tm::PREEMPT.load(Ordering::Relaxed);
         while let Some(input) = link.lock(|l| l.next_input()) {
             let ready = sup.lock(|s| s.handle(input));
-            // The answer reaches the loop before its next tick.
-            (&mut link, &mut sup).lock(|l, s| s.publish(l));
+            // The events first, then the state: once the loop sees the new state it may
+            // report the END, and its message must not overtake the events that led there.
             while let Some(ev) = sup.lock(|s| s.poll_event()) {
                 send(tel, Msg::Event(ev));
             }
+            // The answer reaches the loop before its next tick.
+            (&mut link, &mut sup).lock(|l, s| s.publish(l));
             if ready && estimate::spawn().is_err() {
                 tm::dropped();
             }
@@ -312,13 +314,13 @@ mod app {
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));
         let _ = tm::record_max(&tm::EST_WORK_MAX, work);
-        (&mut sup, &mut link).lock(|s, l| {
-            s.deliver(result);
-            s.publish(l);
-        });
+        // Events before the state is published (as in `supervise`): the END the loop sends
+        // once it sees Holding or a fault must not overtake them in the telemetry queue.
+        sup.lock(|s| s.deliver(result));
         while let Some(ev) = sup.lock(|s| s.poll_event()) {
             send(cx.local.est_tx, Msg::Event(ev));
         }
+        (&mut sup, &mut link).lock(|s, l| s.publish(l));
     }
 
     #[task(priority = 1)]

@@ -211,10 +211,13 @@ mod app {
         let tel = cx.local.sup_tx;
         while let Some(input) = link.lock(|l| l.next_input()) {
             let ready = sup.lock(|s| s.handle(input));
-            (&mut link, &mut sup).lock(|l, s| s.publish(l));
+            // The events first, then the state: once the loop sees the new state it may
+            // report the END, and its message must not overtake the events that led there.
             while let Some(ev) = sup.lock(|s| s.poll_event()) {
                 send(tel, Msg::Event(ev));
             }
+            // The answer reaches the loop before its next tick.
+            (&mut link, &mut sup).lock(|l, s| s.publish(l));
             if ready && estimate::spawn().is_err() {
                 tm::dropped();
             }
@@ -231,13 +234,13 @@ mod app {
             return;
         };
         let result = ctl::run_estimate_as(cx.local.finger, &req, *cx.local.table);
-        (&mut sup, &mut link).lock(|s, l| {
-            s.deliver(result);
-            s.publish(l);
-        });
+        // Events before the state is published (as in `supervise`): the END the loop sends
+        // once it sees Holding or a fault must not overtake them in the telemetry queue.
+        sup.lock(|s| s.deliver(result));
         while let Some(ev) = sup.lock(|s| s.poll_event()) {
             send(cx.local.est_tx, Msg::Event(ev));
         }
+        (&mut sup, &mut link).lock(|s, l| s.publish(l));
     }
 
     /// Everything the tasks report: defmt (events, plant, truth) and the host (events,

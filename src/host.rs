@@ -7,29 +7,97 @@
 //! (default: the scene and settings of this build); the options give the reference of a grasp
 //! the device-mode firmware ran with those settings.
 
-use grasp::Controller;
+use grasp::{Controller, TickOutput};
+use sim_board::run::{Limits, Observer, Timing};
+use sim_board::PlantBoard;
 
 use crate::ctl;
 
-/// The TRUTH log line of the simulated finger now (as src/sim prints it).
-fn truth_line(plant: &plant::Plant, at: &str) -> String {
-    let t = plant.truth();
-    format!(
-        "TRUTH at={at} t_us={} theta_a_urad={} torque_unm={} contact={} k_um={}",
-        (t.t_s * 1e6) as u32,
-        micro(t.theta_a_rad),
-        micro(t.torque_a_nm),
-        t.contact.name(),
-        micro(t.k_m)
+/// One log line of `fmt` (`proto::log`), as a defmt decoder prints the firmware's.
+fn line(fmt: &str, args: &[&dyn std::fmt::Display]) -> String {
+    let mut s = String::new();
+    // Writing into a String cannot fail.
+    let _ = proto::log::render(&mut s, fmt, args);
+    s
+}
+
+/// The truth line of the simulated finger now.
+fn truth_line(plant: &plant::Plant, at: &'static str) -> String {
+    let t = sim_board::log::TruthLine::of(plant, at);
+    line(
+        proto::log::TRUTH,
+        &[
+            &t.at,
+            &t.t_us,
+            &t.theta_a_urad,
+            &t.torque_unm,
+            &t.contact,
+            &t.k_um,
+        ],
     )
 }
 
-fn micro(v: f64) -> i32 {
-    let x = v * 1e6;
-    if x.is_nan() {
-        0
-    } else {
-        x.clamp(f64::from(i32::MIN), f64::from(i32::MAX)) as i32
+/// A controller event's line.
+fn event_line(ev: &grasp::Event) -> String {
+    line(proto::log::EVENT, &[&format_args!("{ev:?}")])
+}
+
+/// Prints the firmware's log lines of a run.
+struct HostLog<'a> {
+    finger: &'a pts::Finger,
+    table: Option<&'a ctl::EstimatorTable>,
+    /// A sample line every this many ticks.
+    decimation: u32,
+}
+
+impl Observer<PlantBoard> for HostLog<'_> {
+    fn estimate(
+        &mut self,
+        req: &grasp::EstimateRequest,
+        _board: &PlantBoard,
+    ) -> Result<grasp::EstimateResult, grasp::EstimateError> {
+        ctl::run_estimate_as(self.finger, req, self.table)
+    }
+
+    fn event(&mut self, ev: grasp::Event, board: &PlantBoard) {
+        println!("{}", event_line(&ev));
+        if matches!(ev, grasp::Event::Settled { .. }) {
+            println!("{}", truth_line(&board.plant, "settled"));
+        }
+    }
+
+    fn after_tick(&mut self, n: u64, out: &TickOutput, _ctl: &Controller, _board: &PlantBoard) {
+        // Ticks count from 1, as the firmware's.
+        let tick = n + 1;
+        if tick % u64::from(self.decimation) == 0 || ctl::finished(out.state) {
+            let sample = line(
+                proto::log::SAMPLE,
+                &[
+                    &tick,
+                    &out.theta_a_urad,
+                    &out.torque_unm,
+                    &out.torque_ref_unm,
+                    &out.duty,
+                    &format_args!("{:?}", out.state),
+                ],
+            );
+            println!("{sample}");
+        }
+    }
+
+    fn after_advance(&mut self, board: &mut PlantBoard) {
+        while let Some(e) = board.plant.poll_event() {
+            let p = sim_board::log::PlantEventLine::of(&e);
+            let args: [&dyn std::fmt::Display; 6] = [
+                &p.kind,
+                &p.t_us,
+                &p.theta_a_urad,
+                &p.torque_unm,
+                &p.phalanx,
+                &p.k_um,
+            ];
+            println!("{}", line(proto::log::PLANT, &args));
+        }
     }
 }
 
@@ -86,7 +154,7 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     let table = ctl::estimator_table(&cfg.finger, cfg.drive.dt_s);
     let mut ctrl = Controller::new(cfg).map_err(|e| format!("config: {e:?}"))?;
     // The same adapter as the QEMU board's, without the interrupt plumbing.
-    let mut board = sim_board::PlantBoard::new(plant);
+    let mut board = PlantBoard::new(plant);
     println!(
         "BOOT finger={} l2_um={} scene={} board=host dt_us={}",
         crate::config::FINGER_NAME,
@@ -94,50 +162,29 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         name.as_deref().unwrap_or(crate::config::SCENE),
         (cfg.drive.dt_s * 1e6) as u32
     );
-    // Bound: 60 s of simulated time.
-    let max_ticks = (60.0 / cfg.drive.dt_s) as u32;
-    for tick in 1..=max_ticks {
-        let out = ctrl.tick(&mut board);
-        while let Some(ev) = ctrl.poll_event() {
-            println!("E {ev:?}");
-            if matches!(ev, grasp::Event::Settled { .. }) {
-                println!("{}", truth_line(&board.plant, "settled"));
-            }
-        }
-        let finished = ctl::finished(out.state);
-        if tick % decimation == 0 || finished {
-            println!(
-                "S tick={tick} theta_a_urad={} torque_unm={} ref_unm={} duty={} state={:?}",
-                out.theta_a_urad, out.torque_unm, out.torque_ref_unm, out.duty, out.state
-            );
-        }
-        board.advance();
-        while let Some(e) = board.plant.poll_event() {
-            println!("P {} t_us={}", e.kind.name(), (e.t_s * 1e6) as u32);
-        }
-        if out.estimate_ready {
-            if let Some(req) = ctrl.take_request() {
-                let result = ctl::run_estimate_as(&cfg.finger, &req, table.as_ref());
-                ctrl.deliver(&mut board, result);
-                while let Some(ev) = ctrl.poll_event() {
-                    println!("E {ev:?}");
-                }
-            }
-        }
-        let state = ctrl.state();
-        if finished || ctl::finished(state) {
-            if !finished {
-                continue;
-            }
-            println!("{}", truth_line(&board.plant, "end"));
-            println!(
-                "END status={} state={:?} bridge_safe={} ticks={tick}",
-                ctl::status(out.state),
-                out.state,
-                board.is_off()
-            );
-            return Ok(ctl::status(out.state));
-        }
+    let limits = Limits {
+        // Bound: 60 s of simulated time.
+        max_ticks: (60.0 / cfg.drive.dt_s) as u64,
+        extra_ticks: Some(0),
+        // The firmware's order, so that the log matches the QEMU run's.
+        timing: Timing::Firmware,
+    };
+    let mut log = HostLog {
+        finger: &cfg.finger,
+        table: table.as_ref(),
+        decimation,
+    };
+    let end = sim_board::run::run(&mut ctrl, &mut board, limits, &mut log);
+    if let (true, Some(out)) = (end.finished, end.last) {
+        println!("{}", truth_line(&board.plant, "end"));
+        println!(
+            "END status={} state={:?} bridge_safe={} ticks={}",
+            ctl::status(out.state),
+            out.state,
+            board.is_off(),
+            end.ticks
+        );
+        return Ok(ctl::status(out.state));
     }
     println!("END status=3 state={:?} timeout", ctrl.state());
     Ok(3)

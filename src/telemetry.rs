@@ -1,7 +1,9 @@
 //! Messages from the control and estimate tasks to the telemetry task (lowest priority).
 //! Producers only ever `try_send`: a full queue drops the message and counts it, the control
 //! loop never waits for the logger. The log lines are the interface of `cargo xtask demo/test`
-//! (xtask/src/log.rs parses them): keep the prefixes and `key=value` names stable.
+//! and `pts trace`: the sample, event, plant and truth lines are defined in `proto::log`
+//! (written here, by the host runner, and parsed there); keep the other prefixes and
+//! `key=value` names stable.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -41,39 +43,8 @@ defmt::timestamp!(
     u64::from(TICKS.load(Ordering::Relaxed)) * TICK_US
 );
 
-/// A plant event (simulated board only), in integers.
-#[derive(Clone, Copy, Debug)]
-pub struct PlantEvent {
-    /// snake_case name of the event kind.
-    pub kind: &'static str,
-    /// Simulated time (µs).
-    pub t_us: u32,
-    /// θa (µrad).
-    pub theta_a_urad: i32,
-    /// T_a (µN·m).
-    pub torque_unm: i32,
-    /// Contact location on the phalanx (µm), when the event has one.
-    pub k_um: i32,
-    /// Phalanx name, when the event has one ("" otherwise).
-    pub phalanx: &'static str,
-}
-
-/// The plant's truth (simulated board only).
-#[derive(Clone, Copy, Debug)]
-pub struct Truth {
-    /// Where it was taken ("settled", "end").
-    pub at: &'static str,
-    /// Simulated time (µs).
-    pub t_us: u32,
-    /// True θa (µrad).
-    pub theta_a_urad: i32,
-    /// True T_a (µN·m).
-    pub torque_unm: i32,
-    /// Contact state name.
-    pub contact: &'static str,
-    /// True contact location on its phalanx (µm).
-    pub k_um: i32,
-}
+/// A plant event and the plant's truth (simulated board only), in integers.
+pub use sim_board::log::{PlantEventLine as PlantEvent, TruthLine as Truth};
 
 /// One telemetry message.
 #[derive(Clone, Copy, Debug)]
@@ -187,8 +158,9 @@ pub fn log(msg: &Msg) {
             duty,
             state,
             ..
-        } => defmt::info!(
-            "S tick={=u32} theta_a_urad={=i32} torque_unm={=i32} ref_unm={=i32} duty={=i16} state={}",
+        } => proto::log_line!(
+            sample,
+            defmt::info,
             tick,
             theta_a_urad,
             torque_unm,
@@ -196,9 +168,10 @@ pub fn log(msg: &Msg) {
             duty,
             state
         ),
-        Msg::Event(ev) => defmt::info!("E {}", ev),
-        Msg::Plant(p) => defmt::info!(
-            "P {=str} t_us={=u32} theta_a_urad={=i32} torque_unm={=i32} phalanx={=str} k_um={=i32}",
+        Msg::Event(ev) => proto::log_line!(event, defmt::info, ev),
+        Msg::Plant(p) => proto::log_line!(
+            plant,
+            defmt::info,
             p.kind,
             p.t_us,
             p.theta_a_urad,
@@ -206,8 +179,9 @@ pub fn log(msg: &Msg) {
             p.phalanx,
             p.k_um
         ),
-        Msg::Truth(t) => defmt::info!(
-            "TRUTH at={=str} t_us={=u32} theta_a_urad={=i32} torque_unm={=i32} contact={=str} k_um={=i32}",
+        Msg::Truth(t) => proto::log_line!(
+            truth,
+            defmt::info,
             t.at,
             t.t_us,
             t.theta_a_urad,

@@ -129,45 +129,12 @@ impl SimBoard {
 
     /// The plant's truth now.
     pub fn truth(&self, at: &'static str) -> Option<Truth> {
-        let t = self.hw.plant.truth();
-        Some(Truth {
-            at,
-            t_us: (t.t_s * 1e6) as u32,
-            theta_a_urad: micro(t.theta_a_rad),
-            torque_unm: micro(t.torque_a_nm),
-            contact: t.contact.name(),
-            k_um: micro(t.k_m),
-        })
+        Some(Truth::of(&self.hw.plant, at))
     }
 
     /// The next plant event (first contact, loss, second contact, joint limit, ...).
     pub fn poll_plant_event(&mut self) -> Option<PlantEvent> {
-        use plant::EventKind as K;
-        let e = self.hw.plant.poll_event()?;
-        let (phalanx, k_m) = match e.kind {
-            K::FirstContact { phalanx, k_m }
-            | K::LossOfContact { phalanx, k_m }
-            | K::SecondContact { phalanx, k_m } => (phalanx.name(), k_m),
-            K::BeyondTip { phalanx } | K::BehindJoint { phalanx } => (phalanx.name(), 0.0),
-            _ => ("", 0.0),
-        };
-        Some(PlantEvent {
-            kind: e.kind.name(),
-            t_us: (e.t_s * 1e6) as u32,
-            theta_a_urad: micro(e.theta_a_rad),
-            torque_unm: micro(e.torque_nm),
-            k_um: micro(k_m),
-            phalanx,
-        })
-    }
-}
-
-fn micro(v: f64) -> i32 {
-    let x = v * 1e6;
-    if x.is_nan() {
-        0
-    } else {
-        x.clamp(i32::MIN as f64, i32::MAX as f64) as i32
+        self.hw.plant.poll_event().map(|e| PlantEvent::of(&e))
     }
 }
 

@@ -3,8 +3,10 @@
 
 use grasp::{
     run_estimate, Controller, ControllerConfig, DriveConfig, EstimateResult, Event, State,
+    TickOutput,
 };
 use plant::{EventKind, Plant, Scene, Truth};
+use sim_board::run::{Limits, Observer, Timing};
 
 /// Length of the distal phalanx (m), MODEL.md Table 1.
 pub const L2: f64 = 0.075;
@@ -84,42 +86,82 @@ pub fn run(
         t_end_s: 0.0,
     };
     let dt = scene.dt_s;
-    let max_ticks = (max_s / dt) as u64;
-    let extra_ticks = (extra_s / dt) as u64;
-    let mut stop_at: Option<u64> = None;
     let trace: u64 = std::env::var("GRASP_TRACE")
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);
-    for n in 0..max_ticks {
+    let limits = Limits {
+        max_ticks: (max_s / dt) as u64,
+        extra_ticks: Some((extra_s / dt) as u64),
+        timing: Timing::Immediate,
+    };
+    let mut obs = Recorder {
+        out: &mut out,
+        finger: &cfg.finger,
+        inject: &mut inject,
+        trace,
+    };
+    sim_board::run::run(&mut c, &mut hw, limits, &mut obs);
+    out.state = c.state();
+    assert_eq!(
+        hw.duty_clamped(),
+        0,
+        "the controller commanded a duty beyond ±DUTY_MAX"
+    );
+    out.bridge_off = hw.is_off();
+    out.t_end_s = hw.plant.truth().t_s;
+    out
+}
+
+/// What [`run`] records of each tick.
+struct Recorder<'a, F> {
+    out: &'a mut Outcome,
+    finger: &'a pts::Finger,
+    inject: &'a mut F,
+    /// Print every n-th tick to stderr (`GRASP_TRACE=n`), 0: never.
+    trace: u64,
+}
+
+impl<F: FnMut(f64, State, &mut Plant)> Observer<PlantHw> for Recorder<'_, F> {
+    fn before_tick(&mut self, _n: u64, ctl: &Controller, hw: &mut PlantHw) -> bool {
         let t = hw.plant.truth().t_s;
-        inject(t, c.state(), &mut hw.plant);
-        let o = grasp::tick_dyn(&mut c, &mut hw);
-        if trace > 0 && n % trace == 0 {
+        (self.inject)(t, ctl.state(), &mut hw.plant);
+        true
+    }
+
+    fn estimate(
+        &mut self,
+        req: &grasp::EstimateRequest,
+        hw: &PlantHw,
+    ) -> Result<EstimateResult, grasp::EstimateError> {
+        self.out.truth_settled = Some(hw.plant.truth());
+        let r = run_estimate(self.finger, req);
+        self.out.estimate = Some(r);
+        self.out.request = Some(req.clone());
+        r
+    }
+
+    fn event(&mut self, e: Event, hw: &PlantHw) {
+        if let Event::ContactDetected { .. } = e {
+            self.out.detected_s = Some(hw.plant.truth().t_s);
+        }
+        self.out.events.push(e);
+        self.out.event_truth.push(hw.plant.truth());
+    }
+
+    fn after_tick(&mut self, n: u64, o: &TickOutput, _ctl: &Controller, hw: &PlantHw) {
+        if self.trace > 0 && n % self.trace == 0 {
             let tr = hw.plant.truth();
             eprintln!(
-                "t {t:.4} {:?} th {} T {} Tref {} duty {} | true th {:.5} T {:.4} i {:.4} w {:.1} {:?}",
-                o.state, o.theta_a_urad, o.torque_unm, o.torque_ref_unm, o.duty,
+                "t {:.4} {:?} th {} T {} Tref {} duty {} | true th {:.5} T {:.4} i {:.4} w {:.1} {:?}",
+                tr.t_s, o.state, o.theta_a_urad, o.torque_unm, o.torque_ref_unm, o.duty,
                 tr.theta_a_rad, tr.torque_a_nm, tr.current_a, tr.motor_speed_rad_s, tr.contact
             );
         }
-        if o.estimate_ready {
-            out.truth_settled = Some(hw.plant.truth());
-            if let Some(req) = c.take_request() {
-                let r = run_estimate(&cfg.finger, &req);
-                out.estimate = Some(r);
-                out.request = Some(req);
-                c.deliver(&mut hw, r);
-            }
-        }
-        while let Some(e) = c.poll_event() {
-            if let Event::ContactDetected { .. } = e {
-                out.detected_s = Some(t);
-            }
-            out.events.push(e);
-            out.event_truth.push(hw.plant.truth());
-        }
-        hw.advance();
+    }
+
+    fn after_advance(&mut self, hw: &mut PlantHw) {
+        let out = &mut *self.out;
         while let Some(e) = hw.plant.poll_event() {
             match e.kind {
                 EventKind::FirstContact { k_m, .. } if out.first_contact.is_none() => {
@@ -132,23 +174,7 @@ pub fn run(
             }
             out.plant_events.push(e);
         }
-        if stop_at.is_none() && matches!(c.state(), State::Holding | State::Done | State::Fault(_))
-        {
-            stop_at = Some(n + extra_ticks);
-        }
-        if stop_at.is_some_and(|s| n >= s) {
-            break;
-        }
     }
-    out.state = c.state();
-    assert_eq!(
-        hw.duty_clamped(),
-        0,
-        "the controller commanded a duty beyond ±DUTY_MAX"
-    );
-    out.bridge_off = hw.is_off();
-    out.t_end_s = hw.plant.truth().t_s;
-    out
 }
 
 /// k2 of a delivered distal estimate (m).

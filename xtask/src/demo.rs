@@ -245,9 +245,8 @@ impl View {
                 None => println!("mode       device: each grasp takes its settings from the host"),
             }
             println!();
-        } else if m.starts_with("S ") {
-            let st = word(m, "state").unwrap_or("?");
-            let st = st.split('(').next().unwrap_or(st).to_string();
+        } else if let Some(s) = proto::log::SampleLine::parse(m) {
+            let st = s.state.split('(').next().unwrap_or(s.state).to_string();
             let tick = f.ts.unwrap_or(0);
             let every = if st == "Approach" { 10_000 } else { 2_000 };
             let due = self.last_sample.is_none_or(|l| tick >= l + every);
@@ -258,9 +257,9 @@ impl View {
                     "{}  {:<11} θa {}   T_a {} (ref {})",
                     t(f.ts),
                     st.to_lowercase(),
-                    rad(int(m, "theta_a_urad").unwrap_or(0)),
-                    nm(int(m, "torque_unm").unwrap_or(0)),
-                    nm(int(m, "ref_unm").unwrap_or(0))
+                    rad(s.theta_a_urad.into()),
+                    nm(s.torque_unm.into()),
+                    nm(s.ref_unm.into())
                 );
             }
         } else if m.starts_with("GRASP ") {

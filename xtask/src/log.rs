@@ -1,5 +1,8 @@
 //! The firmware's log lines (src/telemetry.rs) parsed back: `S` samples, `E` controller events,
-//! `P` plant events, `TRUTH`, `END`.
+//! `P` plant events, `TRUTH`, `END`. The field readers and the line formats are `proto::log`'s,
+//! shared with the firmware and `pts trace`.
+
+pub use proto::log::{int, word};
 
 use crate::qemu::Frame;
 
@@ -11,52 +14,12 @@ pub fn show(f: &Frame) -> String {
     }
 }
 
-/// The value of `key=N` or `key: N` in a message.
-pub fn int(msg: &str, key: &str) -> Option<i64> {
-    for sep in ["=", ": "] {
-        let pat = format!("{key}{sep}");
-        let mut from = 0;
-        while let Some(pos) = msg[from..].find(&pat) {
-            let at = from + pos;
-            let before_ok = at == 0
-                || !msg.as_bytes()[at - 1].is_ascii_alphanumeric()
-                    && msg.as_bytes()[at - 1] != b'_';
-            let rest = &msg[at + pat.len()..];
-            let rest = rest.strip_prefix("Some(").unwrap_or(rest);
-            let num: String = rest
-                .chars()
-                .take_while(|c| c.is_ascii_digit() || *c == '-')
-                .collect();
-            if before_ok {
-                if let Ok(v) = num.parse() {
-                    return Some(v);
-                }
-            }
-            from = at + pat.len();
-        }
-    }
-    None
-}
-
-/// The word after `key=` (up to a space).
-pub fn word<'a>(msg: &'a str, key: &str) -> Option<&'a str> {
-    let pat = format!("{key}=");
-    let at = msg.find(&pat)?;
-    let rest = &msg[at + pat.len()..];
-    Some(rest.split(' ').next().unwrap_or(rest))
-}
-
 /// Controller event names (`E Name { .. }`), in order.
 pub fn events(frames: &[Frame]) -> Vec<String> {
     frames
         .iter()
-        .filter_map(|f| f.msg.strip_prefix("E "))
-        .map(|m| {
-            m.split(|c: char| !c.is_ascii_alphanumeric() && c != '_')
-                .next()
-                .unwrap_or("")
-                .to_string()
-        })
+        .filter_map(|f| proto::log::event_name(&f.msg))
+        .map(str::to_string)
         .collect()
 }
 

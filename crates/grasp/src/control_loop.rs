@@ -25,10 +25,10 @@
 #![deny(clippy::float_arithmetic)]
 
 use crate::config::Params;
-use crate::controller::FaultReason;
 use crate::sensors::{sat_i32, CurrentSense, Encoder};
+use crate::state::{FaultReason, State};
 use crate::torque_loop::TorqueLoop;
-use crate::{Hardware, State, DUTY_MAX};
+use crate::{Hardware, DUTY_MAX};
 
 /// Finished sample sums the link holds; when it is full new ones are dropped and counted (the
 /// supervisor empties it every sample; 4 give 4 samples of slack). A power of two.

@@ -30,246 +30,12 @@ use crate::config::{AfterEstimate, ConfigError, ControllerConfig, Params, HISTOR
 use crate::control_loop::{ControlLoop, Input, Link, Reference, SampleSums, Setpoint, TorqueQ16};
 use crate::estimate::{EstimateError, EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
 use crate::sensors::sat_i32;
+use crate::state::{Event, FaultReason, State};
 use crate::{Hardware, DUTY_MAX};
 
 /// Events queued for logging (oldest dropped first is NOT done: new events are dropped
 /// and counted when the queue is full, so the first fault is never lost).
 pub const EVENT_CAPACITY: usize = 16;
-
-/// Why the controller went to the safe state.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum FaultReason {
-    /// The encoder jumped by more counts in one tick than the drive can move.
-    EncoderJump {
-        /// The jump (counts).
-        step_counts: i32,
-    },
-    /// The encoder disagrees with the motor's back-EMF (bridge voltage − R·I) for longer than
-    /// allowed: stuck or slipping encoder.
-    EncoderMismatch {
-        /// Back-EMF from the bridge voltage and current (mV).
-        emf_mv: i32,
-        /// Back-EMF implied by the encoder speed (mV).
-        encoder_emf_mv: i32,
-    },
-    /// The ADC gave a code outside 0‥4095.
-    AdcCode {
-        /// The code.
-        code: u16,
-    },
-    /// The zero-current offset measured with the bridge off is implausible (sensor fault).
-    AdcOffset {
-        /// Measured offset ×256 (codes).
-        offset_q8: i32,
-    },
-    /// The current ADC sat at a rail (code 0 or 4095) for the over-current time while
-    /// driving: the current is beyond the sensor's range, or the sensor failed.
-    AdcRail {
-        /// The code.
-        code: u16,
-    },
-    /// |motor current| above the limit for the configured number of ticks.
-    OverCurrent {
-        /// Current at the trip (µA).
-        current_ua: i32,
-    },
-    /// The duty stayed saturated: the drive cannot follow the torque reference.
-    Stall,
-    /// The approach reached its torque ceiling or the end of the finger's range without
-    /// detecting a contact.
-    NoContact,
-    /// The finger did not settle after the step within the timeout.
-    SettleTimeout,
-    /// The estimate was not delivered within the timeout.
-    EstimateTimeout,
-    /// A second contact: the stiffness over the second half of the step (and K̂c beyond a
-    /// tip contact) is above that of any single contact: the finger is locked.
-    SecondContact {
-        /// The stiffness seen (µN·m/rad).
-        kc_unm_per_rad: i32,
-    },
-    /// The step cannot measure a stiffness: T_a,c + ΔT_a reached without the drive sliding
-    /// out of the impact's rest (ΔT_a inside the transmission's stiction band), or sliding
-    /// so late that the loading points span less than their distance back to the contact,
-    /// or the second half of the step moved θa less than the minimum (held by friction or
-    /// locked).
-    NoMotion {
-        /// θa travel since the impact's rest point (seating), or over the late half of the
-        /// step (µrad).
-        dtheta_a_urad: i32,
-    },
-    /// The finger moved further than a contact allows: the object is gone.
-    LossOfContact {
-        /// θa beyond the contact angle (µrad).
-        dtheta_a_urad: i32,
-    },
-    /// The estimator refused the measurement.
-    EstimateOutOfRange {
-        /// The estimator's reason.
-        error: EstimateError,
-    },
-    /// The loop found the setpoint older than it may drive on: the supervisor stopped
-    /// stamping it (stalled or starved task). Found by the loop, bridge off at once.
-    SupervisorStalled {
-        /// Ticks since the supervisor's last stamp.
-        age_ticks: u32,
-    },
-}
-
-impl FaultReason {
-    /// A stable snake_case name for logs.
-    pub const fn kind(&self) -> &'static str {
-        match self {
-            FaultReason::EncoderJump { .. } => "encoder_jump",
-            FaultReason::EncoderMismatch { .. } => "encoder_mismatch",
-            FaultReason::AdcCode { .. } => "adc_code",
-            FaultReason::AdcOffset { .. } => "adc_offset",
-            FaultReason::AdcRail { .. } => "adc_rail",
-            FaultReason::OverCurrent { .. } => "over_current",
-            FaultReason::Stall => "stall",
-            FaultReason::NoContact => "no_contact",
-            FaultReason::SettleTimeout => "settle_timeout",
-            FaultReason::EstimateTimeout => "estimate_timeout",
-            FaultReason::SecondContact { .. } => "second_contact",
-            FaultReason::NoMotion { .. } => "no_motion",
-            FaultReason::LossOfContact { .. } => "loss_of_contact",
-            FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
-            FaultReason::SupervisorStalled { .. } => "supervisor_stalled",
-        }
-    }
-
-    /// True for the sensor faults (encoder or current sensor).
-    pub const fn is_sensor_fault(&self) -> bool {
-        matches!(
-            self,
-            FaultReason::EncoderJump { .. }
-                | FaultReason::EncoderMismatch { .. }
-                | FaultReason::AdcCode { .. }
-                | FaultReason::AdcOffset { .. }
-                | FaultReason::AdcRail { .. }
-        )
-    }
-}
-
-/// The controller's state.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum State {
-    /// Not ticked yet.
-    Init,
-    /// Bridge off, measuring the current offset.
-    Calibrating,
-    /// Closing: torque reference ramping up, watching for contact.
-    Approach,
-    /// Contact detected: the reference is held at T_a,c + δ_seat while the impact dies out
-    /// (stage 0, its rest point is not used by the estimate: friction there is anywhere in
-    /// the stiction band); then it ramps until θa moves forward (the drive slides), a little
-    /// more, and the first loading point is taken (stage 1); the second halfway to
-    /// T_a,c + ΔT_a (stage 2). With the end point, they give the path's slope and curvature
-    /// for back-dating.
-    Seating,
-    /// The reference is being raised to T_a,c + ΔT_a.
-    Step,
-    /// Reference at T_a,c + ΔT_a; waiting for θa to settle.
-    Settling,
-    /// Settled; the estimate request is out, waiting for [`Controller::deliver`].
-    Estimating,
-    /// Estimate delivered; holding the torque.
-    Holding,
-    /// Estimate delivered; ramping the torque down.
-    Releasing,
-    /// Released; bridge off.
-    Done,
-    /// Safe state: bridge off, with the reason.
-    Fault(FaultReason),
-}
-
-/// Every transition, with its data (for defmt logging). Times in ticks since start.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Event {
-    /// Offset calibrated; approach starts.
-    Calibrated {
-        /// Tick.
-        tick: u32,
-        /// Zero-current ADC code ×256.
-        offset_q8: i32,
-    },
-    /// Contact detected.
-    ContactDetected {
-        /// Tick of the detection.
-        tick: u32,
-        /// Tick of the back-dated contact instant (from the deceleration after the impact;
-        /// falls back to the end of the free-motion data).
-        contact_tick: u32,
-        /// θa,c at the back-dated instant, on the free-motion trajectory (µrad).
-        theta_a_urad: i32,
-        /// T_a,c at the back-dated instant (µN·m, measured: the approach's sliding friction
-        /// included).
-        torque_unm: i32,
-        /// Torque target of the step, T_a,c + ΔT_a (µN·m).
-        target_unm: i32,
-    },
-    /// A static point after contact: where the impact came to rest at T_a,c + δ_seat
-    /// (stage 0, not used by the estimate), the first loading point after the forward slide
-    /// (stage 1), the second one halfway from there to T_a,c + ΔT_a (stage 2).
-    Seated {
-        /// Tick.
-        tick: u32,
-        /// 0, 1 or 2.
-        stage: u8,
-        /// Mean θa over the settle window (µrad).
-        theta_a_urad: i32,
-        /// Mean measured T_a over the settle window (µN·m).
-        torque_unm: i32,
-    },
-    /// The reference reached T_a,c + ΔT_a.
-    StepDone {
-        /// Tick.
-        tick: u32,
-    },
-    /// Settled: the estimate request is ready.
-    Settled {
-        /// Tick.
-        tick: u32,
-        /// Mean θa over the settle window (µrad).
-        theta_a_urad: i32,
-        /// Mean measured T_a over the settle window (µN·m).
-        torque_unm: i32,
-        /// Path samples handed to the estimator.
-        path_len: u16,
-    },
-    /// The estimate came back.
-    Estimated {
-        /// Tick.
-        tick: u32,
-        /// The result.
-        result: EstimateResult,
-    },
-    /// Holding after the estimate.
-    Holding {
-        /// Tick.
-        tick: u32,
-    },
-    /// Releasing after the estimate.
-    Releasing {
-        /// Tick.
-        tick: u32,
-    },
-    /// Released, bridge off.
-    Released {
-        /// Tick.
-        tick: u32,
-    },
-    /// Fault: safe state.
-    Fault {
-        /// Tick.
-        tick: u32,
-        /// Why.
-        reason: FaultReason,
-    },
-}
 
 /// What one tick did (for telemetry and the application).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -368,7 +134,7 @@ impl Controller {
 
     /// Current state.
     pub fn state(&self) -> State {
-        self.sup.state
+        self.sup.state()
     }
 
     /// Ticks since start.
@@ -436,12 +202,228 @@ impl Controller {
             o.torque_ref_unm = 0;
         }
         TickOutput {
-            state: self.sup.state,
+            state: self.sup.state(),
             theta_a_urad: o.theta_a_urad,
             torque_unm: o.torque_unm,
             torque_ref_unm: o.torque_ref_unm,
             duty: o.duty,
             estimate_ready,
+        }
+    }
+}
+
+/// The contact as the detection found it; every state after it carries it.
+#[derive(Clone, Copy, Debug)]
+struct Contact {
+    /// T_a,c on the free-motion line at the θa of the detection (see [`knee`]): the base of
+    /// the seating targets, of the step and of the loss-of-contact check.
+    knee: Sample,
+    /// Tick of the detection (the settle timeout runs from it).
+    tick: u32,
+}
+
+/// The two loading points, with the contact they were loaded from: what the step, the
+/// settling, the estimate and the hold need.
+#[derive(Clone, Copy, Debug)]
+struct Loaded {
+    contact: Contact,
+    /// First loading point, after the forward slide.
+    seat: Sample,
+    /// Second loading point, halfway from the first to T_a,c + ΔT_a.
+    seat2: Sample,
+}
+
+impl Loaded {
+    /// Stiffness (µN·m/rad) of the second half of the step, seated again → `end`. A second
+    /// contact shows there.
+    fn kc_late_unm_per_rad(&self, end: &Sample) -> i32 {
+        stiffness(&self.seat2, end)
+    }
+}
+
+/// Where seating is (the `stage` of [`Event::Seated`]).
+#[derive(Clone, Copy, Debug)]
+enum Seat {
+    /// Stage 0: held at T_a,c + δ_seat while the impact dies out.
+    Impact,
+    /// Stage 1: ramping from `rest`, where the impact came to rest (held by stiction anywhere
+    /// in its band: not used by the estimate, only as the reference for the forward slide),
+    /// until the drive slides forward (`slid`); then held for the first loading point.
+    Slide { rest: Sample, slid: bool },
+    /// Stage 2: the first loading point taken; held halfway to the step's target.
+    Second { seat: Sample },
+}
+
+impl Seat {
+    const fn stage(&self) -> u8 {
+        match self {
+            Seat::Impact => 0,
+            Seat::Slide { .. } => 1,
+            Seat::Second { .. } => 2,
+        }
+    }
+}
+
+/// The state machine's state with what that state alone needs; [`Phase::state`] is what the
+/// outside sees.
+#[derive(Clone, Copy, Debug)]
+enum Phase {
+    Init,
+    Calibrating,
+    Approach {
+        /// Free motion has been seen: from now on a stiff window means contact.
+        armed: bool,
+        /// Stiff windows in a row.
+        stiff_count: u32,
+    },
+    Seating {
+        contact: Contact,
+        seat: Seat,
+        /// Where the reference goes (µN·m).
+        target_unm: i32,
+        /// Start of this stage's wait (tick).
+        since: u32,
+    },
+    Step {
+        loaded: Loaded,
+        /// T_a,c + ΔT_a (µN·m).
+        target_unm: i32,
+    },
+    Settling {
+        loaded: Loaded,
+        /// Tick the reference reached its target.
+        since: u32,
+    },
+    Estimating {
+        loaded: Loaded,
+        /// The settled end point.
+        end: Sample,
+        /// Tick of the settling (the estimate timeout runs from it).
+        since: u32,
+        /// The request is ready and not yet taken.
+        request_ready: bool,
+    },
+    Holding {
+        loaded: Loaded,
+    },
+    Releasing,
+    Done,
+    Fault(FaultReason),
+}
+
+impl Phase {
+    const fn state(&self) -> State {
+        match self {
+            Phase::Init => State::Init,
+            Phase::Calibrating => State::Calibrating,
+            Phase::Approach { .. } => State::Approach,
+            Phase::Seating { .. } => State::Seating,
+            Phase::Step { .. } => State::Step,
+            Phase::Settling { .. } => State::Settling,
+            Phase::Estimating { .. } => State::Estimating,
+            Phase::Holding { .. } => State::Holding,
+            Phase::Releasing => State::Releasing,
+            Phase::Done => State::Done,
+            Phase::Fault(r) => State::Fault(*r),
+        }
+    }
+
+    /// The bridge drives in these states.
+    const fn drives(&self) -> bool {
+        matches!(
+            self,
+            Phase::Approach { .. }
+                | Phase::Seating { .. }
+                | Phase::Step { .. }
+                | Phase::Settling { .. }
+                | Phase::Estimating { .. }
+                | Phase::Holding { .. }
+                | Phase::Releasing
+        )
+    }
+}
+
+/// The path samples from contact to the end point for the estimator: every `stride`-th
+/// sample; when full, every other one is dropped and the stride doubles, so the whole span
+/// fits.
+#[derive(Clone, Debug)]
+struct PathRecord {
+    samples: Vec<Sample, PATH_CAPACITY>,
+    stride: u32,
+    /// Samples still to skip before the next one is kept.
+    skip: u32,
+}
+
+impl PathRecord {
+    const fn new() -> Self {
+        Self {
+            samples: Vec::new(),
+            stride: 1,
+            skip: 0,
+        }
+    }
+
+    fn clear(&mut self) {
+        *self = Self::new();
+    }
+
+    fn push(&mut self, s: Sample) {
+        if self.skip > 0 {
+            self.skip -= 1;
+            return;
+        }
+        if self.samples.is_full() {
+            let mut j = 0;
+            for i in (0..self.samples.len()).step_by(2) {
+                if let Some(v) = self.samples.get(i).copied() {
+                    if let Some(slot) = self.samples.get_mut(j) {
+                        *slot = v;
+                    }
+                    j += 1;
+                }
+            }
+            self.samples.truncate(j);
+            self.stride = self.stride.saturating_mul(2);
+        }
+        let _ = self.samples.push(s);
+        self.skip = self.stride.saturating_sub(1);
+    }
+}
+
+/// The encoder's plausibility check against the motor's back-EMF, once per sample.
+#[derive(Clone, Copy, Debug)]
+struct EmfCheck {
+    /// Encoder count at the end of the previous sample.
+    last_counts: i32,
+    /// Mismatched samples in a row.
+    bad: u32,
+}
+
+impl EmfCheck {
+    /// The fault once the back-EMF from the bridge voltage (mean `duty`) and the mean current
+    /// `ua` (µA) has disagreed with the encoder's speed for too many samples in a row.
+    fn check(&mut self, p: &Params, counts: i32, duty: i64, ua: i64) -> Option<FaultReason> {
+        let dcounts = i64::from(counts) - i64::from(self.last_counts);
+        self.last_counts = counts;
+        let v_uv = duty
+            .saturating_mul(p.bus_uv)
+            .checked_div(i64::from(DUTY_MAX))
+            .unwrap_or(0);
+        let ri_uv = ua.saturating_mul(p.r_mohm) / 1000;
+        let emf_uv = v_uv.saturating_sub(ri_uv);
+        let enc_uv = dcounts.saturating_mul(p.emf_uv_per_count_q16) >> 16;
+        if emf_uv.saturating_sub(enc_uv).saturating_abs() > p.emf_mismatch_uv {
+            self.bad = self.bad.saturating_add(1);
+        } else {
+            self.bad = 0;
+        }
+        if self.bad >= p.emf_mismatch_samples {
+            Some(FaultReason::EncoderMismatch {
+                emf_mv: sat_i32(emf_uv / 1000),
+                encoder_emf_mv: sat_i32(enc_uv / 1000),
+            })
+        } else {
+            None
         }
     }
 }
@@ -452,7 +434,7 @@ impl Controller {
 #[derive(Clone, Debug)]
 pub struct Supervisor {
     p: Params,
-    state: State,
+    phase: Phase,
     /// Tick of the newest input (the loop's tick count).
     tick: u32,
     /// Torque reference at the end of the newest sample (µN·m).
@@ -466,31 +448,13 @@ pub struct Supervisor {
     /// Damping term for the loop (µN·m).
     damp_unm: i32,
     hist: Ring,
-    armed: bool,
-    stiff_count: u32,
-    contact: Sample,
-    /// Where the impact came to rest (held by stiction anywhere in its band: not used
-    /// by the estimate, only as the reference for the forward slide).
-    rest: Sample,
-    /// Seating stage 1: the drive has been seen sliding forward from `rest`.
-    slid: bool,
-    seat: Sample,
-    seat2: Sample,
-    seat_stage: u8,
-    contact_hist: Vec<Sample, HISTORY>,
-    target_unm: i32,
-    phase_tick: u32,
-    contact_tick: u32,
-    path: Vec<Sample, PATH_CAPACITY>,
-    path_stride: u32,
-    path_skip: u32,
-    end: Sample,
-    request_ready: bool,
+    /// The history before the contact, oldest first, for the estimator.
+    pre: Vec<Sample, HISTORY>,
+    path: PathRecord,
+    emf: EmfCheck,
     result: Option<EstimateResult>,
     events: Deque<Event, EVENT_CAPACITY>,
     events_dropped: u32,
-    last_counts: i32,
-    emf_bad: u32,
     /// A fault found inside a sample step; applied at its end.
     pending: Option<FaultReason>,
 }
@@ -510,12 +474,195 @@ fn stiffness(a: &Sample, b: &Sample) -> i32 {
     )
 }
 
+/// Secant from `a` to `b` (µN·m) scaled onto the θa travel `ext` (µrad) as a fraction of
+/// `dth_ab`: the line's torque rise over `ext`.
+fn line_rise(dt_ab: i64, dth_ab: i64, ext: i64) -> i64 {
+    dt_ab.saturating_mul(ext).checked_div(dth_ab).unwrap_or(0)
+}
+
+/// The contact point the seating and the step are based on, at the detection of sample `s`
+/// with window `w`: the finger's inertia carries it past the contact point before the
+/// stiffness shows, so T_a,c is taken on the free-motion line (the samples 3w and up to 7w
+/// back, well before the window) at the θa of the detection, clamped between that line's
+/// start and the measured torque: the bias is K_free × the overshoot (a few mN·m). The
+/// estimator back-dates precisely from static points (`estimate::contact_point`).
+fn knee(hist: &Ring, s: Sample, w: usize) -> Sample {
+    let w3 = 3 * w;
+    let a = hist.back(w3).unwrap_or(s);
+    let b = hist
+        .back(hist.len.saturating_sub(1).min(w3 + 4 * w))
+        .unwrap_or(a);
+    let dth_ab = i64::from(a.theta_a_urad) - i64::from(b.theta_a_urad);
+    let dt_ab = i64::from(a.torque_unm) - i64::from(b.torque_unm);
+    let ext = (i64::from(s.theta_a_urad) - i64::from(a.theta_a_urad)).max(0);
+    let rise_max = i64::from(s.torque_unm.saturating_sub(a.torque_unm)).max(0);
+    let tc = i64::from(a.torque_unm) + line_rise(dt_ab, dth_ab, ext).clamp(0, rise_max);
+    Sample {
+        tick: a.tick,
+        theta_a_urad: s.theta_a_urad,
+        torque_unm: sat_i32(tc),
+        torque_ref_unm: s.torque_ref_unm,
+    }
+}
+
+/// The free motion before a contact: the parabola in time through three samples `h` ticks
+/// apart (`a` newest), θ(t) = θa + (c1·τ·h + c2·τ²)/(2h²), τ = t − t_a (ticks; sample labels).
+#[derive(Clone, Copy, Debug)]
+struct FreeParabola {
+    ta: i64,
+    tha: i64,
+    h: i64,
+    c1: i64,
+    c2: i64,
+}
+
+impl FreeParabola {
+    /// Through `a`, `m`, `b`, newest first; `None` unless they are equally spaced in time.
+    fn through(a: &Sample, m: &Sample, b: &Sample) -> Option<Self> {
+        let (ta, tm, tb) = (i64::from(a.tick), i64::from(m.tick), i64::from(b.tick));
+        let h = ta - tm;
+        if h <= 0 || tm - tb != h {
+            return None;
+        }
+        let (tha, thm, thb) = (
+            i64::from(a.theta_a_urad),
+            i64::from(m.theta_a_urad),
+            i64::from(b.theta_a_urad),
+        );
+        Some(Self {
+            ta,
+            tha,
+            h,
+            c1: 3 * tha - 4 * thm + thb,
+            c2: tha - 2 * thm + thb,
+        })
+    }
+
+    /// θa on the parabola at tick `t` (µrad).
+    fn at(&self, t: i64) -> i64 {
+        let tau = t - self.ta;
+        self.tha.saturating_add(
+            self.c1
+                .saturating_mul(tau)
+                .saturating_mul(self.h)
+                .saturating_add(self.c2.saturating_mul(tau).saturating_mul(tau))
+                .checked_div(2 * self.h * self.h)
+                .unwrap_or(0),
+        )
+    }
+
+    /// How far `s` lags behind the free motion (µrad).
+    fn deficit(&self, s: &Sample) -> i64 {
+        self.at(i64::from(s.tick)) - i64::from(s.theta_a_urad)
+    }
+}
+
+/// The tick (sample labels, interpolated) at which the deficit behind `free` last rose
+/// through `level`, searching the newest `span` samples; `None` when it did not within them.
+fn deficit_crossing(hist: &Ring, free: &FreeParabola, level: i64, span: usize) -> Option<i64> {
+    let mut hi = hist.back(0)?;
+    let mut i = 0usize;
+    loop {
+        if i + 1 >= span {
+            return None;
+        }
+        let lo = hist.back(i + 1)?;
+        let dl = free.deficit(&lo);
+        if dl < level {
+            let dh = free.deficit(&hi);
+            let (tl, th) = (i64::from(lo.tick), i64::from(hi.tick));
+            return Some(
+                tl + (level - dl)
+                    .saturating_mul(th - tl)
+                    .checked_div(dh - dl)
+                    .unwrap_or(0),
+            );
+        }
+        hi = lo;
+        i += 1;
+    }
+}
+
+/// The contact instant, from the impact's signature: after the contact the finger
+/// decelerates on the contact stiffness, so θa falls behind its free-motion trajectory
+/// by a deficit that grows as (t − t_c)³ at first (J θ̈ = −K v (t − t_c)). The free
+/// motion is the parabola in time through the samples 2w, 3w and 4w back (before any
+/// contact the detection can see: its delay is below 2w samples; the approach speed
+/// still creeps, so a line would not do). With d_n the deficit of the newest sample
+/// (t_n) and t_1 the time it crossed d_n/8, t_c = 2·t_1 − t_n. θa,c on the free-motion
+/// parabola and T_a,c (measured, friction included) on the line through the 2w and 4w
+/// samples, at t_c. `None` when the deficit is too small to time (< 4 encoder counts and
+/// < 8 µrad). Sample ticks label the end of their `sample_ticks`-long interval.
+fn contact_instant(
+    hist: &Ring,
+    w: usize,
+    sample_ticks: u32,
+    urad_per_count_q16: i32,
+) -> Option<Sample> {
+    let half = i64::from(sample_ticks / 2);
+    let newest = hist.back(0)?;
+    let a = hist.back(2 * w)?;
+    let b = hist.back(4 * w)?;
+    let free = FreeParabola::through(&a, &hist.back(3 * w)?, &b)?;
+    let dn = free.deficit(&newest);
+    let min = (i64::from(urad_per_count_q16) * 4) >> 16;
+    if dn < min.max(8) {
+        return None;
+    }
+    let t1 = deficit_crossing(hist, &free, dn / 8, 2 * w)?;
+    // Sample labels are the interval's end: the averages sit `half` earlier.
+    let (ta, tb, tn) = (i64::from(a.tick), i64::from(b.tick), i64::from(newest.tick));
+    // (max/min, not clamp: clamp asserts its bounds are ordered.)
+    let tc = (2 * t1 - tn - half).max(ta - half).min(tn);
+    let label = tc + half;
+    let (qa, qb) = (i64::from(a.torque_unm), i64::from(b.torque_unm));
+    let tq = qa.saturating_add(
+        (qa - qb)
+            .saturating_mul(label - ta)
+            .checked_div(ta - tb)
+            .unwrap_or(0),
+    );
+    Some(Sample {
+        tick: u32::try_from(tc).ok()?,
+        theta_a_urad: sat_i32(free.at(label)),
+        torque_unm: sat_i32(tq),
+        torque_ref_unm: newest.torque_ref_unm,
+    })
+}
+
+/// Mean (θa, T_a) (µrad, µN·m) of the newest `window` samples when θa stayed within
+/// `band_urad` over them and every one is labelled at or after `since`.
+fn still_mean(hist: &Ring, since: u32, window: usize, band_urad: i32) -> Option<(i32, i32)> {
+    let mut lo = i32::MAX;
+    let mut hi = i32::MIN;
+    let mut st = 0i64;
+    let mut sth = 0i64;
+    for i in 0..window {
+        let s = hist.back(i)?;
+        if s.tick < since {
+            return None;
+        }
+        lo = lo.min(s.theta_a_urad);
+        hi = hi.max(s.theta_a_urad);
+        st += i64::from(s.torque_unm);
+        sth += i64::from(s.theta_a_urad);
+    }
+    if i64::from(hi) - i64::from(lo) > i64::from(band_urad) {
+        return None;
+    }
+    let n = window as i64;
+    Some((
+        sat_i32(sth.checked_div(n).unwrap_or(0)),
+        sat_i32(st.checked_div(n).unwrap_or(0)),
+    ))
+}
+
 impl Supervisor {
     /// A state machine before the loop has started.
     pub fn new(p: &Params) -> Self {
         Self {
             p: *p,
-            state: State::Init,
+            phase: Phase::Init,
             tick: 0,
             t_ref_unm: 0,
             jump_q16: None,
@@ -523,35 +670,22 @@ impl Supervisor {
             theta_prev: [None, None],
             damp_unm: 0,
             hist: Ring::new(),
-            armed: false,
-            stiff_count: 0,
-            contact: Sample::ZERO,
-            rest: Sample::ZERO,
-            slid: false,
-            seat: Sample::ZERO,
-            seat2: Sample::ZERO,
-            seat_stage: 0,
-            contact_hist: Vec::new(),
-            target_unm: 0,
-            phase_tick: 0,
-            contact_tick: 0,
-            path: Vec::new(),
-            path_stride: 1,
-            path_skip: 0,
-            end: Sample::ZERO,
-            request_ready: false,
+            pre: Vec::new(),
+            path: PathRecord::new(),
+            emf: EmfCheck {
+                last_counts: 0,
+                bad: 0,
+            },
             result: None,
             events: Deque::new(),
             events_dropped: 0,
-            last_counts: 0,
-            emf_bad: 0,
             pending: None,
         }
     }
 
     /// Current state.
     pub fn state(&self) -> State {
-        self.state
+        self.phase.state()
     }
 
     /// The delivered estimate, once there is one.
@@ -576,8 +710,8 @@ impl Supervisor {
     }
 
     fn fault(&mut self, reason: FaultReason) {
-        if !matches!(self.state, State::Fault(_)) {
-            self.state = State::Fault(reason);
+        if !matches!(self.phase, Phase::Fault(_)) {
+            self.phase = Phase::Fault(reason);
             let tick = self.tick;
             self.emit(Event::Fault { tick, reason });
         }
@@ -591,56 +725,52 @@ impl Supervisor {
     /// What the loop should do until the next sample.
     pub fn setpoint(&self) -> Setpoint {
         let p = &self.p;
-        let reference = match self.state {
+        let reference = match self.phase {
             // The ramp pauses while the actuator is at its approach speed limit; it stops
             // just above the ceiling, where the approach gives up (NoContact).
-            State::Approach if self.vel < p.approach_vmax_urad => Reference::Ramp {
+            Phase::Approach { .. } if self.vel < p.approach_vmax_urad => Reference::Ramp {
                 target: TorqueQ16::from_unm(p.approach_max_unm.saturating_add(1)),
                 rate: TorqueQ16::new(p.approach_ramp_q16),
             },
-            State::Seating | State::Step => match self.jump_q16 {
-                Some(v) => Reference::Set(TorqueQ16::new(v)),
-                None => {
-                    let target = TorqueQ16::from_unm(self.target_unm);
-                    // Stage 1 always ramps: the slide must be seen before the reference stops.
-                    let rate_q16 = if self.state == State::Seating && self.seat_stage == 1 {
-                        p.seat_ramp_q16
-                    } else {
-                        p.step_ramp_q16
-                    };
-                    if rate_q16 <= 0 {
-                        Reference::Set(target)
-                    } else {
-                        Reference::Ramp {
-                            target,
-                            rate: TorqueQ16::new(rate_q16),
-                        }
-                    }
-                }
-            },
-            State::Releasing => Reference::Ramp {
+            // Stage 1 always ramps: the slide must be seen before the reference stops.
+            Phase::Seating {
+                seat: Seat::Slide { .. },
+                target_unm,
+                ..
+            } => self.toward(target_unm, p.seat_ramp_q16),
+            Phase::Seating { target_unm, .. } | Phase::Step { target_unm, .. } => {
+                self.toward(target_unm, p.step_ramp_q16)
+            }
+            Phase::Releasing => Reference::Ramp {
                 target: TorqueQ16::new(0),
                 rate: TorqueQ16::new(p.release_ramp_q16),
             },
             _ => Reference::Hold,
         };
-        let enable = matches!(
-            self.state,
-            State::Approach
-                | State::Seating
-                | State::Step
-                | State::Settling
-                | State::Estimating
-                | State::Holding
-                | State::Releasing
-        );
-        if !enable {
+        if !self.phase.drives() {
             return Setpoint::OFF;
         }
         Setpoint {
-            enable,
+            enable: true,
             reference,
             damp_unm: self.damp_unm,
+        }
+    }
+
+    /// The reference toward `target_unm` (µN·m) at `rate_q16` (a step when not positive),
+    /// unless a jump is pending.
+    fn toward(&self, target_unm: i32, rate_q16: i64) -> Reference {
+        if let Some(v) = self.jump_q16 {
+            return Reference::Set(TorqueQ16::new(v));
+        }
+        let target = TorqueQ16::from_unm(target_unm);
+        if rate_q16 <= 0 {
+            Reference::Set(target)
+        } else {
+            Reference::Ramp {
+                target,
+                rate: TorqueQ16::new(rate_q16),
+            }
         }
     }
 
@@ -648,7 +778,7 @@ impl Supervisor {
     /// this supervisor has acted on (its heartbeat: the loop refuses an old setpoint).
     pub fn publish(&self, link: &mut Link) {
         link.setpoint = self.setpoint();
-        link.state = self.state;
+        link.state = self.state();
         link.stamp(self.tick);
     }
 
@@ -667,16 +797,18 @@ impl Supervisor {
     pub fn handle(&mut self, input: Input) -> bool {
         match input {
             Input::Started => {
-                if self.state == State::Init {
-                    self.state = State::Calibrating;
+                if matches!(self.phase, Phase::Init) {
+                    self.phase = Phase::Calibrating;
                 }
                 false
             }
             Input::Calibrated { tick, offset_q8 } => {
                 self.tick = tick;
-                if matches!(self.state, State::Init | State::Calibrating) {
-                    self.state = State::Approach;
-                    self.phase_tick = tick;
+                if matches!(self.phase, Phase::Init | Phase::Calibrating) {
+                    self.phase = Phase::Approach {
+                        armed: false,
+                        stiff_count: 0,
+                    };
                     self.emit(Event::Calibrated { tick, offset_q8 });
                 }
                 false
@@ -694,23 +826,43 @@ impl Supervisor {
     /// supervision that used to run every tick (loss of contact, limits, timeouts).
     fn on_sums(&mut self, m: SampleSums) -> bool {
         if matches!(
-            self.state,
-            State::Init | State::Calibrating | State::Done | State::Fault(_)
+            self.phase,
+            Phase::Init | Phase::Calibrating | Phase::Done | Phase::Fault(_)
         ) {
             return false;
         }
         self.tick = m.tick;
         self.jump_q16 = None;
+        let Some(s) = self.average(&m) else {
+            return false;
+        };
+        self.on_sample(s);
+        if let Some(f) = self.pending.take() {
+            self.fault(f);
+        }
+        if let Phase::Fault(_) = self.phase {
+            return false;
+        }
+        let ready = matches!(
+            self.phase,
+            Phase::Estimating { since, request_ready: true, .. } if since == self.tick
+        );
+        self.check_contact_held(s.theta_a_urad, s.torque_ref_unm);
+        self.check_limits(s.theta_a_urad, s.torque_ref_unm);
+        ready && matches!(self.phase, Phase::Estimating { .. })
+    }
+
+    /// The sample's means, after the encoder's back-EMF check (`None`: it faulted); updates
+    /// the speed estimate and the damping term.
+    fn average(&mut self, m: &SampleSums) -> Option<Sample> {
         // 1..=64 (the loop never sums more): no division by zero or overflow.
         let n = m.n.clamp(1, 64) as i32;
         // Encoder plausibility: the back-EMF the bridge voltage and the current imply
         // must match the speed the encoder reports (a stuck or slipping encoder).
-        let dcounts = i64::from(m.counts) - i64::from(self.last_counts);
-        self.last_counts = m.counts;
         let (duty, ua) = (i64::from(m.duty / n), i64::from(m.ua / n));
-        if let Some(f) = self.emf_check(dcounts, duty, ua) {
+        if let Some(f) = self.emf.check(&self.p, m.counts, duty, ua) {
             self.fault(f);
-            return false;
+            return None;
         }
         let s = Sample {
             tick: m.tick,
@@ -725,72 +877,97 @@ impl Supervisor {
             self.damp_unm = sat_i32(v.saturating_mul(self.p.damping_q16) >> 16);
         }
         self.theta_prev = [Some(s.theta_a_urad), self.theta_prev[0]];
-        self.on_sample(s);
-        if let Some(f) = self.pending.take() {
-            self.fault(f);
-        }
-        if let State::Fault(_) = self.state {
-            return false;
-        }
-        let ready =
-            self.state == State::Estimating && self.request_ready && self.tick == self.phase_tick;
+        Some(s)
+    }
 
-        let (theta, t_ref) = (s.theta_a_urad, s.torque_ref_unm);
-        match self.state {
-            State::Seating | State::Step | State::Settling | State::Estimating | State::Holding => {
-                let fast = self.vel.saturating_abs() > self.p.loss_speed_urad;
-                if fast || self.lost(theta, t_ref).is_some() {
-                    let d = sat_i32(i64::from(theta) - i64::from(self.contact.theta_a_urad));
-                    self.fault(FaultReason::LossOfContact { dtheta_a_urad: d });
-                }
-            }
-            _ => {}
+    /// Loss of contact, in every state that presses on the object: too fast, or θa beyond
+    /// what the contact allows ([`Supervisor::lost`]).
+    fn check_contact_held(&mut self, theta: i32, t_ref: i32) {
+        let (contact, loading) = match self.phase {
+            Phase::Seating { contact, .. } => (contact, None),
+            Phase::Step { loaded, .. }
+            | Phase::Settling { loaded, .. }
+            | Phase::Estimating { loaded, .. }
+            | Phase::Holding { loaded } => (loaded.contact, Some(loaded)),
+            _ => return,
+        };
+        let fast = self.vel.saturating_abs() > self.p.loss_speed_urad;
+        if fast
+            || self
+                .lost(theta, t_ref, &contact, loading.as_ref())
+                .is_some()
+        {
+            let d = sat_i32(i64::from(theta) - i64::from(contact.knee.theta_a_urad));
+            self.fault(FaultReason::LossOfContact { dtheta_a_urad: d });
         }
-        let since = self.tick.wrapping_sub(self.phase_tick);
-        match self.state {
-            State::Approach
-                if t_ref >= self.p.approach_max_unm || theta > self.p.approach_theta_max_urad =>
+    }
+
+    /// The approach's ceiling and range, the settle and estimate timeouts, and the end of a
+    /// release.
+    fn check_limits(&mut self, theta: i32, t_ref: i32) {
+        let p = &self.p;
+        match self.phase {
+            Phase::Approach { .. }
+                if t_ref >= p.approach_max_unm || theta > p.approach_theta_max_urad =>
             {
                 self.fault(FaultReason::NoContact);
             }
-            State::Seating | State::Step | State::Settling
-                if self.tick.wrapping_sub(self.contact_tick) > self.p.settle_timeout_ticks =>
-            {
+            Phase::Seating { contact, .. }
+            | Phase::Step {
+                loaded: Loaded { contact, .. },
+                ..
+            }
+            | Phase::Settling {
+                loaded: Loaded { contact, .. },
+                ..
+            } if self.tick.wrapping_sub(contact.tick) > p.settle_timeout_ticks => {
                 self.fault(FaultReason::SettleTimeout);
             }
-            State::Estimating if since > self.p.estimate_timeout_ticks => {
+            Phase::Estimating { since, .. }
+                if self.tick.wrapping_sub(since) > p.estimate_timeout_ticks =>
+            {
                 self.fault(FaultReason::EstimateTimeout);
             }
-            State::Releasing if t_ref <= 0 => {
-                self.state = State::Done;
+            Phase::Releasing if t_ref <= 0 => {
+                self.phase = Phase::Done;
                 let tick = self.tick;
                 self.emit(Event::Released { tick });
             }
             _ => {}
         }
-        ready && self.state == State::Estimating
     }
 
     /// Moves the estimate request out, once, after the step reported it ready.
     /// Hand it to [`run_estimate`](crate::run_estimate) in a low-priority task.
     pub fn take_request(&mut self) -> Option<EstimateRequest> {
-        if !self.request_ready || self.state != State::Estimating {
+        let Phase::Estimating {
+            loaded,
+            end,
+            since,
+            request_ready: true,
+        } = self.phase
+        else {
             return None;
-        }
-        self.request_ready = false;
+        };
+        self.phase = Phase::Estimating {
+            loaded,
+            end,
+            since,
+            request_ready: false,
+        };
         let mut pre = Vec::new();
-        core::mem::swap(&mut pre, &mut self.contact_hist);
+        core::mem::swap(&mut pre, &mut self.pre);
         let mut path = Vec::new();
-        core::mem::swap(&mut path, &mut self.path);
+        core::mem::swap(&mut path, &mut self.path.samples);
         Some(EstimateRequest {
-            contact: self.contact,
-            seat: self.seat,
-            seat2: self.seat2,
-            end: self.end,
+            contact: loaded.contact.knee,
+            seat: loaded.seat,
+            seat2: loaded.seat2,
+            end,
             pre,
             path,
             sample_ticks: self.p.sample_ticks,
-            path_stride: self.path_stride,
+            path_stride: self.path.stride,
             delta_ta_cmd_unm: self.p.delta_ta_unm,
             estimator: self.p.estimator,
             dt_ns: self.p.dt_ns,
@@ -802,89 +979,57 @@ impl Supervisor {
     /// state machine in the safe state. Ignored unless it is waiting for one. Publish the
     /// setpoint afterwards ([`Supervisor::publish`]) so the loop acts on it at once.
     pub fn deliver(&mut self, outcome: Result<EstimateResult, EstimateError>) {
-        if self.state != State::Estimating {
+        let Phase::Estimating { loaded, end, .. } = self.phase else {
             return;
-        }
+        };
         let tick = self.tick;
+        let kc_unm_per_rad = loaded.kc_late_unm_per_rad(&end);
         match outcome {
             Ok(r) => {
                 self.result = Some(r);
                 self.emit(Event::Estimated { tick, result: r });
                 match self.p.after_estimate {
                     AfterEstimate::Hold => {
-                        self.state = State::Holding;
+                        self.phase = Phase::Holding { loaded };
                         self.emit(Event::Holding { tick });
                     }
                     AfterEstimate::Release => {
-                        self.state = State::Releasing;
+                        self.phase = Phase::Releasing;
                         self.emit(Event::Releasing { tick });
                     }
                 }
             }
-            Err(EstimateError::Model(PtsError::BeyondTip)) if self.kc_locked() => {
-                // Far stiffer than any single contact on the distal phalanx: the finger is
-                // blocked at two points.
-                let kc_unm_per_rad = self.kc_late_unm_per_rad();
+            // Far stiffer than any single contact on the distal phalanx: the finger is
+            // blocked at two points.
+            Err(EstimateError::Model(PtsError::BeyondTip))
+                if i64::from(kc_unm_per_rad) > self.p.second_k_unm_per_rad =>
+            {
                 self.fault(FaultReason::SecondContact { kc_unm_per_rad });
             }
             Err(EstimateError::PathFit(PathFitError::SecondContact)) => {
-                let kc_unm_per_rad = self.kc_late_unm_per_rad();
                 self.fault(FaultReason::SecondContact { kc_unm_per_rad });
             }
             Err(error) => self.fault(FaultReason::EstimateOutOfRange { error }),
         }
     }
 
-    /// Stiffness (µN·m/rad) of the second half of the step, seated again → settled.
-    /// A second contact shows there.
-    fn kc_late_unm_per_rad(&self) -> i32 {
-        stiffness(&self.seat2, &self.end)
-    }
-
-    /// Whether the step's late stiffness says "locked" (above the second-contact threshold).
-    fn kc_locked(&self) -> bool {
-        i64::from(self.kc_late_unm_per_rad()) > self.p.second_k_unm_per_rad
-    }
-
-    /// Back-EMF check over one sample with `dcounts` encoder counts, mean duty and mean
-    /// current (µA).
-    fn emf_check(&mut self, dcounts: i64, duty: i64, ua: i64) -> Option<FaultReason> {
-        let p = &self.p;
-        let v_uv = duty
-            .saturating_mul(p.bus_uv)
-            .checked_div(i64::from(DUTY_MAX))
-            .unwrap_or(0);
-        let ri_uv = ua.saturating_mul(p.r_mohm) / 1000;
-        let emf_uv = v_uv.saturating_sub(ri_uv);
-        let enc_uv = dcounts.saturating_mul(p.emf_uv_per_count_q16) >> 16;
-        if emf_uv.saturating_sub(enc_uv).saturating_abs() > p.emf_mismatch_uv {
-            self.emf_bad = self.emf_bad.saturating_add(1);
-        } else {
-            self.emf_bad = 0;
-        }
-        if self.emf_bad >= p.emf_mismatch_samples {
-            Some(FaultReason::EncoderMismatch {
-                emf_mv: sat_i32(emf_uv / 1000),
-                encoder_emf_mv: sat_i32(enc_uv / 1000),
-            })
-        } else {
-            None
-        }
-    }
-
-    /// Loss of contact: θa beyond what the contact allows. Before the second static point:
-    /// a stiffness ≥ K_detect from the contact point. After it: 1.5× the displacement the
-    /// early stiffness (seated → seated again) predicts from there (the path only stiffens).
-    fn lost(&self, theta: i32, t_ref: i32) -> Option<i32> {
-        let second_known = matches!(
-            self.state,
-            State::Step | State::Settling | State::Estimating | State::Holding
-        );
-        let k_early = i64::from(stiffness(&self.seat, &self.seat2));
-        let (from, k, num, den) = if second_known && k_early > 0 && k_early < i64::from(i32::MAX) {
-            (self.seat2, k_early, 3, 2)
-        } else {
-            (self.contact, self.p.detect_k_unm_per_rad, 1, 1)
+    /// Loss of contact: θa beyond what the contact allows. Before the second static point
+    /// (`loaded` is `None`): a stiffness ≥ K_detect from the contact point. After it: 1.5×
+    /// the displacement the early stiffness (seated → seated again) predicts from there (the
+    /// path only stiffens).
+    fn lost(
+        &self,
+        theta: i32,
+        t_ref: i32,
+        contact: &Contact,
+        loaded: Option<&Loaded>,
+    ) -> Option<i32> {
+        let early = loaded.map(|l| (l.seat2, i64::from(stiffness(&l.seat, &l.seat2))));
+        let (from, k, num, den) = match early {
+            Some((seat2, k_early)) if k_early > 0 && k_early < i64::from(i32::MAX) => {
+                (seat2, k_early, 3, 2)
+            }
+            _ => (contact.knee, self.p.detect_k_unm_per_rad, 1, 1),
         };
         let dth = i64::from(theta) - i64::from(from.theta_a_urad);
         let dt = (i64::from(t_ref) - i64::from(from.torque_unm)).max(0);
@@ -902,98 +1047,35 @@ impl Supervisor {
         }
     }
 
+    /// The state machine's step on one sample.
     fn on_sample(&mut self, s: Sample) {
-        match self.state {
-            State::Approach => {
+        match self.phase {
+            Phase::Approach { .. } => {
                 self.hist.push(s);
                 self.detect(s);
             }
-            State::Seating => {
-                self.path_push(s);
+            Phase::Seating { .. } => {
+                self.path.push(s);
                 self.hist.push(s);
-                let top = self.contact.torque_unm.saturating_add(self.p.delta_ta_unm);
-                if self.seat_stage == 1 && !self.slid {
-                    let moved = i64::from(s.theta_a_urad) - i64::from(self.rest.theta_a_urad);
-                    if moved >= i64::from(self.p.slide_min_urad) {
-                        // Sliding forward: a little more, then hold for the first loading point.
-                        self.slid = true;
-                        self.target_unm = s
-                            .torque_ref_unm
-                            .saturating_add(self.p.slide_extra_unm)
-                            .min(top);
-                        self.phase_tick = self.tick;
-                    }
-                }
-                let at_target = s.torque_ref_unm == self.target_unm;
-                if at_target && self.tick.wrapping_sub(self.phase_tick) >= self.p.settle_min_ticks {
-                    if let Some(p) = self.settled(self.phase_tick) {
-                        let tick = self.tick;
-                        let stage = self.seat_stage;
-                        self.emit(Event::Seated {
-                            tick,
-                            stage,
-                            theta_a_urad: p.theta_a_urad,
-                            torque_unm: p.torque_unm,
-                        });
-                        match stage {
-                            0 => {
-                                // The impact is over; ramp until the drive slides forward.
-                                self.rest = p;
-                                self.slid = false;
-                                self.seat_stage = 1;
-                                self.target_unm = top;
-                            }
-                            1 if !self.slid => {
-                                // T_a,c + ΔT_a reached without the drive sliding: ΔT_a is
-                                // inside the stiction band, nothing to measure.
-                                let d =
-                                    i64::from(p.theta_a_urad) - i64::from(self.rest.theta_a_urad);
-                                self.pending = Some(FaultReason::NoMotion {
-                                    dtheta_a_urad: sat_i32(d),
-                                });
-                            }
-                            1 => {
-                                // The estimator extrapolates the path through the loading
-                                // points back to the contact: it needs them to span at least
-                                // the distance back (else the step is mostly stiction band).
-                                let back =
-                                    i64::from(self.target_unm) - i64::from(self.contact.torque_unm);
-                                let span = i64::from(top) - i64::from(self.target_unm);
-                                if span < back || span < i64::from(self.p.seat_above_unm) {
-                                    let d = i64::from(p.theta_a_urad)
-                                        - i64::from(self.rest.theta_a_urad);
-                                    self.pending = Some(FaultReason::NoMotion {
-                                        dtheta_a_urad: sat_i32(d),
-                                    });
-                                } else {
-                                    self.seat = p;
-                                    self.seat_stage = 2;
-                                    let mid = (i64::from(self.target_unm) + i64::from(top)) / 2;
-                                    self.target_unm = sat_i32(mid);
-                                }
-                            }
-                            _ => {
-                                self.seat2 = p;
-                                self.state = State::Step;
-                                self.target_unm = top;
-                            }
-                        }
-                        self.phase_tick = self.tick;
-                    }
+                self.seating(s);
+            }
+            Phase::Step { loaded, target_unm } => {
+                self.path.push(s);
+                self.hist.push(s);
+                if s.torque_ref_unm == target_unm {
+                    self.phase = Phase::Settling {
+                        loaded,
+                        since: self.tick,
+                    };
+                    let tick = self.tick;
+                    self.emit(Event::StepDone { tick });
                 }
             }
-            State::Step | State::Settling => {
-                self.path_push(s);
+            Phase::Settling { loaded, since } => {
+                self.path.push(s);
                 self.hist.push(s);
-                if self.state == State::Step {
-                    if s.torque_ref_unm == self.target_unm {
-                        self.state = State::Settling;
-                        self.phase_tick = self.tick;
-                        let tick = self.tick;
-                        self.emit(Event::StepDone { tick });
-                    }
-                } else if self.tick.wrapping_sub(self.phase_tick) >= self.p.settle_min_ticks {
-                    self.check_settled();
+                if self.tick.wrapping_sub(since) >= self.p.settle_min_ticks {
+                    self.check_settled(loaded, since);
                 }
             }
             _ => {}
@@ -1010,227 +1092,228 @@ impl Supervisor {
         ))
     }
 
+    /// The approach's contact detection on sample `s`: ΔT_a/Δθa over the window at or above
+    /// K_detect (and ΔT_a above a minimum rise) `detect_confirm` times in a row, once free
+    /// motion has been seen.
     fn detect(&mut self, s: Sample) {
+        let Phase::Approach {
+            mut armed,
+            mut stiff_count,
+        } = self.phase
+        else {
+            return;
+        };
         let w = self.p.detect_window;
         let Some((dt, dth)) = self.window(w) else {
             return;
         };
+        let k = self.p.detect_k_unm_per_rad;
         let stiff = dt >= i64::from(self.p.detect_min_rise_unm)
-            && dt.saturating_mul(1_000_000) >= self.p.detect_k_unm_per_rad.saturating_mul(dth);
+            && dt.saturating_mul(1_000_000) >= k.saturating_mul(dth);
         if !stiff {
             // Free motion seen: from now on a stiff window means contact.
             if dth >= i64::from(self.p.detect_arm_urad)
-                && dt.saturating_mul(1_000_000) < self.p.detect_k_unm_per_rad.saturating_mul(dth)
+                && dt.saturating_mul(1_000_000) < k.saturating_mul(dth)
             {
-                self.armed = true;
+                armed = true;
             }
-            self.stiff_count = 0;
-            return;
+            stiff_count = 0;
+        } else if armed {
+            stiff_count = stiff_count.saturating_add(1);
         }
-        if !self.armed {
-            return;
+        self.phase = Phase::Approach { armed, stiff_count };
+        if stiff && armed && stiff_count >= self.p.detect_confirm {
+            let knee = knee(&self.hist, s, w);
+            // The event reports the contact instant itself, timed from the impact's signature.
+            let at = contact_instant(
+                &self.hist,
+                w,
+                self.p.sample_ticks,
+                self.p.urad_per_count_q16,
+            )
+            .unwrap_or(knee);
+            self.enter_seating(knee, at);
         }
-        self.stiff_count = self.stiff_count.saturating_add(1);
-        if self.stiff_count < self.p.detect_confirm {
-            return;
-        }
-        // Contact. The finger's inertia carries it past the contact point before the stiffness
-        // shows, so T_a,c is taken on the free-motion line (fitted well before the window)
-        // at the θa of the detection: the bias is K_free × the overshoot (a few mN·m).
-        // The estimator back-dates precisely from static points (estimate::contact_point).
-        let w3 = 3 * w;
-        let a = self.hist.back(w3).unwrap_or(s);
-        let b = self
-            .hist
-            .back(self.hist.len.saturating_sub(1).min(w3 + 4 * w))
-            .unwrap_or(a);
-        let dth_ab = i64::from(a.theta_a_urad) - i64::from(b.theta_a_urad);
-        let dt_ab = i64::from(a.torque_unm) - i64::from(b.torque_unm);
-        let ext = (i64::from(s.theta_a_urad) - i64::from(a.theta_a_urad)).max(0);
-        let tc = i64::from(a.torque_unm)
-            + dt_ab
-                .saturating_mul(ext)
-                .checked_div(dth_ab)
-                .unwrap_or(0)
-                .clamp(
-                    0,
-                    i64::from(s.torque_unm.saturating_sub(a.torque_unm)).max(0),
-                );
-        let knee = Sample {
-            tick: a.tick,
-            theta_a_urad: s.theta_a_urad,
-            torque_unm: sat_i32(tc),
-            torque_ref_unm: s.torque_ref_unm,
-        };
-        self.contact = knee;
-        // The event reports the contact instant itself, timed from the impact's signature.
-        let at = self.contact_instant(w).unwrap_or(knee);
-        self.contact_tick = self.tick;
-        self.contact_hist.clear();
+    }
+
+    /// Contact: keeps the history before it for the estimator, starts the path, and presses
+    /// gently (T_a,c + δ_seat) while the impact dies out, for the first static point.
+    fn enter_seating(&mut self, knee: Sample, at: Sample) {
+        self.pre.clear();
         let mut i = self.hist.len;
         while i > 0 {
             i -= 1;
             if let Some(h) = self.hist.back(i) {
-                let _ = self.contact_hist.push(h);
+                let _ = self.pre.push(h);
             }
         }
-        // Press gently (T_a,c + δ_seat) while the impact dies out; the first static point.
         let seat = knee.torque_unm.saturating_add(self.p.seat_above_unm);
-        self.target_unm = seat;
         self.jump_q16 = Some(i64::from(seat) << 16);
-        self.seat_stage = 0;
         self.path.clear();
-        self.path_stride = 1;
-        self.path_skip = 0;
-        self.state = State::Seating;
-        self.phase_tick = self.tick;
+        self.phase = Phase::Seating {
+            contact: Contact {
+                knee,
+                tick: self.tick,
+            },
+            seat: Seat::Impact,
+            target_unm: seat,
+            since: self.tick,
+        };
         let tick = self.tick;
-        let ev = Event::ContactDetected {
+        self.emit(Event::ContactDetected {
             tick,
             contact_tick: at.tick,
             theta_a_urad: at.theta_a_urad,
             torque_unm: at.torque_unm,
             target_unm: knee.torque_unm.saturating_add(self.p.delta_ta_unm),
-        };
-        self.emit(ev);
+        });
     }
 
-    /// The contact instant, from the impact's signature: after the contact the finger
-    /// decelerates on the contact stiffness, so θa falls behind its free-motion trajectory
-    /// by a deficit that grows as (t − t_c)³ at first (J θ̈ = −K v (t − t_c)). The free
-    /// motion is the parabola in time through the samples 2w, 3w and 4w back (before any
-    /// contact the detection can see: its delay is below 2w samples; the approach speed
-    /// still creeps, so a line would not do). With d_n the deficit of the newest sample
-    /// (t_n) and t_1 the time it crossed d_n/8, t_c = 2·t_1 − t_n. θa,c on the free-motion
-    /// parabola and T_a,c (measured, friction included) on the line through the 2w and 4w
-    /// samples, at t_c. `None` when the deficit is too small to time (< 4 encoder counts).
-    fn contact_instant(&self, w: usize) -> Option<Sample> {
-        let half = i64::from(self.p.sample_ticks / 2);
-        let newest = self.hist.back(0)?;
-        let a = self.hist.back(2 * w)?;
-        let m = self.hist.back(3 * w)?;
-        let b = self.hist.back(4 * w)?;
-        let (ta, tm, tb) = (i64::from(a.tick), i64::from(m.tick), i64::from(b.tick));
-        let h = ta - tm;
-        if h <= 0 || tm - tb != h {
-            return None;
-        }
-        let (tha, thm, thb) = (
-            i64::from(a.theta_a_urad),
-            i64::from(m.theta_a_urad),
-            i64::from(b.theta_a_urad),
-        );
-        let c1 = 3 * tha - 4 * thm + thb;
-        let c2 = tha - 2 * thm + thb;
-        let den = 2 * h * h;
-        // θ(t) = θa + (c1·τ·h + c2·τ²)/(2h²), τ = t − ta (ticks; sample labels).
-        let free = |t: i64| -> i64 {
-            let tau = t - ta;
-            tha.saturating_add(
-                c1.saturating_mul(tau)
-                    .saturating_mul(h)
-                    .saturating_add(c2.saturating_mul(tau).saturating_mul(tau))
-                    .checked_div(den)
-                    .unwrap_or(0),
-            )
+    /// Seating on sample `s`: watches for the forward slide in stage 1, and takes a static
+    /// point once the reference has reached its target and θa stays still.
+    fn seating(&mut self, s: Sample) {
+        let Phase::Seating {
+            contact,
+            mut seat,
+            mut target_unm,
+            mut since,
+        } = self.phase
+        else {
+            return;
         };
-        let deficit = |s: &Sample| -> i64 { free(i64::from(s.tick)) - i64::from(s.theta_a_urad) };
-        let dn = deficit(&newest);
-        let min = (i64::from(self.p.urad_per_count_q16) * 4) >> 16;
-        if dn < min.max(8) {
-            return None;
+        let top = contact.knee.torque_unm.saturating_add(self.p.delta_ta_unm);
+        if let Seat::Slide { rest, slid: false } = seat {
+            let moved = i64::from(s.theta_a_urad) - i64::from(rest.theta_a_urad);
+            if moved >= i64::from(self.p.slide_min_urad) {
+                // Sliding forward: a little more, then hold for the first loading point.
+                seat = Seat::Slide { rest, slid: true };
+                target_unm = s
+                    .torque_ref_unm
+                    .saturating_add(self.p.slide_extra_unm)
+                    .min(top);
+                since = self.tick;
+            }
         }
-        let d1 = dn / 8;
-        // Newest upward crossing of d1: samples i (≥ d1) and i + 1 (< d1).
-        let mut i = 0usize;
-        let mut hi = newest;
-        let t1 = loop {
-            if i + 1 >= 2 * w {
-                return None;
-            }
-            let lo = self.hist.back(i + 1)?;
-            let dl = deficit(&lo);
-            if dl < d1 {
-                let dh = deficit(&hi);
-                let (tl, th) = (i64::from(lo.tick), i64::from(hi.tick));
-                break tl
-                    + (d1 - dl)
-                        .saturating_mul(th - tl)
-                        .checked_div(dh - dl)
-                        .unwrap_or(0);
-            }
-            hi = lo;
-            i += 1;
+        self.phase = Phase::Seating {
+            contact,
+            seat,
+            target_unm,
+            since,
         };
-        // Sample labels are the interval's end: the averages sit `half` earlier.
-        let tn = i64::from(newest.tick);
-        // (max/min, not clamp: clamp asserts its bounds are ordered.)
-        let tc = (2 * t1 - tn - half).max(ta - half).min(tn);
-        let label = tc + half;
-        let (qa, qb) = (i64::from(a.torque_unm), i64::from(b.torque_unm));
-        let tq = qa.saturating_add(
-            (qa - qb)
-                .saturating_mul(label - ta)
-                .checked_div(ta - tb)
-                .unwrap_or(0),
-        );
-        Some(Sample {
-            tick: u32::try_from(tc).ok()?,
-            theta_a_urad: sat_i32(free(label)),
-            torque_unm: sat_i32(tq),
-            torque_ref_unm: newest.torque_ref_unm,
-        })
+        let waited = self.tick.wrapping_sub(since) >= self.p.settle_min_ticks;
+        if s.torque_ref_unm != target_unm || !waited {
+            return;
+        }
+        let Some(point) = self.settled(since) else {
+            return;
+        };
+        let tick = self.tick;
+        self.emit(Event::Seated {
+            tick,
+            stage: seat.stage(),
+            theta_a_urad: point.theta_a_urad,
+            torque_unm: point.torque_unm,
+        });
+        self.next_seat(contact, seat, target_unm, top, point);
+    }
+
+    /// After the static `point` of a seating stage: the next stage, the step, or `NoMotion`.
+    fn next_seat(
+        &mut self,
+        contact: Contact,
+        seat: Seat,
+        target_unm: i32,
+        top: i32,
+        point: Sample,
+    ) {
+        let since = self.tick;
+        let no_motion = |rest: Sample| FaultReason::NoMotion {
+            dtheta_a_urad: sat_i32(i64::from(point.theta_a_urad) - i64::from(rest.theta_a_urad)),
+        };
+        match seat {
+            Seat::Impact => {
+                // The impact is over; ramp until the drive slides forward.
+                self.phase = Phase::Seating {
+                    contact,
+                    seat: Seat::Slide {
+                        rest: point,
+                        slid: false,
+                    },
+                    target_unm: top,
+                    since,
+                };
+            }
+            // T_a,c + ΔT_a reached without the drive sliding: ΔT_a is inside the stiction
+            // band, nothing to measure.
+            Seat::Slide { rest, slid: false } => self.pending = Some(no_motion(rest)),
+            Seat::Slide { rest, slid: true } => {
+                // The estimator extrapolates the path through the loading points back to
+                // the contact: it needs them to span at least the distance back (else the
+                // step is mostly stiction band).
+                let back = i64::from(target_unm) - i64::from(contact.knee.torque_unm);
+                let span = i64::from(top) - i64::from(target_unm);
+                if span < back || span < i64::from(self.p.seat_above_unm) {
+                    self.pending = Some(no_motion(rest));
+                } else {
+                    let mid = (i64::from(target_unm) + i64::from(top)) / 2;
+                    self.phase = Phase::Seating {
+                        contact,
+                        seat: Seat::Second { seat: point },
+                        target_unm: sat_i32(mid),
+                        since,
+                    };
+                }
+            }
+            Seat::Second { seat } => {
+                self.phase = Phase::Step {
+                    loaded: Loaded {
+                        contact,
+                        seat,
+                        seat2: point,
+                    },
+                    target_unm: top,
+                };
+            }
+        }
     }
 
     /// Mean (θa, T_a) over the settle window when θa stayed within the settle band and every
     /// sample of the window is newer than `since`.
     fn settled(&self, since: u32) -> Option<Sample> {
-        let w = self.p.settle_window;
-        let mut lo = i32::MAX;
-        let mut hi = i32::MIN;
-        let mut st = 0i64;
-        let mut sth = 0i64;
-        for i in 0..w {
-            let s = self.hist.back(i)?;
-            if s.tick < since {
-                return None;
-            }
-            lo = lo.min(s.theta_a_urad);
-            hi = hi.max(s.theta_a_urad);
-            st += i64::from(s.torque_unm);
-            sth += i64::from(s.theta_a_urad);
-        }
-        if i64::from(hi) - i64::from(lo) > i64::from(self.p.settle_band_urad) {
-            return None;
-        }
-        let n = w as i64;
+        let (theta_a_urad, torque_unm) = still_mean(
+            &self.hist,
+            since,
+            self.p.settle_window,
+            self.p.settle_band_urad,
+        )?;
         Some(Sample {
             tick: self.tick,
-            theta_a_urad: sat_i32(sth.checked_div(n).unwrap_or(0)),
-            torque_unm: sat_i32(st.checked_div(n).unwrap_or(0)),
+            theta_a_urad,
+            torque_unm,
             torque_ref_unm: self.t_ref_unm,
         })
     }
 
-    fn check_settled(&mut self) {
-        let Some(end) = self.settled(self.phase_tick) else {
+    /// Settling: once θa is still, the end point; refused as `NoMotion` or `SecondContact`
+    /// when the late half of the step cannot come from one contact, else the request is out.
+    fn check_settled(&mut self, loaded: Loaded, since: u32) {
+        let Some(end) = self.settled(since) else {
             return;
         };
-        self.end = end;
-        // A second contact locks the finger: the late half of the step is far stiffer than
-        // any single contact, or far stiffer than the early half (a proximal first contact,
-        // K ≈ K_c,prox, then the distal phalanx touching too).
         // The finger did not move over the late half: held by transmission stiction (ΔT_a
         // below the friction band) or locked; the step cannot measure a stiffness.
-        let dth_late = i64::from(end.theta_a_urad) - i64::from(self.seat2.theta_a_urad);
+        let dth_late = i64::from(end.theta_a_urad) - i64::from(loaded.seat2.theta_a_urad);
         if dth_late < i64::from(self.p.min_motion_urad) {
             self.pending = Some(FaultReason::NoMotion {
                 dtheta_a_urad: sat_i32(dth_late),
             });
             return;
         }
-        let late = i64::from(self.kc_late_unm_per_rad());
-        let early = i64::from(stiffness(&self.seat, &self.seat2));
+        // A second contact locks the finger: the late half of the step is far stiffer than
+        // any single contact, or far stiffer than the early half (a proximal first contact,
+        // K ≈ K_c,prox, then the distal phalanx touching too).
+        let late = i64::from(loaded.kc_late_unm_per_rad(&end));
+        let early = i64::from(stiffness(&loaded.seat, &loaded.seat2));
         if late > self.p.second_k_unm_per_rad
             || late > early.saturating_mul(i64::from(self.p.second_ratio))
         {
@@ -1239,39 +1322,258 @@ impl Supervisor {
             });
             return;
         }
-        self.state = State::Estimating;
-        self.phase_tick = self.tick;
-        self.request_ready = true;
-        let tick = self.tick;
-        let ev = Event::Settled {
-            tick,
-            theta_a_urad: self.end.theta_a_urad,
-            torque_unm: self.end.torque_unm,
-            path_len: self.path.len() as u16,
+        self.phase = Phase::Estimating {
+            loaded,
+            end,
+            since: self.tick,
+            request_ready: true,
         };
-        self.emit(ev);
+        let tick = self.tick;
+        self.emit(Event::Settled {
+            tick,
+            theta_a_urad: end.theta_a_urad,
+            torque_unm: end.torque_unm,
+            path_len: self.path.samples.len() as u16,
+        });
+    }
+}
+
+#[cfg(test)]
+#[allow(clippy::float_arithmetic)]
+mod tests {
+    //! Contact detection, settling and the contact back-dating against synthetic samples whose
+    //! contact instant, free-motion line and still window are known by construction.
+
+    use super::*;
+    use crate::ControllerConfig;
+
+    /// Ticks per sample in these tests (the controller's default: 4 ms at 10 kHz).
+    const ST: u32 = 40;
+
+    fn sample(tick: u32, theta_a_urad: i32, torque_unm: i32) -> Sample {
+        Sample {
+            tick,
+            theta_a_urad,
+            torque_unm,
+            torque_ref_unm: torque_unm,
+        }
     }
 
-    fn path_push(&mut self, s: Sample) {
-        if self.path_skip > 0 {
-            self.path_skip -= 1;
-            return;
+    /// A ring of samples labelled ST, 2·ST, … whose θa and T_a are the means over each
+    /// sample's ticks of `theta(t)` and `torque(t)` (t in ticks), as the loop sums them.
+    fn ring_of(n: u32, theta: impl Fn(f64) -> f64, torque: impl Fn(f64) -> f64) -> Ring {
+        let mut r = Ring::new();
+        for k in 1..=n {
+            let label = k * ST;
+            let ticks = (label - ST + 1)..=label;
+            let mean = |f: &dyn Fn(f64) -> f64| {
+                ticks.clone().map(|t| f(f64::from(t))).sum::<f64>() / f64::from(ST)
+            };
+            r.push(sample(
+                label,
+                mean(&theta).round() as i32,
+                mean(&torque).round() as i32,
+            ));
         }
-        if self.path.is_full() {
-            // Keep the whole span: drop every other sample, double the stride.
-            let mut j = 0;
-            for i in (0..self.path.len()).step_by(2) {
-                if let Some(v) = self.path.get(i).copied() {
-                    if let Some(slot) = self.path.get_mut(j) {
-                        *slot = v;
-                    }
-                    j += 1;
+        r
+    }
+
+    fn cube(x: f64) -> f64 {
+        x * x * x
+    }
+
+    /// Free motion: θa creeping up at 20 µrad/tick, slightly accelerating (the approach's
+    /// ramp); T_a rising linearly in time.
+    fn free_theta(t: f64) -> f64 {
+        -400_000.0 + 20.0 * t + 0.5 * 2e-4 * t * t
+    }
+    fn free_torque(t: f64) -> f64 {
+        300_000.0 + 15.0 * t
+    }
+
+    #[test]
+    fn contact_instant_finds_the_start_of_a_cubic_deficit() {
+        // After the contact at tc the finger decelerates on the contact stiffness:
+        // θa = free − c·(t − tc)³ (J θ̈ = −K v (t − tc), c = K v / 6J).
+        let tc = 1913.0;
+        let c = 1e-5;
+        let theta = |t: f64| free_theta(t) - if t > tc { c * cube(t - tc) } else { 0.0 };
+        // The newest sample is 12 samples after the contact: within the 2w = 20 the search
+        // may look back, and the free-motion samples 2w..4w back are all before it.
+        let hist = ring_of(60, theta, free_torque);
+        let got = contact_instant(&hist, 10, ST, 2_094_395).expect("a deficit of ~1 mrad");
+        // A quarter of a sample: the crossing is interpolated linearly between samples.
+        assert!(
+            (f64::from(got.tick) - tc).abs() <= f64::from(ST) / 4.0,
+            "contact at {} ticks, built at {tc}",
+            got.tick
+        );
+        // θa,c on the free motion and T_a,c on the free torque line, at the instant found,
+        // within one tick of travel on either (20 µrad, 15 µN·m): a sample's mean sits half
+        // a tick off the middle of its interval as the labels count it.
+        let at = f64::from(got.tick);
+        assert!((f64::from(got.theta_a_urad) - free_theta(at)).abs() <= 20.0);
+        assert!((f64::from(got.torque_unm) - free_torque(at)).abs() <= 15.0);
+    }
+
+    #[test]
+    fn contact_instant_needs_a_deficit_of_four_counts() {
+        // Pure free motion: nothing to time.
+        let hist = ring_of(60, free_theta, free_torque);
+        assert_eq!(contact_instant(&hist, 10, ST, 2_094_395), None);
+        // A deficit of 100 µrad at the newest sample is below 4 counts (4 × 31.96 µrad).
+        let tc = 2000.0;
+        let c = 100.0 / cube(2400.0 - 20.0 - tc);
+        let theta = |t: f64| free_theta(t) - if t > tc { c * cube(t - tc) } else { 0.0 };
+        let hist = ring_of(60, theta, free_torque);
+        assert_eq!(contact_instant(&hist, 10, ST, 2_094_395), None);
+        // Too little history for the free-motion parabola (4w + 1 samples).
+        let hist = ring_of(40, free_theta, free_torque);
+        assert_eq!(contact_instant(&hist, 10, ST, 2_094_395), None);
+    }
+
+    #[test]
+    fn knee_is_on_the_free_motion_line_at_the_detection_angle() {
+        // Free motion along T = 0.3 N·m + 0.7 N·m/rad (θ − θ0), 800 µrad per sample; the
+        // contact at sample 50 stiffens it to 10 N·m/rad.
+        let (theta0, k_free) = (-400_000.0, 0.7);
+        let mut hist = Ring::new();
+        let mut s = sample(0, 0, 0);
+        for k in 1..=58u32 {
+            let th = if k <= 50 {
+                theta0 + 800.0 * f64::from(k)
+            } else {
+                theta0 + 800.0 * 50.0 + 56.0 * f64::from(k - 50)
+            };
+            let tq = if k <= 50 {
+                300_000.0 + k_free * (th - theta0)
+            } else {
+                300_000.0 + k_free * 800.0 * 50.0 + 10.0 * (th - (theta0 + 40_000.0))
+            };
+            s = sample(k * ST, th as i32, tq as i32);
+            hist.push(s);
+        }
+        let got = knee(&hist, s, 10);
+        let want = 300_000.0 + k_free * (f64::from(s.theta_a_urad) - theta0);
+        assert_eq!(got.theta_a_urad, s.theta_a_urad);
+        assert!(
+            (f64::from(got.torque_unm) - want).abs() <= 1.0,
+            "{} vs {want}",
+            got.torque_unm
+        );
+        assert!(
+            got.torque_unm < s.torque_unm,
+            "below the measured (stiff) torque"
+        );
+    }
+
+    fn supervisor() -> Supervisor {
+        let p = ControllerConfig::default()
+            .params()
+            .expect("default config");
+        let mut sup = Supervisor::new(&p);
+        sup.handle(Input::Started);
+        sup.handle(Input::Calibrated {
+            tick: 200,
+            offset_q8: 0,
+        });
+        sup
+    }
+
+    /// One sample of means (θa, T_a) ending at `tick`, as the loop's sums; the bridge off
+    /// and the encoder still, so the back-EMF check agrees.
+    fn sums(tick: u32, theta_a_urad: i32, torque_unm: i32) -> Input {
+        let n = ST as i32;
+        Input::Sample(SampleSums {
+            tick,
+            n: ST,
+            theta_urad: theta_a_urad * n,
+            torque_unm: torque_unm * n,
+            duty: 0,
+            ua: 0,
+            counts: 0,
+            torque_ref_unm: torque_unm,
+        })
+    }
+
+    /// Feeds a quasi-static approach: T_a rises 560 µN·m per sample; θa follows the free
+    /// motion (0.7 N·m/rad, 800 µrad per sample) until sample `contact`, then a 10 N·m/rad
+    /// contact (56 µrad per sample). Returns the tick of the ContactDetected event.
+    fn approach(sup: &mut Supervisor, contact: u32, samples: u32) -> Option<u32> {
+        let mut theta = -600_000;
+        let mut torque = 200_000;
+        for k in 1..=samples {
+            theta += if k <= contact { 800 } else { 56 };
+            torque += 560;
+            sup.handle(sums(200 + k * ST, theta, torque));
+            while let Some(e) = sup.poll_event() {
+                if let Event::ContactDetected { tick, .. } = e {
+                    return Some(tick);
                 }
             }
-            self.path.truncate(j);
-            self.path_stride = self.path_stride.saturating_mul(2);
         }
-        let _ = self.path.push(s);
-        self.path_skip = self.path_stride.saturating_sub(1);
+        None
+    }
+
+    #[test]
+    fn detection_fires_when_the_window_turns_stiff_twice() {
+        let mut sup = supervisor();
+        let tick = approach(&mut sup, 30, 60).expect("a contact");
+        // By hand: with j of the window's 10 samples past the contact, Δθ = 800(10 − j) +
+        // 56 j and ΔT = 5600 µN·m, so ΔT/Δθ ≥ 1.5 N·m/rad from j = 6 (Δθ = 3536 µrad); the
+        // second stiff window in a row (j = 7) confirms.
+        assert_eq!(tick, 200 + (30 + 7) * ST);
+        assert_eq!(sup.state(), State::Seating);
+        // Seating presses at T_a,c + δ_seat at once.
+        assert!(matches!(sup.setpoint().reference, Reference::Set(_)));
+    }
+
+    #[test]
+    fn detection_needs_free_motion_first_and_ignores_free_motion() {
+        // Pressed from the first sample (never armed): no contact, whatever the stiffness.
+        let mut sup = supervisor();
+        assert_eq!(approach(&mut sup, 0, 60), None);
+        assert_eq!(sup.state(), State::Approach);
+        // Free motion only: no contact.
+        let mut sup = supervisor();
+        assert_eq!(approach(&mut sup, 1000, 200), None);
+        assert_eq!(sup.state(), State::Approach);
+    }
+
+    /// A full ring whose newest `window` samples sit at θa = 1000 + `offsets`[i] µrad,
+    /// T_a = 50 000 + 10·i µN·m, labelled from `first` on.
+    fn still_ring(first: u32, offsets: &[i32]) -> Ring {
+        let mut r = Ring::new();
+        for (i, d) in offsets.iter().enumerate() {
+            let i32_i = i as i32;
+            r.push(sample(first + i as u32 * ST, 1000 + d, 50_000 + 10 * i32_i));
+        }
+        r
+    }
+
+    #[test]
+    fn still_mean_averages_a_window_inside_the_band() {
+        // 5 samples at 1000 ± 25 µrad (band 50): mean θ 1000 µrad by symmetry; torques
+        // 50 000, …, 50 040: mean 50 020 µN·m.
+        let r = still_ring(400, &[-25, 25, 0, 25, -25]);
+        assert_eq!(still_mean(&r, 400, 5, 50), Some((1000, 50_020)));
+        // The same window is not still for a band of 49 µrad.
+        assert_eq!(still_mean(&r, 400, 5, 49), None);
+        // A sample labelled before `since` (the stage's start) is not part of it.
+        assert_eq!(still_mean(&r, 401, 5, 50), None);
+        // Fewer samples than the window.
+        assert_eq!(still_mean(&r, 400, 6, 50), None);
+    }
+
+    #[test]
+    fn settling_needs_the_minimum_wait_and_a_still_window() {
+        // The settle window (25 samples = 100 ms) must lie after `since`: a still finger
+        // reports its mean only once 25 samples have passed since the stage began.
+        let offsets = [0i32; 30];
+        let r = still_ring(40, &offsets);
+        let newest_label = 40 + 29 * ST;
+        let oldest_in_window = newest_label - 24 * ST;
+        assert!(still_mean(&r, oldest_in_window, 25, 50).is_some());
+        assert_eq!(still_mean(&r, oldest_in_window + 1, 25, 50), None);
     }
 }

@@ -528,6 +528,24 @@ fn two_point_result<R: EstNum>(
     })
 }
 
+/// Static points closer than this in torque (N·m) give no slope for the back-dating.
+pub const MIN_STATIC_GAP_NM: f64 = 1e-4;
+/// A back-dated contact may lie at most this far above the seated torque (N·m) and
+/// [`PAST_SEAT_RAD`] past the seated angle: rounding, not a contact after the seated point.
+pub const PAST_SEAT_NM: f64 = 1e-3;
+/// See [`PAST_SEAT_NM`] (rad).
+pub const PAST_SEAT_RAD: f64 = 1e-4;
+/// A back-dated contact lies at most this far below the seated torque (N·m): the seated
+/// point is T_a,c + δ_seat, reached from the contact by a small ramp.
+pub const MAX_BELOW_SEAT_NM: f64 = 0.2;
+/// The straight-line back-dating's contact lies at most this far before the seated angle (rad).
+pub const MAX_BEFORE_SEAT_RAD: f64 = 0.05;
+/// The secant onto the free-motion curve stops once |h| is below this (N·m) and accepts its
+/// point only below [`SECANT_ACCEPT_NM`].
+pub const SECANT_STOP_NM: f64 = 1e-7;
+/// See [`SECANT_STOP_NM`] (N·m).
+pub const SECANT_ACCEPT_NM: f64 = 1e-5;
+
 /// The last [`FIT_SAMPLES`] samples of the approach, up to the contact detection (half a
 /// sample period of guard): the free motion before the impact. `pre` is in tick order, so
 /// they are the slice before the last sample within the guard.
@@ -568,9 +586,9 @@ pub fn back_date<R: EstNum>(req: &EstimateRequest, free: (R, R), b: R) -> Option
     let t = (af - ac) / db;
     let th = af + bf * t;
     if !(usable(th) && usable(t))
-        || th > th1 + R::from_f64(1e-4)
-        || th < th1 - R::from_f64(0.05)
-        || t > t1 + R::from_f64(1e-3)
+        || th > th1 + R::from_f64(PAST_SEAT_RAD)
+        || th < th1 - R::from_f64(MAX_BEFORE_SEAT_RAD)
+        || t > t1 + R::from_f64(PAST_SEAT_NM)
     {
         return None;
     }
@@ -588,7 +606,7 @@ fn path_parabola<R: EstNum>(req: &EstimateRequest) -> Option<impl Fn(R) -> R> {
     let (t1, th1) = static_point::<R>(&req.seat);
     let (tb, thb) = static_point::<R>(&req.seat2);
     let (t2, th2) = static_point::<R>(&req.end);
-    let gap = R::from_f64(1e-4);
+    let gap = R::from_f64(MIN_STATIC_GAP_NM);
     if !(tb - t1 > gap && t2 - tb > gap) {
         return None;
     }
@@ -712,7 +730,7 @@ pub fn meet_free_curve<R: EstNum>(
     // is not a plausible step).
     let a = t1;
     let ha = h(a)?;
-    let first = if ha > R::zero() && ha < R::from_f64(0.2) {
+    let first = if ha > R::zero() && ha < R::from_f64(MAX_BELOW_SEAT_NM) {
         ha
     } else {
         R::from_f64(0.01)
@@ -732,17 +750,17 @@ pub fn meet_free_curve<R: EstNum>(
         ha = hb;
         b = c;
         hb = h(b)?;
-        if hb.abs() < R::from_f64(1e-7) {
+        if hb.abs() < R::from_f64(SECANT_STOP_NM) {
             break;
         }
     }
     let th = q(b);
     (usable(b)
         && usable(th)
-        && hb.abs() < R::from_f64(1e-5)
-        && b <= t1 + R::from_f64(1e-3)
-        && b > t1 - R::from_f64(0.2)
-        && th <= th1 + R::from_f64(1e-4))
+        && hb.abs() < R::from_f64(SECANT_ACCEPT_NM)
+        && b <= t1 + R::from_f64(PAST_SEAT_NM)
+        && b > t1 - R::from_f64(MAX_BELOW_SEAT_NM)
+        && th <= th1 + R::from_f64(PAST_SEAT_RAD))
     .then_some((th, b))
 }
 
@@ -764,7 +782,7 @@ pub fn contact_point<R: EstNum>(req: &EstimateRequest) -> (R, R) {
         return fallback;
     };
     let slope = |ta: R, tha: R, tb: R, thb: R| {
-        if tb - ta > R::from_f64(1e-4) {
+        if tb - ta > R::from_f64(MIN_STATIC_GAP_NM) {
             Some((thb - tha) / (tb - ta))
         } else {
             None
@@ -806,9 +824,9 @@ fn parabola_meets_line<R: EstNum>(
     let th = af + bf * t;
     (usable(t)
         && usable(th)
-        && t <= t1 + R::from_f64(1e-3)
-        && t > t1 - R::from_f64(0.2)
-        && th <= th1 + R::from_f64(1e-4))
+        && t <= t1 + R::from_f64(PAST_SEAT_NM)
+        && t > t1 - R::from_f64(MAX_BELOW_SEAT_NM)
+        && th <= th1 + R::from_f64(PAST_SEAT_RAD))
     .then_some((th, t))
 }
 

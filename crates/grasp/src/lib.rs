@@ -62,18 +62,20 @@ pub mod control_loop;
 pub mod controller;
 pub mod estimate;
 pub mod sensors;
+pub mod state;
 pub mod torque_loop;
 
 pub use config::{AfterEstimate, ControllerConfig, DriveConfig, Estimator, StepShape};
 pub use control_loop::{
     ControlLoop, Input, Link, LoopOutput, Reference, SampleSums, Setpoint, TorqueQ16, LINK_SAMPLES,
 };
-pub use controller::{Controller, Event, FaultReason, State, Supervisor, TickOutput};
+pub use controller::{Controller, Supervisor, TickOutput};
 pub use estimate::{
     path_fit_fw, path_table, run_estimate, run_estimate_fw, run_estimate_with, two_point_fw,
     two_point_table, EstNum, EstReal, EstimateError, EstimateRequest, EstimateResult, Located,
     Quality, Sample, TwoPointTable, PATH_CAPACITY,
 };
+pub use state::{Event, FaultReason, State};
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),
 /// `set_duty(-DUTY_MAX)` −100 %.

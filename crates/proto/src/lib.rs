@@ -12,6 +12,7 @@
 #![no_std]
 
 pub mod frame;
+pub mod log;
 mod settings;
 
 pub use frame::{encode, Decoder, EncodeError, FrameError, Message, MAX_FRAME, MAX_PAYLOAD};

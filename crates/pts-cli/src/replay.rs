@@ -8,8 +8,11 @@
 //! it hands out. The duty it computes is ignored: the trace already holds what happened.
 
 use crate::trace::{state_name, Trace};
-use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State};
+use grasp::{
+    Controller, ControllerConfig, DriveConfig, EstimateResult, Hardware, State, TickOutput,
+};
 use pts::config::FingerFile;
+use sim_board::run::{Board, Limits, Observer, Timing};
 
 /// Settings of a `pts sim` run or a `pts board record`ing, written as a `# pts-sim key=value …`
 /// comment line at the top of the CSV so that a replay uses the same controller settings and
@@ -226,6 +229,106 @@ pub fn drive_config(f: &FingerFile, dt_s: f64) -> Result<DriveConfig, String> {
     controller_config(f, dt_s).map(|c| c.drive)
 }
 
+/// Feeds the recorded rows to the controller, one a tick, and records what it did.
+struct ReplayFeed<'a> {
+    rows: &'a [crate::trace::TraceRow],
+    finger: &'a FingerFile,
+    model: &'a pts::Model<grasp::EstReal>,
+    /// The rows carry raw encoder counts and ADC codes.
+    raw: bool,
+    /// θa at rest (rad).
+    rest: f64,
+    /// Control period (s).
+    dt: f64,
+    rep: &'a mut Replay,
+    /// Rounding error carried to the next ADC code (codes).
+    dither: f64,
+    /// Rows more than 1.5 periods after the previous one.
+    gaps: usize,
+}
+
+impl Observer<TraceHw> for ReplayFeed<'_> {
+    fn before_tick(&mut self, n: u64, ctl: &Controller, hw: &mut TraceHw) -> bool {
+        let Some(row) = usize::try_from(n).ok().and_then(|i| self.rows.get(i)) else {
+            return false;
+        };
+        let prev = n
+            .checked_sub(1)
+            .and_then(|p| usize::try_from(p).ok())
+            .and_then(|p| self.rows.get(p));
+        if prev.is_some_and(|p| row.t_s - p.t_s > 1.5 * self.dt) {
+            self.gaps += 1;
+        }
+        if self.raw {
+            hw.count = row.encoder_count.unwrap_or(0);
+            hw.code = row.current_code.unwrap_or(0);
+        } else {
+            let finger = self.finger;
+            let counts = ((row.theta_a_rad - self.rest) / finger.rad_per_count()).round();
+            hw.count = (counts.clamp(-1e15, 1e15) as i64).rem_euclid(65536) as u16;
+            // The recorded torque is already offset-corrected: feed the nominal zero while
+            // the controller calibrates (bridge off), so that its offset is the nominal one
+            // and it reads back the recorded torque. Sub-code values are dithered (error
+            // feedback) so that the torque loop's integrator sees no rounding bias.
+            let zero = f64::from(finger.current_sense.zero_count);
+            let exact = if matches!(ctl.state(), State::Init | State::Calibrating) {
+                zero
+            } else {
+                zero + finger.current_from_torque(row.torque_nm)
+                    / finger.current_sense.amps_per_count
+            };
+            let code = (exact + self.dither).round().clamp(0.0, 4095.0);
+            self.dither += exact - code;
+            self.dither = self.dither.clamp(-1.0, 1.0);
+            hw.code = code as u16;
+        }
+        true
+    }
+
+    fn estimate(
+        &mut self,
+        req: &grasp::EstimateRequest,
+        _hw: &TraceHw,
+    ) -> Result<EstimateResult, grasp::EstimateError> {
+        let r = grasp::run_estimate_fw(&self.finger.finger, self.model, req);
+        self.rep.estimate = Some(r.map_err(|e| crate::sim::EstError::new(e.kind(), &e)));
+        r
+    }
+
+    fn event(&mut self, e: grasp::Event, _hw: &TraceHw) {
+        if let grasp::Event::ContactDetected {
+            contact_tick,
+            theta_a_urad,
+            torque_unm,
+            ..
+        } = e
+        {
+            // Tick n is row n−1 (ticks count from 1).
+            let idx = (contact_tick as usize).saturating_sub(1);
+            let t_first = self.rows.first().map_or(0.0, |r| r.t_s);
+            let t = self
+                .rows
+                .get(idx)
+                .map_or(t_first + f64::from(contact_tick) * self.dt, |r| r.t_s);
+            self.rep.contact_t_s = Some(t);
+            self.rep.contact = Some((
+                t,
+                f64::from(theta_a_urad) / 1e6,
+                f64::from(torque_unm) / 1e6,
+            ));
+        }
+    }
+
+    fn after_tick(&mut self, _n: u64, _out: &TickOutput, ctl: &Controller, _hw: &TraceHw) {
+        self.rep.states.push(state_name(ctl.state()));
+    }
+}
+
+/// A recording drives nothing: the next row is the next period.
+impl Board for TraceHw {
+    fn advance(&mut self) {}
+}
+
 struct TraceHw {
     count: u16,
     code: u16,
@@ -295,7 +398,6 @@ pub fn replay(
                 .into(),
         );
     }
-    let rad_per_count = finger.rad_per_count();
     let rest = cfg.drive.theta_a_rest_rad;
     let mut hw = TraceHw { count: 0, code: 0 };
     let mut rep = Replay {
@@ -308,71 +410,24 @@ pub fn replay(
         raw,
         warnings,
     };
-    let t_first = trace.rows.first().map_or(0.0, |r| r.t_s);
-    let mut dither = 0.0f64;
-    let mut gaps = 0usize;
-    let mut prev_t: Option<f64> = None;
-    for row in &trace.rows {
-        if let Some(p) = prev_t {
-            if row.t_s - p > 1.5 * dt {
-                gaps += 1;
-            }
-        }
-        prev_t = Some(row.t_s);
-        if raw {
-            hw.count = row.encoder_count.unwrap_or(0);
-            hw.code = row.current_code.unwrap_or(0);
-        } else {
-            let counts = ((row.theta_a_rad - rest) / rad_per_count).round();
-            hw.count = (counts.clamp(-1e15, 1e15) as i64).rem_euclid(65536) as u16;
-            // The recorded torque is already offset-corrected: feed the nominal zero while
-            // the controller calibrates (bridge off), so that its offset is the nominal one
-            // and it reads back the recorded torque. Sub-code values are dithered (error
-            // feedback) so that the torque loop's integrator sees no rounding bias.
-            let zero = f64::from(finger.current_sense.zero_count);
-            let exact = if matches!(ctl.state(), State::Init | State::Calibrating) {
-                zero
-            } else {
-                zero + finger.current_from_torque(row.torque_nm)
-                    / finger.current_sense.amps_per_count
-            };
-            let code = (exact + dither).round().clamp(0.0, 4095.0);
-            dither += exact - code;
-            dither = dither.clamp(-1.0, 1.0);
-            hw.code = code as u16;
-        }
-        let out = ctl.tick(&mut hw);
-        if out.estimate_ready {
-            if let Some(req) = ctl.take_request() {
-                let r = grasp::run_estimate_fw(&finger.finger, &model, &req);
-                rep.estimate = Some(r.map_err(|e| crate::sim::EstError::new(e.kind(), &e)));
-                ctl.deliver(&mut hw, r);
-            }
-        }
-        while let Some(e) = ctl.poll_event() {
-            if let grasp::Event::ContactDetected {
-                contact_tick,
-                theta_a_urad,
-                torque_unm,
-                ..
-            } = e
-            {
-                // Tick n is row n−1 (ticks count from 1).
-                let idx = (contact_tick as usize).saturating_sub(1);
-                let t = trace
-                    .rows
-                    .get(idx)
-                    .map_or(t_first + f64::from(contact_tick) * dt, |r| r.t_s);
-                rep.contact_t_s = Some(t);
-                rep.contact = Some((
-                    t,
-                    f64::from(theta_a_urad) / 1e6,
-                    f64::from(torque_unm) / 1e6,
-                ));
-            }
-        }
-        rep.states.push(state_name(ctl.state()));
-    }
+    let limits = Limits {
+        max_ticks: trace.rows.len() as u64,
+        extra_ticks: None,
+        timing: Timing::Immediate,
+    };
+    let mut obs = ReplayFeed {
+        rows: &trace.rows,
+        finger,
+        model: &model,
+        raw,
+        rest,
+        dt,
+        rep: &mut rep,
+        dither: 0.0,
+        gaps: 0,
+    };
+    sim_board::run::run(&mut ctl, &mut hw, limits, &mut obs);
+    let gaps = obs.gaps;
     if gaps > 0 {
         rep.warnings.push(format!(
             "{gaps} gap(s) longer than 1.5 control periods ({dt} s): the replay treats rows \

@@ -6,8 +6,9 @@
 //! Every tick is recorded ([`TraceRow`]) for the CSV, the plots and `pts estimate`.
 
 use crate::trace::{state_name, TraceRow};
-use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, State};
+use grasp::{Controller, ControllerConfig, DriveConfig, EstimateResult, State, TickOutput};
 use plant::{EventKind, Plant, Scene};
+use sim_board::run::{Limits, Observer, Timing};
 
 /// Why the estimator refused a measurement: its snake_case kind and a description.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -292,77 +293,19 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         dt_s: dt,
         drive,
     };
-    let max_ticks = (opts.max_s / dt).ceil().max(0.0) as u64;
-    let extra_ticks = (opts.extra_s / dt).ceil().max(0.0) as u64;
-    let mut stop_at: Option<u64> = None;
-    for n in 0..max_ticks {
-        let enc = hw.plant.encoder_count();
-        let code = hw.plant.current_adc();
-        let truth = hw.plant.truth();
-        let out = ctl.tick(&mut hw);
-        if out.estimate_ready {
-            rep.k_at_settle_m = Some(truth.k_m);
-            if let Some(req) = ctl.take_request() {
-                let r = grasp::run_estimate_fw(&finger, &est_model, &req);
-                rep.estimate = Some(r.map_err(|e| EstError::new(e.kind(), &e)));
-                ctl.deliver(&mut hw, r);
-            }
-        }
-        while let Some(e) = ctl.poll_event() {
-            if let grasp::Event::ContactDetected {
-                contact_tick,
-                theta_a_urad,
-                torque_unm,
-                ..
-            } = e
-            {
-                rep.contact = Some((
-                    f64::from(contact_tick.saturating_sub(1)) * dt,
-                    f64::from(theta_a_urad) / 1e6,
-                    f64::from(torque_unm) / 1e6,
-                ));
-            }
-            rep.events.push(ctl_event(&e, dt));
-        }
-        if opts.record {
-            rep.rows.push(TraceRow {
-                t_s: truth.t_s,
-                theta_a_rad: f64::from(out.theta_a_urad) / 1e6,
-                torque_nm: f64::from(out.torque_unm) / 1e6,
-                torque_ref_nm: Some(f64::from(out.torque_ref_unm) / 1e6),
-                duty: Some(hw.duty()),
-                state: Some(state_name(ctl.state())),
-                encoder_count: Some(enc),
-                current_code: Some(code),
-                true_theta_a_rad: Some(truth.theta_a_rad),
-                true_torque_nm: Some(truth.torque_a_nm),
-                true_contact: Some(contact_name(truth.contact).to_string()),
-                true_k_m: Some(truth.k_m),
-            });
-        }
-        hw.advance();
-        while let Some(e) = hw.plant.poll_event() {
-            if let EventKind::FirstContact { phalanx, k_m } = e.kind {
-                if rep.first_contact.is_none() {
-                    rep.first_contact = Some((e.t_s, phalanx_name(phalanx), k_m));
-                }
-            }
-            rep.events.push(TimedEvent {
-                t_s: e.t_s,
-                source: "plant",
-                name: e.kind.name().into(),
-                detail: plant_detail(&e),
-            });
-        }
-        if stop_at.is_none()
-            && matches!(ctl.state(), State::Holding | State::Done | State::Fault(_))
-        {
-            stop_at = Some(n + extra_ticks);
-        }
-        if stop_at.is_some_and(|s| n >= s) {
-            break;
-        }
-    }
+    let limits = Limits {
+        max_ticks: (opts.max_s / dt).ceil().max(0.0) as u64,
+        extra_ticks: Some((opts.extra_s / dt).ceil().max(0.0) as u64),
+        timing: Timing::Immediate,
+    };
+    let mut obs = SimRecorder {
+        rep: &mut rep,
+        finger: &finger,
+        model: &est_model,
+        record: opts.record,
+        before: None,
+    };
+    sim_board::run::run(&mut ctl, &mut hw, limits, &mut obs);
     rep.state = ctl.state();
     rep.t_end_s = hw.plant.truth().t_s;
     rep.events.sort_by(|a, b| {
@@ -371,6 +314,90 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
             .unwrap_or(std::cmp::Ordering::Equal)
     });
     Ok(rep)
+}
+
+/// What [`run`] records of each tick.
+struct SimRecorder<'a> {
+    rep: &'a mut SimReport,
+    finger: &'a pts::Finger,
+    model: &'a pts::Model<grasp::EstReal>,
+    record: bool,
+    /// The raw readings and the truth before the tick.
+    before: Option<(u16, u16, plant::Truth)>,
+}
+
+impl Observer<PlantHw> for SimRecorder<'_> {
+    fn before_tick(&mut self, _n: u64, _ctl: &Controller, hw: &mut PlantHw) -> bool {
+        let enc = hw.plant.encoder_count();
+        let code = hw.plant.current_adc();
+        self.before = Some((enc, code, hw.plant.truth()));
+        true
+    }
+
+    fn estimate(
+        &mut self,
+        req: &grasp::EstimateRequest,
+        _hw: &PlantHw,
+    ) -> Result<EstimateResult, grasp::EstimateError> {
+        self.rep.k_at_settle_m = self.before.map(|(_, _, truth)| truth.k_m);
+        let r = grasp::run_estimate_fw(self.finger, self.model, req);
+        self.rep.estimate = Some(r.map_err(|e| EstError::new(e.kind(), &e)));
+        r
+    }
+
+    fn event(&mut self, e: grasp::Event, _hw: &PlantHw) {
+        let dt = self.rep.dt_s;
+        if let grasp::Event::ContactDetected {
+            contact_tick,
+            theta_a_urad,
+            torque_unm,
+            ..
+        } = e
+        {
+            self.rep.contact = Some((
+                f64::from(contact_tick.saturating_sub(1)) * dt,
+                f64::from(theta_a_urad) / 1e6,
+                f64::from(torque_unm) / 1e6,
+            ));
+        }
+        self.rep.events.push(ctl_event(&e, dt));
+    }
+
+    fn after_tick(&mut self, _n: u64, out: &TickOutput, ctl: &Controller, hw: &PlantHw) {
+        let Some((enc, code, truth)) = self.before.filter(|_| self.record) else {
+            return;
+        };
+        self.rep.rows.push(TraceRow {
+            t_s: truth.t_s,
+            theta_a_rad: f64::from(out.theta_a_urad) / 1e6,
+            torque_nm: f64::from(out.torque_unm) / 1e6,
+            torque_ref_nm: Some(f64::from(out.torque_ref_unm) / 1e6),
+            duty: Some(hw.duty()),
+            state: Some(state_name(ctl.state())),
+            encoder_count: Some(enc),
+            current_code: Some(code),
+            true_theta_a_rad: Some(truth.theta_a_rad),
+            true_torque_nm: Some(truth.torque_a_nm),
+            true_contact: Some(contact_name(truth.contact).to_string()),
+            true_k_m: Some(truth.k_m),
+        });
+    }
+
+    fn after_advance(&mut self, hw: &mut PlantHw) {
+        while let Some(e) = hw.plant.poll_event() {
+            if let EventKind::FirstContact { phalanx, k_m } = e.kind {
+                if self.rep.first_contact.is_none() {
+                    self.rep.first_contact = Some((e.t_s, phalanx_name(phalanx), k_m));
+                }
+            }
+            self.rep.events.push(TimedEvent {
+                t_s: e.t_s,
+                source: "plant",
+                name: e.kind.name().into(),
+                detail: plant_detail(&e),
+            });
+        }
+    }
 }
 
 /// The pts finger of a plant finger (geometry and springs).

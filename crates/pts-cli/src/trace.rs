@@ -293,7 +293,8 @@ pub const FIRMWARE_DT_S: f64 = 1e-4;
 
 /// Converts a decoded defmt log of the firmware (text lines, `src/telemetry.rs`) into trace rows.
 ///
-/// Sample lines carry the marker word `S` and `key=value` pairs:
+/// Sample lines carry the marker word `S` and `key=value` pairs (the firmware's is
+/// `proto::log::SAMPLE`):
 /// `S tick=1200 theta_a_urad=-850361 torque_unm=1234 ref_unm=1300 duty=120 state=Approach`
 /// (any prefix, such as defmt's timestamp and level, is ignored). Time is `tick` × the control
 /// period, read from the `BOOT … dt_us=100` line, else `dt_s`, else [`FIRMWARE_DT_S`]; a
@@ -421,6 +422,31 @@ mod tests {
         assert_eq!(t.rows.len(), 2);
         assert_eq!(t.rows[0].t_s, 0.0);
         assert_eq!(t.warnings.len(), 2, "{:?}", t.warnings);
+    }
+
+    #[test]
+    fn the_firmware_sample_line_reads_back_to_its_values() {
+        // The line as the firmware writes it (proto::log::SAMPLE, the literal it hands to
+        // defmt), behind a decoder's timestamp and level.
+        let mut line = String::from("0.004000 INFO  ");
+        let args: [&dyn std::fmt::Display; 6] = [
+            &40u32,
+            &-850_361i32,
+            &123_456i32,
+            &130_000i32,
+            &-2500i16,
+            &"Seating",
+        ];
+        proto::log::render(&mut line, proto::log::SAMPLE, &args).unwrap();
+        let t = from_defmt(&line, Some(1e-4), &nm);
+        assert_eq!(t.warnings, Vec::<String>::new());
+        let r = &t.rows[0];
+        assert!((r.t_s - 40.0 * 1e-4).abs() < 1e-15);
+        assert!((r.theta_a_rad - -0.850361).abs() < 1e-15);
+        assert!((r.torque_nm - 0.123456).abs() < 1e-15);
+        assert_eq!(r.torque_ref_nm, Some(0.13));
+        assert_eq!(r.duty, Some(-0.25));
+        assert_eq!(r.state.as_deref(), Some("seating"));
     }
 
     #[test]

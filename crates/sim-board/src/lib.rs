@@ -7,6 +7,9 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
+pub mod log;
+pub mod run;
+
 use grasp::{DriveConfig, Hardware, DUTY_MAX};
 use plant::{Plant, Scene};
 

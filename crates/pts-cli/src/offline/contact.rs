@@ -268,7 +268,8 @@ pub fn back_date(
     p2: (f64, f64),
 ) -> Option<(f64, f64)> {
     let ((t1, th1), (tb, thb), (t2, th2)) = (p1, pb, p2);
-    if !(tb - t1 > 1e-4 && t2 - tb > 1e-4) {
+    let gap = grasp::estimate::MIN_STATIC_GAP_NM;
+    if !(tb - t1 > gap && t2 - tb > gap) {
         return None;
     }
     let s1b = (thb - th1) / (tb - t1);
