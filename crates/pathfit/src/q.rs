@@ -93,7 +93,16 @@ fn narrow(v: i64) -> Result<i32, PathFail> {
 /// `v` clamped to i32.
 #[inline(always)]
 fn clamp32(v: i64) -> i32 {
-    v.clamp(i32::MIN as i64, i32::MAX as i64) as i32
+    // The low word when it is the value (one compare of the high word with its sign
+    // extension), else the limit on v's side: two 64-bit compares fewer than `clamp`.
+    let lo = v as i32;
+    if lo as i64 == v {
+        lo
+    } else if v < 0 {
+        i32::MIN
+    } else {
+        i32::MAX
+    }
 }
 
 /// A reciprocal 1/d (d ≠ 0) to divide several numerators by one denominator: one
@@ -127,17 +136,16 @@ impl Recip {
     /// x / d scaled by 2^K: for x in Q(a), d in Q(b) and the quotient in Q(c), K = c − a + b.
     #[inline(always)]
     fn div<const K: i32>(self, x: i32) -> Result<i32, PathFail> {
-        let p = wide(x, self.y);
         let s = self.sh - K;
-        let q = if s >= 63 {
-            p >> 63
-        } else if s > 0 {
-            p >> s
-        } else if x == 0 {
-            0
-        } else {
-            return Err(PathFail::OutOfRange);
-        };
+        if s <= 0 {
+            // A quotient ≥ 2^31 unless x is 0.
+            return if x == 0 {
+                Ok(0)
+            } else {
+                Err(PathFail::OutOfRange)
+            };
+        }
+        let q = wide(x, self.y) >> s.min(63);
         narrow(if self.neg { -q } else { q })
     }
 }
@@ -1368,9 +1376,10 @@ impl Binner {
         if b.n == 0 {
             (b.th0, b.t0) = (th, t);
         }
-        // Clamped to ±1 rad and ±8 N·m about the bin's first sample.
-        let dth = th.saturating_sub(b.th0).clamp(-(1 << 20), 1 << 20);
-        let dt = t.saturating_sub(b.t0).clamp(-(1 << 23), 1 << 23);
+        // Clamped to ±1 rad and ±8 N·m about the bin's first sample (to the signed 21- and
+        // 24-bit ranges: one SSAT each).
+        let dth = th.saturating_sub(b.th0).clamp(-(1 << 20), (1 << 20) - 1);
+        let dt = t.saturating_sub(b.t0).clamp(-(1 << 23), (1 << 23) - 1);
         b.s[0] += dth as i64;
         b.s[1] += dt as i64;
         b.s[2] += wide(dth, dth);
