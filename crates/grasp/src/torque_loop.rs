@@ -34,6 +34,7 @@ impl TorqueLoop {
     ///
     /// Anti-windup: the integrator is itself limited to ±DUTY_MAX and is not advanced
     /// while the output is clamped in the direction the error pushes (conditional integration).
+    #[inline(always)]
     pub fn update(&mut self, ref_unm: i32, meas_unm: i32, p: &Params) -> i16 {
         // Every product is 25 × 32 bits at most (gains and signals limited where they enter,
         // one instruction each on Cortex-M4): exact, and the sums of three cannot overflow,

@@ -84,6 +84,14 @@ const TC: usize = 3;
 /// Number of parameters.
 const NP: usize = 4;
 
+/// A fitted k2,c at or below this fraction of l2 is a proximal contact (refused: not
+/// locatable on the distal phalanx).
+const PROXIMAL_FRAC: f64 = 0.02;
+/// The fit's lower bound of k2,c (fraction of l2): below [`PROXIMAL_FRAC`], so that a fit
+/// held on it is a proximal contact.
+const K_LO_FRAC: f64 = 0.01;
+const _: () = assert!(K_LO_FRAC < PROXIMAL_FRAC);
+
 /// Largest number of θa bins.
 pub const MAX_BINS: usize = 12;
 /// Fewest bins with data the fit accepts.
@@ -659,7 +667,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let k2_init = initial_k2(model, &pm.contact(), pm.chord_stiffness(w.nb), l2);
     let rmax = c.max_radius;
     let bounds = Bounds {
-        k_lo: l2 * R::from_f64(0.01),
+        k_lo: l2 * R::from_f64(K_LO_FRAC),
         l2,
         rmax,
         tc_lo: theta_a_c_rad - sc * R::from_f64(3.0),
@@ -830,7 +838,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let s2 = s2_of(fit.0.sse, npar);
     let chi2_raw = fit.0.sse / dof(npar) / s2_bins;
     // Refusals that need no covariance first (a refused path pays for no inversion).
-    if !(k2c > l2 * R::from_f64(0.02)) {
+    if !(k2c > l2 * R::from_f64(PROXIMAL_FRAC)) {
         return Err(PathFitError::ProximalContact);
     }
     if k2c > l2 || fit.0.k2_last > l2 * (R::one() - c.tip_margin) {
@@ -1472,6 +1480,13 @@ fn lm<R: Real, K: Kernel<R>>(
                     None => break,
                 }
             }
+        }
+        // k2c held on its lower bound by a step that pushes it further in: the contact is
+        // proximal there, which the fit refuses whatever T_f and θa,c become (the bound
+        // lies below the refusal threshold). The others' steps, computed as if k2c moved on,
+        // would only be spent, rejected one after another, on that refusal.
+        if set[K] && !(p[K] > b.k_lo) && d[K] < z {
+            break;
         }
         let mut trial = *p;
         trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);

@@ -93,7 +93,16 @@ fn narrow(v: i64) -> Result<i32, PathFail> {
 /// `v` clamped to i32.
 #[inline(always)]
 fn clamp32(v: i64) -> i32 {
-    v.clamp(i32::MIN as i64, i32::MAX as i64) as i32
+    // The low word when it is the value (one compare of the high word with its sign
+    // extension), else the limit on v's side: two 64-bit compares fewer than `clamp`.
+    let lo = v as i32;
+    if lo as i64 == v {
+        lo
+    } else if v < 0 {
+        i32::MIN
+    } else {
+        i32::MAX
+    }
 }
 
 /// A reciprocal 1/d (d ≠ 0) to divide several numerators by one denominator: one
@@ -127,17 +136,16 @@ impl Recip {
     /// x / d scaled by 2^K: for x in Q(a), d in Q(b) and the quotient in Q(c), K = c − a + b.
     #[inline(always)]
     fn div<const K: i32>(self, x: i32) -> Result<i32, PathFail> {
-        let p = wide(x, self.y);
         let s = self.sh - K;
-        let q = if s >= 63 {
-            p >> 63
-        } else if s > 0 {
-            p >> s
-        } else if x == 0 {
-            0
-        } else {
-            return Err(PathFail::OutOfRange);
-        };
+        if s <= 0 {
+            // A quotient ≥ 2^31 unless x is 0.
+            return if x == 0 {
+                Ok(0)
+            } else {
+                Err(PathFail::OutOfRange)
+            };
+        }
+        let q = wide(x, self.y) >> s.min(63);
         narrow(if self.neg { -q } else { q })
     }
 }
@@ -467,9 +475,8 @@ impl PathTable {
                     return Err(oor);
                 }
                 let (a, b) = (free[i - 1], free[i]);
-                let frac = ((tha - a) as i64 * ONE as i64) / ((b - a) as i64).max(1);
                 let x0 = self.theta2_0 as i64 + (((i - 1) as i64) << (QA - SEG_SHIFT));
-                narrow(x0 + (frac >> SEG_SHIFT)).map_err(|_| oor)?
+                narrow(x0 + node_fraction(tha - a, b - a)).map_err(|_| oor)?
             }
         };
         let tol = to_q(FREE_TOL, QA).unwrap_or(1);
@@ -525,6 +532,31 @@ impl PathTable {
             s2: cubic(8),
             c2: cubic(12),
         })
+    }
+}
+
+/// ⌊x·2^(QA − SEG_SHIFT) / d⌋ for 0 ≤ x < d, d > 0 (θa into a node interval as a fraction of
+/// the segment's θ2, Q28): long division by the 32-bit divider, six 4-bit digits, when
+/// d < 2^28 (node intervals of the paper finger are ≈ 2^25, and the 64-bit division is a
+/// library routine on the target), else the 64-bit division: the same quotient either way.
+/// Other x (not reached from the node search) are clamped.
+#[inline(always)]
+fn node_fraction(x: i32, d: i32) -> i64 {
+    const _: () = assert!(QA - SEG_SHIFT == 24);
+    let d = d.max(1);
+    let x = x.clamp(0, d - 1);
+    if d < 1 << 28 {
+        let d = d as u32;
+        let (mut q, mut r) = (0u32, x as u32);
+        for _ in 0..6 {
+            // r < d < 2^28: r·2^4 < 2^32.
+            let n = r << 4;
+            q = (q << 4) | (n / d);
+            r = n % d;
+        }
+        q as i64
+    } else {
+        ((x as i64) << 24) / d as i64
     }
 }
 
@@ -995,7 +1027,10 @@ impl Kernel<Fx32> for QKernel<'_> {
                 ];
                 (narrow(b.t as i64 - pt.ta as i64)?, col)
             };
-            if col.iter().any(|c| c.unsigned_abs() > COL_MAX as u32) || r.unsigned_abs() > 1 << 29 {
+            // Every column below 2^28 in magnitude exactly when the OR of the magnitudes is
+            // (one test, not four).
+            let mag = col.iter().fold(0u32, |m, c| m | c.unsigned_abs());
+            if mag >= COL_MAX as u32 || r.unsigned_abs() > 1 << 29 {
                 // (|∂T/∂R| within 2^28 in Q24 too: 16 N·m per l2.)
                 return Err(PathFail::OutOfRange);
             }
@@ -1176,11 +1211,11 @@ where
         span: (hi as i64 - lo as i64).clamp(1, u32::MAX as i64) as u32,
         nbins: sc.nbins,
         envelope: sc.envelope_urad,
-        min_th: i32::MAX,
-        last_kept: None,
+        min_th: hi,
+        limit: hi.saturating_add(sc.envelope_urad),
+        last_kept: hi,
         bins: [BinAcc::default(); MAX_BINS],
     };
-    acc.keep(hi);
     acc.push(hi, n.torque_unm);
     if let Some(mut c) = it.next() {
         for p in it.by_ref() {
@@ -1292,9 +1327,12 @@ struct Binner {
     span: u32,
     nbins: u32,
     envelope: i32,
+    /// The lowest θ so far, and it plus the envelope tolerance (saturating).
     min_th: i32,
-    /// θ of the sample kept last (`None` before the first).
-    last_kept: Option<i32>,
+    limit: i32,
+    /// θ of the sample kept last: from the start the latest sample's, which opens the pass
+    /// (a later test compares it only with a θ below `limit`, so below it).
+    last_kept: i32,
     bins: [BinAcc; MAX_BINS],
 }
 
@@ -1308,11 +1346,14 @@ impl Binner {
     /// θa only, so the inertial correction is computed for the kept samples alone.
     #[inline(always)]
     fn keep(&mut self, th: i32) -> bool {
-        let below = th < self.min_th.saturating_add(self.envelope);
-        let moved = self.last_kept != Some(th);
-        self.min_th = self.min_th.min(th);
+        let below = th < self.limit;
+        let moved = self.last_kept != th;
+        if th < self.min_th {
+            self.min_th = th;
+            self.limit = th.saturating_add(self.envelope);
+        }
         if below && moved {
-            self.last_kept = Some(th);
+            self.last_kept = th;
         }
         below && moved
     }
@@ -1335,9 +1376,10 @@ impl Binner {
         if b.n == 0 {
             (b.th0, b.t0) = (th, t);
         }
-        // Clamped to ±1 rad and ±8 N·m about the bin's first sample.
-        let dth = th.saturating_sub(b.th0).clamp(-(1 << 20), 1 << 20);
-        let dt = t.saturating_sub(b.t0).clamp(-(1 << 23), 1 << 23);
+        // Clamped to ±1 rad and ±8 N·m about the bin's first sample (to the signed 21- and
+        // 24-bit ranges: one SSAT each).
+        let dth = th.saturating_sub(b.th0).clamp(-(1 << 20), (1 << 20) - 1);
+        let dt = t.saturating_sub(b.t0).clamp(-(1 << 23), (1 << 23) - 1);
         b.s[0] += dth as i64;
         b.s[1] += dt as i64;
         b.s[2] += wide(dth, dth);
@@ -1516,6 +1558,33 @@ mod tests {
         let (a21, a22, b2) = (cl.x2, -k2, f.k2 * dd2);
         let ta = (b1 * a22 - a12 * b2) / (a11 * a22 - a12 * a21);
         [dphi, d2, k2, ta]
+    }
+
+    #[test]
+    fn node_fraction_is_the_64_bit_quotient() {
+        let reference = |x: i32, d: i32| ((x as i64) << 24) / d as i64;
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for _ in 0..200_000 {
+            // Divisors on both sides of the digit path's 2^28 and at its ends.
+            let d = match next() % 4 {
+                0 => (next() % (1 << 28)) as i32 + 1,
+                1 => (1 << 28) - 1 - (next() % 64) as i32,
+                2 => (1 << 28) + (next() % (1 << 30)) as i32,
+                _ => (next() % 4096) as i32 + 1,
+            };
+            let x = match next() % 3 {
+                0 => (next() % d as u64) as i32,
+                1 => d - 1,
+                _ => 0,
+            };
+            assert_eq!(node_fraction(x, d), reference(x, d), "x {x} d {d}");
+        }
     }
 
     #[test]
