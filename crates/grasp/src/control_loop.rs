@@ -26,6 +26,7 @@
 
 use crate::config::Params;
 use crate::controller::FaultReason;
+use crate::rest::{RestReport, RestState, RestStep};
 use crate::sensors::{sat_i32, CurrentSense, Encoder};
 use crate::torque_loop::TorqueLoop;
 use crate::{Hardware, State, DUTY_MAX};
@@ -286,6 +287,8 @@ pub struct LoopOutput {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     Init,
+    /// The rest check: finding the open stop, zeroing there, back to rest.
+    Homing,
     Calibrating,
     Running,
     /// The loop's own fault: latched, bridge off for good.
@@ -330,6 +333,12 @@ pub struct ControlLoop {
     last_duty: i16,
     /// Oldest supervisor stamp the loop drives on (ticks).
     max_age_ticks: u32,
+    /// The rest check (configured: `Some` from the first tick until the loop runs).
+    rest: Option<RestState>,
+    /// What the rest check found (once it is over).
+    rest_report: Option<RestReport>,
+    /// Tick the current calibration started after (0, or the end of the rest check).
+    calib_from: u32,
 }
 
 impl ControlLoop {
@@ -351,7 +360,16 @@ impl ControlLoop {
             stall_count: 0,
             last_duty: 0,
             max_age_ticks: LINK_SAMPLES as u32 * p.sample_ticks.clamp(1, 64),
+            rest: None,
+            rest_report: None,
+            calib_from: 0,
         }
+    }
+
+    /// What the rest check found: θa at power-up relative to the rest and its times
+    /// (`None` before it ends, when it refused, or when none is configured).
+    pub fn rest_report(&self) -> Option<RestReport> {
+        self.rest_report
     }
 
     /// The oldest supervisor stamp the loop still drives on: `LINK_SAMPLES` samples, the
@@ -406,6 +424,46 @@ impl ControlLoop {
         out.went_off = true;
     }
 
+    /// One tick of the rest check: its duty, the encoder re-zeroed at the stop, the bridge off
+    /// when it is over (then the current calibration starts) or refused (tripped).
+    fn homing<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        link: &mut Link,
+        code: u16,
+        out: &mut LoopOutput,
+    ) {
+        let Some(rest) = self.rest.as_mut() else {
+            self.phase = Phase::Calibrating;
+            hw.bridge_off();
+            return;
+        };
+        // Nominal zero code (not yet calibrated): enough to tell stall current from none.
+        let ua = self.cur.current_ua(code, &self.p);
+        match rest.step(self.enc.counts(), ua) {
+            RestStep::Drive(d) => hw.set_duty(d.clamp(-DUTY_MAX, DUTY_MAX)),
+            RestStep::Zero {
+                counts_from_rest,
+                duty,
+            } => {
+                self.enc.set_counts(counts_from_rest);
+                out.theta_a_urad = self.enc.theta_a_urad(&self.p);
+                hw.set_duty(duty.clamp(-DUTY_MAX, DUTY_MAX));
+            }
+            RestStep::Finished(r) => {
+                hw.bridge_off();
+                self.rest_report = Some(r);
+                self.rest = None;
+                self.calib_from = self.tick;
+                self.phase = Phase::Calibrating;
+            }
+            RestStep::Refused(reason) => {
+                self.rest = None;
+                self.trip(hw, link, reason, out);
+            }
+        }
+    }
+
     /// One control period: sensors, fast supervision, reference, torque loop, sums.
     pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H, link: &mut Link) -> LoopOutput {
         self.tick = self.tick.wrapping_add(1);
@@ -421,10 +479,16 @@ impl ControlLoop {
                 return out;
             }
             Phase::Init => {
-                // First tick: the finger is at rest, the reading there is θa,rest.
+                // First tick. Without a rest check the finger is taken to be at rest and the
+                // reading there is θa,rest; with one, the count runs from here until the
+                // check zeroes it at the open stop.
                 hw.bridge_off();
                 self.enc = Encoder::new(raw_enc);
                 self.phase = Phase::Calibrating;
+                if let Some(rp) = self.p.rest {
+                    self.rest = Some(RestState::new(rp, 0));
+                    self.phase = Phase::Homing;
+                }
                 link.started = true;
             }
             _ => {}
@@ -445,9 +509,13 @@ impl ControlLoop {
         out.theta_a_urad = theta;
         out.torque_unm = torque;
 
+        if self.phase == Phase::Homing {
+            self.homing(hw, link, code, &mut out);
+            return out;
+        }
         if self.phase == Phase::Calibrating {
             self.cur.calib_add(code);
-            if self.tick >= self.p.calib_ticks {
+            if self.tick.wrapping_sub(self.calib_from) >= self.p.calib_ticks {
                 match self.cur.calib_finish(&self.p) {
                     Ok(offset_q8) => {
                         self.phase = Phase::Running;

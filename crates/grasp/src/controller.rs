@@ -115,6 +115,15 @@ pub enum FaultReason {
         /// Ticks since the supervisor's last stamp.
         age_ticks: u32,
     },
+    /// The rest check ([`crate::rest`]) found no open stop before its timeout or within the
+    /// finger's range, or could not return to the rest: the encoder cannot be zeroed.
+    RestNotFound {
+        /// Encoder travel of the failing phase (counts: from power-up while opening, from the
+        /// stop while returning).
+        moved_counts: i32,
+        /// The return to rest failed (else the search for the stop).
+        returning: bool,
+    },
 }
 
 impl FaultReason {
@@ -136,6 +145,7 @@ impl FaultReason {
             FaultReason::LossOfContact { .. } => "loss_of_contact",
             FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
             FaultReason::SupervisorStalled { .. } => "supervisor_stalled",
+            FaultReason::RestNotFound { .. } => "rest_not_found",
         }
     }
 
@@ -374,6 +384,11 @@ impl Controller {
     /// Ticks since start.
     pub fn ticks(&self) -> u32 {
         self.lp.ticks()
+    }
+
+    /// What the rest check found ([`ControlLoop::rest_report`]).
+    pub fn rest_report(&self) -> Option<crate::rest::RestReport> {
+        self.lp.rest_report()
     }
 
     /// The delivered estimate, once there is one.

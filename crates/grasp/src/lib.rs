@@ -61,6 +61,7 @@ pub mod config;
 pub mod control_loop;
 pub mod controller;
 pub mod estimate;
+pub mod rest;
 pub mod sensors;
 pub mod torque_loop;
 
@@ -74,6 +75,7 @@ pub use estimate::{
     two_point_table, EstNum, EstReal, EstimateError, EstimateRequest, EstimateResult, Located,
     Quality, Sample, TwoPointTable, PATH_CAPACITY,
 };
+pub use rest::{RestCheck, RestReport};
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),
 /// `set_duty(-DUTY_MAX)` −100 %.
