@@ -39,8 +39,14 @@ pub struct RestCheck {
     pub return_torque_nm: f64,
     /// θa of the open stop relative to the rest, with no load (rad, negative: opening).
     pub stop_from_rest_rad: f64,
+    /// The springs' torque at the stop (N·m at the base link, opening, ≥ 0): the part of the
+    /// opening torque the finger's springs take; the stop carries the rest.
+    pub stop_spring_nm: f64,
+    /// The transmission's friction at the base link (N·m, ≥ 0): the stalled motor's torque
+    /// that does not reach the finger.
+    pub friction_nm: f64,
     /// Compliance of the finger against the open stop (rad per N·m at the base link): the
-    /// opening torque moves the stop by this much further.
+    /// torque the stop carries moves it by this much further.
     pub stop_compliance_rad_per_nm: f64,
     /// Backlash between the motor (the encoder) and the finger (rad at the base link): at the
     /// stop the gear sits on its opening flank, half of it beyond the finger; at the
@@ -59,15 +65,18 @@ pub struct RestCheck {
 }
 
 impl RestCheck {
-    /// For the paper finger on the prototype drive: the stop 0.0807 rad below the rest
-    /// (θ1 = π/4 − 0.05, θ2 = −0.05, see the plant's `FingerGeom::PAPER`), 200 N·m/rad against
-    /// it, 3 mrad of backlash; 0.5 N·m opening (the springs need ≈ 0.2 N·m plus the transmission's friction),
+    /// For the paper finger on the prototype drive: the stop 0.08153 rad below the rest
+    /// (θ1 = π/4 − 0.05, θ2 = −0.05, see the plant's `FingerGeom::PAPER`), where the springs
+    /// take 0.0444 N·m, 200 N·m/rad against it, 0.076 N·m of transmission friction (the
+    /// motor's Coulomb friction through the gear), 3 mrad of backlash; 0.5 N·m opening (the springs need ≈ 0.2 N·m plus the transmission's friction),
     /// 0.8 N·m back (free motion, nothing to hit); 10 s for either phase: at 0.5 N·m the
     /// drive opens at ≈ 0.07 rad/s, so a finger powered up 0.6 rad flexed still homes.
     pub const PAPER: RestCheck = RestCheck {
         open_torque_nm: 0.5,
         return_torque_nm: 0.8,
-        stop_from_rest_rad: -0.080_7,
+        stop_from_rest_rad: -0.081_53,
+        stop_spring_nm: 0.044_4,
+        friction_nm: 0.076,
         stop_compliance_rad_per_nm: 1.0 / 200.0,
         backlash_rad: 3e-3,
         still_s: 0.1,
@@ -84,6 +93,8 @@ impl RestCheck {
             self.open_torque_nm,
             self.return_torque_nm,
             self.stop_from_rest_rad,
+            self.stop_spring_nm,
+            self.friction_nm,
             self.stop_compliance_rad_per_nm,
             self.backlash_rad,
             self.still_s,
@@ -99,6 +110,9 @@ impl RestCheck {
             && self.return_torque_nm > 0.0
             && self.stop_from_rest_rad < 0.0
             && self.stop_compliance_rad_per_nm >= 0.0
+            && self.stop_spring_nm >= 0.0
+            && self.friction_nm >= 0.0
+            && self.stop_spring_nm + self.friction_nm < self.open_torque_nm
             && self.backlash_rad >= 0.0
             && self.still_s > 0.0
             && self.still_rad > 0.0
@@ -144,7 +158,8 @@ impl RestCheck {
             return_duty: duty(self.return_torque_nm)?,
             stop_counts: counts(
                 self.stop_from_rest_rad
-                    - stall_nm * self.stop_compliance_rad_per_nm
+                    - (stall_nm - self.stop_spring_nm - self.friction_nm).max(0.0)
+                        * self.stop_compliance_rad_per_nm
                     - 0.5 * self.backlash_rad,
             )?,
             still_counts: counts(self.still_rad)?.max(1),
