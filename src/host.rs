@@ -80,7 +80,10 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         scene
     };
     let plant = plant::Plant::new(&scene).map_err(|e| format!("scene: {e:?}"))?;
-    let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
+    let cfg = ctl::with_scene_rest_check(
+        ctl::config_with(ctl::scene_drive(&scene), &settings),
+        &scene,
+    );
     let decimation = ctl::decimation(&cfg.drive);
     // The build's table, as the firmware built with the same environment has it.
     let table = ctl::estimator_table(&cfg.finger, cfg.drive.dt_s);
@@ -96,8 +99,13 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     );
     // Bound: 60 s of simulated time.
     let max_ticks = (60.0 / cfg.drive.dt_s) as u32;
+    let mut rest_logged = false;
     for tick in 1..=max_ticks {
         let out = ctrl.tick(&mut board);
+        if let (false, Some(r)) = (rest_logged, ctrl.rest_report()) {
+            rest_logged = true;
+            println!("{}", rest_line(&r));
+        }
         while let Some(ev) = ctrl.poll_event() {
             println!("E {ev:?}");
             if matches!(ev, grasp::Event::Settled { .. }) {
@@ -141,4 +149,12 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     }
     println!("END status=3 state={:?} timeout", ctrl.state());
     Ok(3)
+}
+
+/// The rest check's report, as the firmware logs it (`REST ...`).
+pub fn rest_line(r: &grasp::RestReport) -> String {
+    format!(
+        "REST power_up_urad={} stop_ticks={} done_ticks={}",
+        r.power_up_urad, r.stop_ticks, r.done_ticks
+    )
 }

@@ -369,6 +369,7 @@ impl ControlLoop {
     /// What the rest check found: θa at power-up relative to the rest and its times
     /// (`None` before it ends, when it refused, or when none is configured).
     pub fn rest_report(&self) -> Option<RestReport> {
+        // The report of a finished check; `Finished` fills in the µrad.
         self.rest_report
     }
 
@@ -450,8 +451,11 @@ impl ControlLoop {
                 out.theta_a_urad = self.enc.theta_a_urad(&self.p);
                 hw.set_duty(duty.clamp(-DUTY_MAX, DUTY_MAX));
             }
-            RestStep::Finished(r) => {
+            RestStep::Finished(mut r) => {
                 hw.bridge_off();
+                let rel =
+                    (i64::from(r.power_up_counts) * i64::from(self.p.urad_per_count_q16)) >> 16;
+                r.power_up_urad = sat_i32(rel);
                 self.rest_report = Some(r);
                 self.rest = None;
                 self.calib_from = self.tick;

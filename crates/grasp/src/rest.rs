@@ -201,6 +201,8 @@ pub struct RestParams {
 pub struct RestReport {
     /// θa at power-up relative to the rest (counts; 0: powered up at rest, positive: flexed).
     pub power_up_counts: i32,
+    /// The same in µrad (filled in by the control loop, which knows the encoder's scale).
+    pub power_up_urad: i32,
     /// Ticks from the start of the check to the stop.
     pub stop_ticks: u32,
     /// Ticks from the start of the check to the end of the return.
@@ -276,6 +278,7 @@ impl RestState {
                     self.phase = Phase::Over;
                     return RestStep::Finished(RestReport {
                         power_up_counts: self.power_up_counts,
+                        power_up_urad: 0,
                         stop_ticks: self.stop_ticks,
                         done_ticks: self.ticks,
                     });
@@ -334,6 +337,7 @@ impl RestState {
     pub fn report(&self) -> Option<RestReport> {
         (self.phase == Phase::Over && self.stop_ticks > 0).then_some(RestReport {
             power_up_counts: self.power_up_counts,
+            power_up_urad: 0,
             stop_ticks: self.stop_ticks,
             done_ticks: self.ticks,
         })

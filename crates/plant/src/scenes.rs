@@ -77,6 +77,7 @@ pub const NAMES: &[&str] = &[
     "fault_encoder_jump",
     "fault_short",
     "fault_loss_of_contact",
+    "fault_power_up_away",
 ];
 
 /// A built-in scene by name (see [`NAMES`]).
@@ -172,6 +173,17 @@ pub fn by_name(name: &str) -> Option<Scene> {
                 remove_object_at_s: 3.5,
                 ..FaultSpec::NONE
             },
+            ..table2()
+        },
+        // Table 2 with the finger powered up 0.45 rad flexed (as after a reset mid-approach),
+        // the encoder reading 0 there.
+        "fault_power_up_away" => Scene {
+            name: "fault_power_up_away",
+            faults: FaultSpec {
+                power_up_offset_rad: 0.45,
+                ..FaultSpec::NONE
+            },
+            duration_s: 20.0,
             ..table2()
         },
         _ => return None,
