@@ -264,6 +264,39 @@ fn scene_check_frames(
     }
 }
 
+/// The rest check refuses (issue 19): powered up 0.3 rad flexed with the encoder stuck, the
+/// QEMU firmware (and the host runner, same events) ends in `rest_not_found` with the bridge
+/// off, never approaching, within the check's two timeouts (20 s of control time).
+fn rest_not_found_check() -> Res {
+    with_env("FINGER_FW_REST_CHECK", "on", || {
+        let mut w = Vec::new();
+        let q = scene_check_frames("fault_power_up_stuck_encoder", true, &mut w)?;
+        let fault = log::last(&q, "E Fault").ok_or("no Fault event")?;
+        let end = expect_end(&q)?;
+        let ticks = int(&end.msg, "ticks").ok_or("END without ticks")?;
+        println!(
+            "fault_power_up_stuck_encoder: {} ; END after {ticks} ticks ({:.2} s)",
+            fault.msg,
+            ticks as f64 * 1e-4
+        );
+        let mut errs = Vec::new();
+        if !fault.msg.contains("RestNotFound") {
+            errs.push(format!("expected RestNotFound: {}", fault.msg));
+        }
+        if log::events(&q).iter().any(|e| e == "ContactDetected") {
+            errs.push("the finger approached after a refused rest check".into());
+        }
+        if ticks > 200_100 {
+            errs.push(format!("refused after {ticks} ticks (> 20 s)"));
+        }
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            Err(errs.join("\n"))
+        }
+    })
+}
+
 /// Powered up away from rest (issue 19): with the rest check on, the QEMU firmware on
 /// `fault_power_up_away` (0.45 rad flexed, the encoder reading 0 there) finds the open stop,
 /// reports the power-up pose and estimates θa,c as a finger powered up at rest does (the host
@@ -895,6 +928,10 @@ pub fn main(args: &[String]) -> Res<i32> {
     st.run(
         "QEMU rest check: powered up 0.45 rad away -> homed, θa,c as at rest, = host",
         power_up_away_check,
+    );
+    st.run(
+        "QEMU rest check: powered up with a stuck encoder -> rest_not_found, bridge off, <= 20 s",
+        rest_not_found_check,
     );
     st.run(
         "non-paper finger file: QEMU = host runner = pts sim = pts estimate within 1e-4·l2",

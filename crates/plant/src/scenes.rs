@@ -78,6 +78,7 @@ pub const NAMES: &[&str] = &[
     "fault_short",
     "fault_loss_of_contact",
     "fault_power_up_away",
+    "fault_power_up_stuck_encoder",
 ];
 
 /// A built-in scene by name (see [`NAMES`]).
@@ -184,6 +185,18 @@ pub fn by_name(name: &str) -> Option<Scene> {
                 ..FaultSpec::NONE
             },
             duration_s: 20.0,
+            ..table2()
+        },
+        // Powered up 0.3 rad flexed with the encoder stuck from the start: no rest can be
+        // found (the count never shows the return to rest).
+        "fault_power_up_stuck_encoder" => Scene {
+            name: "fault_power_up_stuck_encoder",
+            faults: FaultSpec {
+                power_up_offset_rad: 0.3,
+                encoder_stuck_at_s: 0.0,
+                ..FaultSpec::NONE
+            },
+            duration_s: 25.0,
             ..table2()
         },
         _ => return None,
