@@ -76,7 +76,7 @@ pub fn replay_text(
     method: Method,
 ) -> Result<(Trace, replay::Replay, f64), String> {
     let mut file = crate::load_finger(finger)?;
-    let meta = TraceMeta::find(&text);
+    let meta = TraceMeta::find(text);
     // A trace from `pts sim` says which drive constants its controller used: without a
     // finger file, replay with those (e.g. an ideal-drive scene has η = 1).
     if let (None, Some(d)) = (finger, meta.and_then(|m| m.drive)) {
@@ -87,7 +87,7 @@ pub fn replay_text(
         }
     }
     let conv = |i: f64| file.torque_from_current(i);
-    let tr = trace::read_csv(&text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    let tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
     let dta = dta.or(meta.map(|m| m.dta_nm)).unwrap_or(DEFAULT_DTA_NM);
     if !(dta.is_finite() && dta > 0.0 && dta <= 2.0) {
         return Err("--dta must be in (0, 2] N·m".into());
