@@ -177,3 +177,38 @@ fn the_simulated_board_uses_the_paper_check_for_the_paper_finger() {
         RestCheck::PAPER.stop_compliance_rad_per_nm
     );
 }
+
+/// The check drives the motor, so its current is watched as the grasp's is: with the winding
+/// shorted to 2 Ω at power-up the opening duty stalls at 0.58 A (about 5 N·m) against the
+/// stop; over-current trips within the over-current time of the current passing the limit,
+/// bridge off, instead of taking the stall for the stop.
+#[test]
+fn a_short_during_the_check_trips_over_current() {
+    let mut s = scene(0.2);
+    s.faults.short_at_s = 0.0;
+    s.faults.short_r_ohm = 2.0;
+    let cfg = checked(&s);
+    let (mut run_s, mut longest_s) = (0.0f64, 0.0f64);
+    let o = run(&s, cfg, 8.0, 0.01, |_, _, p| {
+        if p.truth().current_a.abs() > cfg.overcurrent_a {
+            run_s += s.dt_s;
+            longest_s = longest_s.max(run_s);
+        } else {
+            run_s = 0.0;
+        }
+    });
+    println!(
+        "{:?} at {:.4} s; longest time above {} A: {:.4} s",
+        o.state, o.t_end_s, cfg.overcurrent_a, longest_s
+    );
+    assert!(matches!(
+        o.state,
+        State::Fault(FaultReason::OverCurrent { .. })
+    ));
+    assert!(o.bridge_off && o.rest_report.is_none());
+    // The over-current time plus a tick and the winding's decay with the bridge off.
+    assert!(
+        longest_s > 0.0 && longest_s <= cfg.overcurrent_s + 5e-4,
+        "{longest_s}"
+    );
+}

@@ -425,6 +425,34 @@ impl ControlLoop {
         out.went_off = true;
     }
 
+    /// The current faults of a driving tick: an ADC pinned at a rail, or over-current.
+    fn current_fault(&mut self, code: u16, ua: i32) -> Option<FaultReason> {
+        // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
+        // Over the over-current time it is a fault of its own (the configuration keeps the
+        // limit inside the sensor's range, so a healthy drive trips over-current first).
+        if code == 0 || code >= 4095 {
+            self.rail_count += 1;
+            if self.rail_count >= self.p.overcurrent_ticks {
+                return Some(FaultReason::AdcRail { code });
+            }
+        } else {
+            self.rail_count = 0;
+        }
+        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
+        // so a current chattering around the limit still trips: it trips after
+        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
+        // the ticks are above it.
+        if ua.unsigned_abs() > self.p.overcurrent_ua.unsigned_abs() {
+            self.oc_count = self.oc_count.saturating_add(2);
+            if self.oc_count >= self.p.overcurrent_ticks.saturating_mul(2) {
+                return Some(FaultReason::OverCurrent { current_ua: ua });
+            }
+        } else {
+            self.oc_count = self.oc_count.saturating_sub(1);
+        }
+        None
+    }
+
     /// One tick of the rest check: its duty, the encoder re-zeroed at the stop, the bridge off
     /// when it is over (then the current calibration starts) or refused (tripped).
     fn homing<H: Hardware + ?Sized>(
@@ -434,13 +462,23 @@ impl ControlLoop {
         code: u16,
         out: &mut LoopOutput,
     ) {
-        let Some(rest) = self.rest.as_mut() else {
+        if self.rest.is_none() {
             self.phase = Phase::Calibrating;
             hw.bridge_off();
             return;
-        };
+        }
         // Nominal zero code (not yet calibrated): enough to tell stall current from none.
         let ua = self.cur.current_ua(code, &self.p);
+        // The check drives too: a shorted winding or a pinned ADC trips as in the grasp
+        // (its duty bounds the torque only while the winding is sound).
+        if let Some(reason) = self.current_fault(code, ua) {
+            self.rest = None;
+            self.trip(hw, link, reason, out);
+            return;
+        }
+        let Some(rest) = self.rest.as_mut() else {
+            return;
+        };
         match rest.step(self.enc.counts(), ua) {
             RestStep::Drive(d) => hw.set_duty(d.clamp(-DUTY_MAX, DUTY_MAX)),
             RestStep::Zero {
@@ -550,33 +588,10 @@ impl ControlLoop {
         }
         self.driving = true;
 
-        // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
-        // Over the over-current time it is a fault of its own (the configuration keeps the
-        // limit inside the sensor's range, so a healthy drive trips over-current first).
-        if code == 0 || code >= 4095 {
-            self.rail_count += 1;
-            if self.rail_count >= self.p.overcurrent_ticks {
-                self.trip(hw, link, FaultReason::AdcRail { code }, &mut out);
-                return out;
-            }
-        } else {
-            self.rail_count = 0;
-        }
-
-        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
-        // so a current chattering around the limit still trips: it trips after
-        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
-        // the ticks are above it.
         let ua = self.cur.current_ua(code, &self.p);
-        if ua.unsigned_abs() > self.p.overcurrent_ua.unsigned_abs() {
-            self.oc_count = self.oc_count.saturating_add(2);
-            if self.oc_count >= self.p.overcurrent_ticks.saturating_mul(2) {
-                let reason = FaultReason::OverCurrent { current_ua: ua };
-                self.trip(hw, link, reason, &mut out);
-                return out;
-            }
-        } else {
-            self.oc_count = self.oc_count.saturating_sub(1);
+        if let Some(reason) = self.current_fault(code, ua) {
+            self.trip(hw, link, reason, &mut out);
+            return out;
         }
 
         // All three within ±2⁴⁶ (TorqueQ16): plain arithmetic cannot overflow.
