@@ -21,6 +21,7 @@ fn main() {
     println!("cargo:rerun-if-env-changed=FINGER_FW_INJECT");
     println!("cargo:rerun-if-env-changed=FINGER_FW_ESTIMATOR");
     println!("cargo:rerun-if-env-changed=FINGER_FW_DELTA_TA_NM");
+    println!("cargo:rerun-if-env-changed=FINGER_FW_REST_CHECK");
 
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
     let qemu = env::var_os("CARGO_FEATURE_QEMU").is_some();
@@ -51,6 +52,7 @@ fn main() {
     scene_consts(&mut src);
     inject_consts(&mut src);
     estimator_consts(&mut src);
+    rest_check_consts(&mut src);
     fs::write(out.join("fw_config.rs"), src).expect("write fw_config.rs");
 }
 
@@ -267,6 +269,22 @@ fn estimator_consts(src: &mut String) {
         src,
         "/// ΔT_a chosen at build time (N·m; None: the firmware default).\n\
          pub const DELTA_TA_NM: Option<f64> = {dta};"
+    );
+}
+
+/// `FINGER_FW_REST_CHECK=on|off`: the rest check before the approach (grasp::rest); unset,
+/// the build's default (on for the board, off on the simulated board).
+fn rest_check_consts(src: &mut String) {
+    let v = match env::var("FINGER_FW_REST_CHECK").as_deref() {
+        Ok("on") => "Some(true)",
+        Ok("off") => "Some(false)",
+        Ok("") | Err(_) => "None",
+        Ok(other) => fail(&format!("FINGER_FW_REST_CHECK={other}: expected on or off")),
+    };
+    let _ = writeln!(
+        src,
+        "/// Rest check chosen at build time (None: the build's default).\n\
+         pub const REST_CHECK: Option<bool> = {v};"
     );
 }
 

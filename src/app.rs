@@ -172,7 +172,7 @@ mod app {
         binds = ADC,
         priority = 4,
         shared = [link],
-        local = [lp, board, tel_tx, decimation, done: bool = false, end: Option<Done> = None, last_state: State = State::Init, fed: bool = false]
+        local = [lp, board, tel_tx, decimation, rest_logged: bool = false, done: bool = false, end: Option<Done> = None, last_state: State = State::Init, fed: bool = false]
     )]
     fn sample(cx: sample::Context) {
         let t0 = platform::stamp();
@@ -189,6 +189,13 @@ mod app {
             (out, l.state, l.has_input())
         });
         tm::record_work(tick, platform::stamp().wrapping_sub(t0));
+        // Where the finger was at power-up, once the rest check is over.
+        if !*cx.local.rest_logged {
+            if let Some(r) = lp.rest_report() {
+                *cx.local.rest_logged = true;
+                send(tel, Msg::Rest(r));
+            }
+        }
         // Asked again every tick while input waits: a supervisor still running takes it in
         // its loop, else the next tick's spawn starts it.
         if input && supervise::spawn().is_err() {

@@ -131,7 +131,7 @@ mod app {
     }
 
     /// The sampling + torque loop, 10 kHz, as in `app.rs` while a grasp runs.
-    #[task(binds = ADC, priority = 4, shared = [link, lp, board], local = [tel_tx, last_state: State = State::Init])]
+    #[task(binds = ADC, priority = 4, shared = [link, lp, board], local = [tel_tx, last_state: State = State::Init, rest_sent: bool = false])]
     fn sample(cx: sample::Context) {
         let t0 = platform::stamp();
         let tel = cx.local.tel_tx;
@@ -148,6 +148,15 @@ mod app {
                 let state = l.state;
                 let input = l.has_input();
                 tm::record_work(tick, platform::stamp().wrapping_sub(t0));
+                // Each grasp's rest check, once it is over (a new grasp has no report yet).
+                match (lp.rest_report(), *cx.local.rest_sent) {
+                    (Some(r), false) => {
+                        *cx.local.rest_sent = true;
+                        send(tel, Msg::Rest(r));
+                    }
+                    (None, true) => *cx.local.rest_sent = false,
+                    _ => {}
+                }
                 if input && supervise::spawn().is_err() {
                     tm::SUP_BUSY.fetch_add(1, Ordering::Relaxed);
                 }
@@ -583,7 +592,10 @@ mod app {
         let plant = plant::Plant::new(&scene).map_err(|_| Error::UnknownChoice {
             param: ParamId::Scene,
         })?;
-        let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
+        let cfg = ctl::with_scene_rest_check(
+            ctl::config_with(ctl::scene_drive(&scene), &settings),
+            &scene,
+        );
         let ctrl = Controller::new(cfg).map_err(|_| Error::ConfigRejected)?;
         let (lp_new, link_new, sup_new) = ctrl.into_parts();
         // Read inside the lock (the sampling task cannot run meanwhile): the new controller's

@@ -243,8 +243,23 @@ pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
     sim_board::scene_drive(scene, crate::config::FINGER_THETA_A_REST_RAD)
 }
 
+/// Whether this build finds the rest pose before the encoder is zeroed (grasp::rest):
+/// `FINGER_FW_REST_CHECK=on|off` at build time; by default on the board (a reset or a power-up
+/// can leave the finger anywhere) and off on the simulated board, whose scenes start at rest
+/// and whose recorded figures were measured without it (a scene with
+/// `faults.power_up_offset_rad` needs it on).
+pub const REST_CHECK: bool = match crate::config::REST_CHECK {
+    Some(on) => on,
+    None => cfg!(all(target_os = "none", not(feature = "qemu"))),
+};
+
+/// The board's rest check: the paper finger's stop (a finger file does not describe its
+/// stops yet).
+pub const BOARD_REST_CHECK: grasp::RestCheck = grasp::RestCheck::PAPER;
+
 /// The controller configuration for a drive: the build's finger (and its current limit when a
-/// finger file was given), grasp's defaults otherwise.
+/// finger file was given), grasp's defaults otherwise; the board's rest check when
+/// [`REST_CHECK`] (the simulated board replaces it by its scene's, [`with_scene_rest_check`]).
 pub fn config(drive: DriveConfig) -> ControllerConfig {
     let overcurrent_a = match crate::config::FINGER_DRIVE {
         Some(f) => f.max_current_a,
@@ -255,9 +270,22 @@ pub fn config(drive: DriveConfig) -> ControllerConfig {
         drive,
         estimator: ESTIMATOR,
         overcurrent_a,
+        rest_check: REST_CHECK.then_some(BOARD_REST_CHECK),
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(DELTA_TA_NM)
+}
+
+/// The simulated board's configuration: the rest check (when [`REST_CHECK`]) for the scene's
+/// finger, its stop from the scene's geometry (`sim_board::scene_rest_check`).
+#[cfg(any(feature = "qemu", not(target_os = "none")))]
+pub fn with_scene_rest_check(mut cfg: ControllerConfig, scene: &plant::Scene) -> ControllerConfig {
+    cfg.rest_check = if REST_CHECK {
+        sim_board::scene_rest_check(scene)
+    } else {
+        None
+    };
+    cfg
 }
 
 /// The scene of this build (`FINGER_FW_SCENE` at build time; build.rs checked the name).

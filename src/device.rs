@@ -305,6 +305,7 @@ pub fn fault(r: FaultReason) -> Fault {
             FaultKind::SupervisorStalled,
             age_ticks.min(i32::MAX as u32) as i32,
         ),
+        FaultReason::RestNotFound { moved_counts, .. } => (FaultKind::RestNotFound, moved_counts),
     };
     Fault { kind, value }
 }

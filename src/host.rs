@@ -48,6 +48,8 @@ struct HostLog<'a> {
     table: Option<&'a ctl::EstimatorTable>,
     /// A sample line every this many ticks.
     decimation: u32,
+    /// The rest check's line is out.
+    rest_logged: bool,
 }
 
 impl Observer<PlantBoard> for HostLog<'_> {
@@ -66,7 +68,11 @@ impl Observer<PlantBoard> for HostLog<'_> {
         }
     }
 
-    fn after_tick(&mut self, n: u64, out: &TickOutput, _ctl: &Controller, _board: &PlantBoard) {
+    fn after_tick(&mut self, n: u64, out: &TickOutput, ctl: &Controller, _board: &PlantBoard) {
+        if let (false, Some(r)) = (self.rest_logged, ctl.rest_report()) {
+            self.rest_logged = true;
+            println!("{}", rest_line(&r));
+        }
         // Ticks count from 1, as the firmware's.
         let tick = n + 1;
         if tick % u64::from(self.decimation) == 0 || ctl::finished(out.state) {
@@ -148,7 +154,10 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         scene
     };
     let plant = plant::Plant::new(&scene).map_err(|e| format!("scene: {e:?}"))?;
-    let cfg = ctl::config_with(ctl::scene_drive(&scene), &settings);
+    let cfg = ctl::with_scene_rest_check(
+        ctl::config_with(ctl::scene_drive(&scene), &settings),
+        &scene,
+    );
     let decimation = ctl::decimation(&cfg.drive);
     // The build's table, as the firmware built with the same environment has it.
     let table = ctl::estimator_table(&cfg.finger, cfg.drive.dt_s);
@@ -173,6 +182,7 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
         finger: &cfg.finger,
         table: table.as_ref(),
         decimation,
+        rest_logged: false,
     };
     let end = sim_board::run::run(&mut ctrl, &mut board, limits, &mut log);
     if let (true, Some(out)) = (end.finished, end.last) {
@@ -188,4 +198,12 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     }
     println!("END status=3 state={:?} timeout", ctrl.state());
     Ok(3)
+}
+
+/// The rest check's report, as the firmware logs it (`REST ...`).
+pub fn rest_line(r: &grasp::RestReport) -> String {
+    format!(
+        "REST power_up_urad={} stop_ticks={} done_ticks={}",
+        r.power_up_urad, r.stop_ticks, r.done_ticks
+    )
 }

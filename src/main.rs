@@ -25,6 +25,9 @@ mod app;
 mod app_device;
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod board;
+// The board's safe-state sequence: on the board, and in the host tests against a fake.
+#[cfg(any(test, all(target_os = "none", not(feature = "qemu"))))]
+mod bridge_regs;
 mod ctl;
 #[cfg(all(target_os = "none", feature = "device"))]
 mod device;

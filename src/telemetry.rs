@@ -74,6 +74,8 @@ pub enum Msg {
     Plant(PlantEvent),
     /// Plant truth (simulated board).
     Truth(Truth),
+    /// The rest check is over: where the finger was at power-up.
+    Rest(grasp::RestReport),
     /// The run is over.
     Done(Done),
     /// Device mode: the host went silent during a grasp; the bridge is off.
@@ -188,6 +190,12 @@ pub fn log(msg: &Msg) {
             t.torque_unm,
             t.contact,
             t.k_um
+        ),
+        Msg::Rest(r) => defmt::info!(
+            "REST power_up_urad={=i32} stop_ticks={=u32} done_ticks={=u32}",
+            r.power_up_urad,
+            r.stop_ticks,
+            r.done_ticks
         ),
         Msg::HostLost { tick, silent_ticks } => defmt::error!(
             "HOST lost at tick {=u32} (silent for {=u32} ticks): bridge off",

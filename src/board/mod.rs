@@ -27,6 +27,7 @@ use stm32f4xx_hal::{
     watchdog::IndependentWatchdog,
 };
 
+use crate::bridge_regs::{is_safe, safe_sequence, Reg, Regs};
 use crate::telemetry::{PlantEvent, Truth};
 
 /// Name of this board in the log.
@@ -292,38 +293,68 @@ pub fn stamp() -> u32 {
     cortex_m::peripheral::DWT::cycle_count()
 }
 
+/// The TIM1 and GPIOA registers of the safe-state sequence, through the PAC.
+struct Mmio;
+
+impl Regs for Mmio {
+    fn read(&mut self, r: Reg) -> u32 {
+        // SAFETY: register reads.
+        unsafe {
+            let t = &*pac::TIM1::ptr();
+            let a = &*pac::GPIOA::ptr();
+            match r {
+                Reg::Tim1Ccr1 => t.ccr1().read().bits(),
+                Reg::Tim1Ccr2 => t.ccr2().read().bits(),
+                Reg::Tim1Bdtr => t.bdtr().read().bits(),
+                Reg::GpioaModer => a.moder().read().bits(),
+                Reg::GpioaOdr => a.odr().read().bits(),
+                // Write-only: reads as zero.
+                Reg::GpioaBsrr => 0,
+            }
+        }
+    }
+    fn write(&mut self, r: Reg, v: u32) {
+        // SAFETY: the safe-state sequence only ever switches the bridge off.
+        unsafe {
+            let t = &*pac::TIM1::ptr();
+            let a = &*pac::GPIOA::ptr();
+            match r {
+                Reg::Tim1Ccr1 => {
+                    t.ccr1().write(|w| w.bits(v));
+                }
+                Reg::Tim1Ccr2 => {
+                    t.ccr2().write(|w| w.bits(v));
+                }
+                Reg::Tim1Bdtr => {
+                    t.bdtr().write(|w| w.bits(v));
+                }
+                Reg::GpioaModer => {
+                    a.moder().write(|w| w.bits(v));
+                }
+                Reg::GpioaOdr => {
+                    a.odr().write(|w| w.bits(v));
+                }
+                Reg::GpioaBsrr => {
+                    a.bsrr().write(|w| w.bits(v));
+                }
+            }
+        }
+    }
+}
+
 /// Bridge to the safe state from any context (panic, HardFault, refused configuration): both
 /// compare values zero, main output off, and the two pins forced to GPIO outputs driven low,
-/// so the DRV8871 coasts even if the timer state is corrupt.
+/// so the DRV8871 coasts even if the timer state is corrupt (`bridge_regs::safe_sequence`, the
+/// sequence the host tests run against a register-level fake).
 pub fn safe_state() {
     BRIDGE_SAFE.store(true, Ordering::SeqCst);
-    // SAFETY: writes that only ever switch the bridge off.
-    unsafe {
-        let t = &*pac::TIM1::ptr();
-        t.ccr1().write(|w| w.bits(0));
-        t.ccr2().write(|w| w.bits(0));
-        t.bdtr().write(|w| w.bits(0));
-        let a = &*pac::GPIOA::ptr();
-        a.bsrr()
-            .write(|w| w.bits((1 << (8 + 16)) | (1 << (9 + 16))));
-        a.moder().modify(|r, w| {
-            w.bits((r.bits() & !((0b11 << 16) | (0b11 << 18))) | (0b01 << 16) | (0b01 << 18))
-        });
-    }
+    safe_sequence(&mut Mmio);
 }
 
 /// Whether the bridge is off, read back from the hardware: TIM1 main output disabled and both
 /// pins GPIO outputs driven low.
 pub fn bridge_safe_now() -> bool {
-    // SAFETY: register reads.
-    unsafe {
-        let t = &*pac::TIM1::ptr();
-        let a = &*pac::GPIOA::ptr();
-        let moe_off = t.bdtr().read().bits() & (1 << 15) == 0;
-        let modes = (a.moder().read().bits() >> 16) & 0b1111;
-        let low = a.odr().read().bits() & ((1 << 8) | (1 << 9)) == 0;
-        moe_off && modes == 0b0101 && low
-    }
+    is_safe(&mut Mmio)
 }
 
 /// End of a grasp on the real board: keep running (holding, or safe), nothing to exit to.

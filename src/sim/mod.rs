@@ -72,7 +72,10 @@ pub fn init(core: rtic::export::Peripherals) -> (Board, grasp::ControllerConfig)
         TIMER0_CTRL.write_volatile(1);
     }
     start_sampling(core.SYST);
-    let cfg = crate::ctl::config(crate::ctl::scene_drive(&scene));
+    let cfg = crate::ctl::with_scene_rest_check(
+        crate::ctl::config(crate::ctl::scene_drive(&scene)),
+        &scene,
+    );
     (
         SimBoard {
             hw: sim_board::PlantBoard::new(plant),

@@ -56,6 +56,8 @@ pub struct Outcome {
     pub bridge_off: bool,
     /// Simulated time at the end (s).
     pub t_end_s: f64,
+    /// What the rest check found (when configured and passed).
+    pub rest_report: Option<grasp::RestReport>,
 }
 
 /// Runs one grasp: ticks the controller against the plant until it holds, finishes or
@@ -84,6 +86,7 @@ pub fn run(
         plant_events: Vec::new(),
         bridge_off: true,
         t_end_s: 0.0,
+        rest_report: None,
     };
     let dt = scene.dt_s;
     let trace: u64 = std::env::var("GRASP_TRACE")
@@ -110,6 +113,7 @@ pub fn run(
     );
     out.bridge_off = hw.is_off();
     out.t_end_s = hw.plant.truth().t_s;
+    out.rest_report = c.rest_report();
     out
 }
 

@@ -133,6 +133,15 @@ fn scene_check(
     expect_fault: bool,
     work: &mut Vec<(String, f64, f64, f64, f64)>,
 ) -> Res {
+    scene_check_frames(scene, expect_fault, work).map(|_| ())
+}
+
+/// [`scene_check`], returning the QEMU run's log.
+fn scene_check_frames(
+    scene: &str,
+    expect_fault: bool,
+    work: &mut Vec<(String, f64, f64, f64, f64)>,
+) -> Res<Vec<Frame>> {
     let elf = qemu::build(scene)?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -249,10 +258,97 @@ fn scene_check(
         run.wall.as_secs_f64()
     );
     if errs.is_empty() {
-        Ok(())
+        Ok(run.frames)
     } else {
         Err(errs.join("\n"))
     }
+}
+
+/// The rest check refuses (issue 19): powered up 0.3 rad flexed with the encoder stuck, the
+/// QEMU firmware (and the host runner, same events) ends in `rest_not_found` with the bridge
+/// off, never approaching, within the check's two timeouts (20 s of control time).
+fn rest_not_found_check() -> Res {
+    with_env("FINGER_FW_REST_CHECK", "on", || {
+        let mut w = Vec::new();
+        let q = scene_check_frames("fault_power_up_stuck_encoder", true, &mut w)?;
+        let fault = log::last(&q, "E Fault").ok_or("no Fault event")?;
+        let end = expect_end(&q)?;
+        let ticks = int(&end.msg, "ticks").ok_or("END without ticks")?;
+        println!(
+            "fault_power_up_stuck_encoder: {} ; END after {ticks} ticks ({:.2} s)",
+            fault.msg,
+            ticks as f64 * 1e-4
+        );
+        let mut errs = Vec::new();
+        if !fault.msg.contains("RestNotFound") {
+            errs.push(format!("expected RestNotFound: {}", fault.msg));
+        }
+        if log::events(&q).iter().any(|e| e == "ContactDetected") {
+            errs.push("the finger approached after a refused rest check".into());
+        }
+        if ticks > 200_100 {
+            errs.push(format!("refused after {ticks} ticks (> 20 s)"));
+        }
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            Err(errs.join("\n"))
+        }
+    })
+}
+
+/// Powered up away from rest (issue 19): with the rest check on, the QEMU firmware on
+/// `fault_power_up_away` (0.45 rad flexed, the encoder reading 0 there) finds the open stop,
+/// reports the power-up pose and estimates θa,c as a finger powered up at rest does (the host
+/// runner on table2); QEMU = host as for every scene. Without the check the host runner's
+/// θa,c is off by the offset (shown, and required, so the stage fails if the fault injection
+/// stops injecting).
+fn power_up_away_check() -> Res {
+    const SCENE: &str = "fault_power_up_away";
+    const OFFSET_URAD: i64 = 450_000;
+    let theta_c = |frames: &[Frame]| {
+        log::last(frames, "E Estimated").and_then(|e| int(&e.msg, "theta_a_c_urad"))
+    };
+    let blind = host_run(SCENE)?.0;
+    with_env("FINGER_FW_REST_CHECK", "on", || {
+        let mut w = Vec::new();
+        let q = scene_check_frames(SCENE, false, &mut w)?;
+        let rest = log::first(&q, "REST").ok_or("no REST line in the QEMU log")?;
+        let seen = int(&rest.msg, "power_up_urad").ok_or("REST without power_up_urad")?;
+        let done = int(&rest.msg, "done_ticks").ok_or("REST without done_ticks")?;
+        let stop = int(&rest.msg, "stop_ticks").ok_or("REST without stop_ticks")?;
+        let (at_rest, _) = host_run("table2")?;
+        let (tq, tr, tb) = (theta_c(&q), theta_c(&at_rest), theta_c(&blind));
+        println!(
+            "{SCENE}: power-up pose seen {seen} µrad (injected {OFFSET_URAD} + half the 3 mrad \
+             backlash), stop after {stop} ticks, back at rest after {done} ticks; θa,c QEMU \
+             {tq:?} µrad, table2 at rest {tr:?}, without the check {tb:?}"
+        );
+        let mut errs = Vec::new();
+        // The gear sits on its flexion flank at power-up: the encoder's zero is 1.5 mrad
+        // beyond the finger's pose.
+        if (seen - OFFSET_URAD - 1_500).abs() > 1_000 {
+            errs.push(format!("power-up pose {seen} µrad, injected {OFFSET_URAD}"));
+        }
+        match (tq, tr, tb) {
+            (Some(q), Some(r), Some(b)) => {
+                if (q - r).abs() > 300 {
+                    errs.push(format!("θa,c {q} µrad vs {r} at rest (> 0.3 mrad)"));
+                }
+                if (b - r).abs() < OFFSET_URAD / 2 {
+                    errs.push(format!(
+                        "without the check θa,c {b} µrad is not off (at rest {r}): no fault injected?"
+                    ));
+                }
+            }
+            other => errs.push(format!("missing θa,c (QEMU, at rest, blind) = {other:?}")),
+        }
+        if errs.is_empty() {
+            Ok(())
+        } else {
+            Err(errs.join("\n"))
+        }
+    })
 }
 
 /// The first number after the successive keys `path` in a JSON text (enough for `pts --json`
@@ -828,6 +924,14 @@ pub fn main(args: &[String]) -> Res<i32> {
                 r
             })
         },
+    );
+    st.run(
+        "QEMU rest check: powered up 0.45 rad away -> homed, θa,c as at rest, = host",
+        power_up_away_check,
+    );
+    st.run(
+        "QEMU rest check: powered up with a stuck encoder -> rest_not_found, bridge off, <= 20 s",
+        rest_not_found_check,
     );
     st.run(
         "non-paper finger file: QEMU = host runner = pts sim = pts estimate within 1e-4·l2",

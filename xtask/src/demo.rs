@@ -138,6 +138,11 @@ pub fn fault_words(name: &str) -> (&'static str, &'static str, &'static str) {
             "the supervise task stalled",
             "report it: this is a firmware fault",
         ),
+        "RestNotFound" => (
+            "the finger's open stop was not found before zeroing the encoder",
+            "the finger is blocked, the encoder or motor does not work, or no stop within its range",
+            "free the finger and check the motor and encoder, then power-cycle",
+        ),
         _ => ("an unknown fault", "unknown", "read the raw log line above"),
     }
 }
@@ -470,6 +475,7 @@ mod tests {
             "LossOfContact",
             "EstimateOutOfRange",
             "SupervisorStalled",
+            "RestNotFound",
         ] {
             assert_ne!(fault_words(name).0, "an unknown fault", "{name}");
         }

@@ -207,6 +207,10 @@ pub struct ControllerConfig {
     pub after_estimate: AfterEstimate,
     /// Release: ramp-down rate (N·m/s).
     pub release_rate_nm_per_s: f64,
+    /// Before the first approach, find the rest pose against the open stop and zero the
+    /// encoder there ([`crate::rest`]); `None`: the encoder is zeroed wherever the finger is
+    /// at power-up (the host tests that start the plant at rest).
+    pub rest_check: Option<crate::rest::RestCheck>,
 }
 
 impl ControllerConfig {
@@ -254,6 +258,7 @@ impl ControllerConfig {
         estimator: Estimator::TwoPoint,
         after_estimate: AfterEstimate::Hold,
         release_rate_nm_per_s: 1.0,
+        rest_check: None,
     };
 
     /// The default configuration with another ΔT_a (N·m).
@@ -456,6 +461,10 @@ impl ControllerConfig {
             estimator: self.estimator,
             dt_ns: to_u32(d.dt_s * 1e9),
             release_ramp_q16: ramp(self.release_rate_nm_per_s),
+            rest: match &self.rest_check {
+                Some(r) => Some(r.params(d)?),
+                None => None,
+            },
         };
         if p.urad_per_count_q16 == 0
             || p.unm_per_code_q16 == 0
@@ -709,6 +718,8 @@ pub struct Params {
     pub dt_ns: u32,
     /// Release ramp, µN·m per tick, Q16.
     pub release_ramp_q16: i64,
+    /// The rest check before the first approach (`None`: zeroed at power-up).
+    pub rest: Option<crate::rest::RestParams>,
 }
 
 fn to_i64(x: f64) -> i64 {

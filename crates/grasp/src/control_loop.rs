@@ -25,6 +25,7 @@
 #![deny(clippy::float_arithmetic)]
 
 use crate::config::Params;
+use crate::rest::{RestReport, RestState, RestStep};
 use crate::sensors::{sat_i32, CurrentSense, Encoder};
 use crate::state::{FaultReason, State};
 use crate::torque_loop::TorqueLoop;
@@ -286,6 +287,8 @@ pub struct LoopOutput {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     Init,
+    /// The rest check: finding the open stop, zeroing there, back to rest.
+    Homing,
     Calibrating,
     Running,
     /// The loop's own fault: latched, bridge off for good.
@@ -338,6 +341,12 @@ pub struct ControlLoop {
     sample_n: u32,
     oc_trip: u32,
     oc_ua: u32,
+    /// The rest check (configured: `Some` from the first tick until the loop runs).
+    rest: Option<RestState>,
+    /// What the rest check found (once it is over).
+    rest_report: Option<RestReport>,
+    /// Tick the current calibration started after (0, or the end of the rest check).
+    calib_from: u32,
 }
 
 impl ControlLoop {
@@ -363,7 +372,17 @@ impl ControlLoop {
             sample_n: p.sample_ticks.min(64),
             oc_trip: p.overcurrent_ticks.saturating_mul(2),
             oc_ua: p.overcurrent_ua.unsigned_abs(),
+            rest: None,
+            rest_report: None,
+            calib_from: 0,
         }
+    }
+
+    /// What the rest check found: θa at power-up relative to the rest and its times
+    /// (`None` before it ends, when it refused, or when none is configured).
+    pub fn rest_report(&self) -> Option<RestReport> {
+        // The report of a finished check; `Finished` fills in the µrad.
+        self.rest_report
     }
 
     /// The oldest supervisor stamp the loop still drives on: `LINK_SAMPLES` samples, the
@@ -436,6 +455,87 @@ impl ControlLoop {
         self.acc_n = 0;
     }
 
+    /// The current faults of a driving tick: an ADC pinned at a rail, or over-current.
+    fn current_fault(&mut self, code: u16, ua: i32) -> Option<FaultReason> {
+        // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
+        // Over the over-current time it is a fault of its own (the configuration keeps the
+        // limit inside the sensor's range, so a healthy drive trips over-current first).
+        if code == 0 || code >= 4095 {
+            self.rail_count += 1;
+            if self.rail_count >= self.p.overcurrent_ticks {
+                return Some(FaultReason::AdcRail { code });
+            }
+        } else {
+            self.rail_count = 0;
+        }
+        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
+        // so a current chattering around the limit still trips: it trips after
+        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
+        // the ticks are above it.
+        if ua.unsigned_abs() > self.oc_ua {
+            self.oc_count = self.oc_count.saturating_add(2);
+            if self.oc_count >= self.oc_trip {
+                return Some(FaultReason::OverCurrent { current_ua: ua });
+            }
+        } else {
+            self.oc_count = self.oc_count.saturating_sub(1);
+        }
+        None
+    }
+
+    /// One tick of the rest check: its duty, the encoder re-zeroed at the stop, the bridge off
+    /// when it is over (then the current calibration starts) or refused (tripped).
+    fn homing<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        link: &mut Link,
+        code: u16,
+        out: &mut LoopOutput,
+    ) {
+        if self.rest.is_none() {
+            self.phase = Phase::Calibrating;
+            hw.bridge_off();
+            return;
+        }
+        // Nominal zero code (not yet calibrated): enough to tell stall current from none.
+        let ua = self.cur.current_ua(code, &self.p);
+        // The check drives too: a shorted winding or a pinned ADC trips as in the grasp
+        // (its duty bounds the torque only while the winding is sound).
+        if let Some(reason) = self.current_fault(code, ua) {
+            self.rest = None;
+            self.trip(hw, link, reason, out);
+            return;
+        }
+        let Some(rest) = self.rest.as_mut() else {
+            return;
+        };
+        match rest.step(self.enc.counts(), ua) {
+            RestStep::Drive(d) => hw.set_duty(d.clamp(-DUTY_MAX, DUTY_MAX)),
+            RestStep::Zero {
+                counts_from_rest,
+                duty,
+            } => {
+                self.enc.set_counts(counts_from_rest);
+                out.theta_a_urad = self.enc.theta_a_urad(&self.p);
+                hw.set_duty(duty.clamp(-DUTY_MAX, DUTY_MAX));
+            }
+            RestStep::Finished(mut r) => {
+                hw.bridge_off();
+                let rel =
+                    (i64::from(r.power_up_counts) * i64::from(self.p.urad_per_count_q16)) >> 16;
+                r.power_up_urad = sat_i32(rel);
+                self.rest_report = Some(r);
+                self.rest = None;
+                self.calib_from = self.tick;
+                self.phase = Phase::Calibrating;
+            }
+            RestStep::Refused(reason) => {
+                self.rest = None;
+                self.trip(hw, link, reason, out);
+            }
+        }
+    }
+
     /// One control period: sensors, fast supervision, reference, torque loop, sums.
     pub fn tick<H: Hardware + ?Sized>(&mut self, hw: &mut H, link: &mut Link) -> LoopOutput {
         self.tick = self.tick.wrapping_add(1);
@@ -451,10 +551,16 @@ impl ControlLoop {
                 return out;
             }
             Phase::Init => {
-                // First tick: the finger is at rest, the reading there is θa,rest.
+                // First tick. Without a rest check the finger is taken to be at rest and the
+                // reading there is θa,rest; with one, the count runs from here until the
+                // check zeroes it at the open stop.
                 hw.bridge_off();
                 self.enc = Encoder::new(raw_enc);
                 self.phase = Phase::Calibrating;
+                if let Some(rp) = self.p.rest {
+                    self.rest = Some(RestState::new(rp, 0));
+                    self.phase = Phase::Homing;
+                }
                 link.started = true;
             }
             _ => {}
@@ -475,9 +581,13 @@ impl ControlLoop {
         out.theta_a_urad = theta;
         out.torque_unm = torque;
 
+        if self.phase == Phase::Homing {
+            self.homing(hw, link, code, &mut out);
+            return out;
+        }
         if self.phase == Phase::Calibrating {
             self.cur.calib_add(code);
-            if self.tick >= self.p.calib_ticks {
+            if self.tick.wrapping_sub(self.calib_from) >= self.p.calib_ticks {
                 match self.cur.calib_finish(&self.p) {
                     Ok(offset_q8) => {
                         self.phase = Phase::Running;
@@ -508,33 +618,10 @@ impl ControlLoop {
         }
         self.driving = true;
 
-        // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
-        // Over the over-current time it is a fault of its own (the configuration keeps the
-        // limit inside the sensor's range, so a healthy drive trips over-current first).
-        if code == 0 || code >= 4095 {
-            self.rail_count += 1;
-            if self.rail_count >= self.p.overcurrent_ticks {
-                self.trip(hw, link, FaultReason::AdcRail { code }, &mut out);
-                return out;
-            }
-        } else {
-            self.rail_count = 0;
-        }
-
-        // Over-current on the raw sample, with a leaky count (+2 above the limit, −1 below)
-        // so a current chattering around the limit still trips: it trips after
-        // `overcurrent_ticks` ticks above it in a row, or later whenever more than a third of
-        // the ticks are above it.
         let ua = self.cur.current_ua(code, &self.p);
-        if ua.unsigned_abs() > self.oc_ua {
-            self.oc_count = self.oc_count.saturating_add(2);
-            if self.oc_count >= self.oc_trip {
-                let reason = FaultReason::OverCurrent { current_ua: ua };
-                self.trip(hw, link, reason, &mut out);
-                return out;
-            }
-        } else {
-            self.oc_count = self.oc_count.saturating_sub(1);
+        if let Some(reason) = self.current_fault(code, ua) {
+            self.trip(hw, link, reason, &mut out);
+            return out;
         }
 
         // All three within ±2⁴⁶ (TorqueQ16): plain arithmetic cannot overflow.

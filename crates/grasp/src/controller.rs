@@ -142,6 +142,11 @@ impl Controller {
         self.lp.ticks()
     }
 
+    /// What the rest check found ([`ControlLoop::rest_report`]).
+    pub fn rest_report(&self) -> Option<crate::rest::RestReport> {
+        self.lp.rest_report()
+    }
+
     /// The delivered estimate, once there is one.
     pub fn result(&self) -> Option<&EstimateResult> {
         self.sup.result()

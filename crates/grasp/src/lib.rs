@@ -61,6 +61,7 @@ pub mod config;
 pub mod control_loop;
 pub mod controller;
 pub mod estimate;
+pub mod rest;
 pub mod sensors;
 pub mod state;
 pub mod torque_loop;
@@ -75,6 +76,7 @@ pub use estimate::{
     two_point_table, EstNum, EstReal, EstimateError, EstimateRequest, EstimateResult, Located,
     Quality, Sample, TwoPointTable, PATH_CAPACITY,
 };
+pub use rest::{RestCheck, RestReport};
 pub use state::{Event, FaultReason, State};
 
 /// Full-scale PWM duty: `set_duty(DUTY_MAX)` applies +100 % of the bus voltage (flexion),

@@ -40,6 +40,12 @@ impl Encoder {
         Ok(self.counts)
     }
 
+    /// Ties the current reading to a pose: from now on it is `counts` from the rest (the
+    /// rest check, once the finger is against its open stop).
+    pub fn set_counts(&mut self, counts: i32) {
+        self.counts = counts;
+    }
+
     /// Counts since the rest pose.
     pub fn counts(&self) -> i32 {
         self.counts

@@ -84,6 +84,15 @@ pub enum FaultReason {
         /// Ticks since the supervisor's last stamp.
         age_ticks: u32,
     },
+    /// The rest check ([`crate::rest`]) found no open stop before its timeout or within the
+    /// finger's range, or could not return to the rest: the encoder cannot be zeroed.
+    RestNotFound {
+        /// Encoder travel of the failing phase (counts: from power-up while opening, from the
+        /// stop while returning).
+        moved_counts: i32,
+        /// The return to rest failed (else the search for the stop).
+        returning: bool,
+    },
 }
 
 impl FaultReason {
@@ -105,6 +114,7 @@ impl FaultReason {
             FaultReason::LossOfContact { .. } => "loss_of_contact",
             FaultReason::EstimateOutOfRange { .. } => "estimate_out_of_range",
             FaultReason::SupervisorStalled { .. } => "supervisor_stalled",
+            FaultReason::RestNotFound { .. } => "rest_not_found",
         }
     }
 

@@ -119,7 +119,8 @@ pub struct Plant {
 }
 
 impl Plant {
-    /// Builds the plant at the rest pose (encoder zero there, motor at rest, no current).
+    /// Builds the plant at the rest pose (encoder zero there, motor at rest, no current), or
+    /// where the scene starts it (`start_theta_a_rad`, `faults.power_up_offset_rad`).
     pub fn new(scene: &Scene) -> Result<Plant, PlantError> {
         scene.validate()?;
         let object = scene.resolve_object()?;
@@ -127,8 +128,14 @@ impl Plant {
         let mut tracker = Tracker::new(kin)?;
         let rest = tracker.pose.theta_a_rad;
         let mut drive = DriveState::default();
-        if let Some(start) = scene.start_theta_a_rad {
-            let bad = PlantError::Invalid("start_theta_a_rad");
+        let power_up = scene.faults.power_up_offset_rad;
+        let start_at = match scene.start_theta_a_rad {
+            Some(s) => Some((s, "start_theta_a_rad")),
+            None if power_up != 0.0 => Some((rest + power_up, "faults.power_up_offset_rad")),
+            None => None,
+        };
+        if let Some((start, key)) = start_at {
+            let bad = PlantError::Invalid(key);
             let pose = kin
                 .solve(start, Active::None, tracker.pose.theta2_rad)
                 .map_err(|_| bad)?;
@@ -149,7 +156,12 @@ impl Plant {
                 start - half
             };
             drive.angle_rad = (gear - rest) * d.gear_ratio;
-            drive.current_a = pose.torque_nm / (d.gear_ratio * d.eff_drive * d.kt_nm_per_a);
+            drive.current_a = if power_up != 0.0 {
+                // Powered up: nothing drives the winding, the gear's friction holds the finger.
+                0.0
+            } else {
+                pose.torque_nm / (d.gear_ratio * d.eff_drive * d.kt_nm_per_a)
+            };
             drive.stuck = true;
         }
         let mut p = Plant {
@@ -174,6 +186,14 @@ impl Plant {
             ev_len: 0,
             dropped: 0,
         };
+        if power_up != 0.0 {
+            // The encoder counts from power-up, not from the rest pose.
+            p.enc_offset = p
+                .scene
+                .sensors
+                .encoder_count_unwrapped(p.drive.angle_rad)
+                .wrapping_neg();
+        }
         p.k_loc = p.local_stiffness(p.tracker.pose.theta_a_rad).unwrap_or(0.5);
         p.sample_adc();
         Ok(p)

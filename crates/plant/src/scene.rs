@@ -85,6 +85,10 @@ pub struct FaultSpec {
     pub remove_object_at_s: f64,
     /// |current| above this raises an `OverCurrent` event (A).
     pub over_current_a: f64,
+    /// The finger powered up this far from its rest pose (θa, rad, flexion positive; 0 = at
+    /// rest): it starts there held by the gear's friction with no current, and the encoder
+    /// reads 0 there, where a firmware that zeroes at power-up puts θa,rest.
+    pub power_up_offset_rad: f64,
 }
 
 impl FaultSpec {
@@ -97,6 +101,7 @@ impl FaultSpec {
         short_r_ohm: 2.0,
         remove_object_at_s: f64::INFINITY,
         over_current_a: 0.28,
+        power_up_offset_rad: 0.0,
     };
 }
 
@@ -202,6 +207,13 @@ impl Scene {
         }
         if !(f.over_current_a.is_finite() && f.over_current_a > 0.0) {
             return Err(PlantError::Invalid("faults.over_current_a"));
+        }
+        if !(f.power_up_offset_rad.is_finite() && f.power_up_offset_rad.abs() <= 1.0) {
+            return Err(PlantError::Invalid("faults.power_up_offset_rad"));
+        }
+        if f.power_up_offset_rad != 0.0 && self.start_theta_a_rad.is_some() {
+            // Two different starting poses: refuse rather than pick one.
+            return Err(PlantError::Invalid("faults.power_up_offset_rad"));
         }
         match self.object {
             ObjectSpec::None => {}

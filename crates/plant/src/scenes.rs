@@ -77,6 +77,8 @@ pub const NAMES: &[&str] = &[
     "fault_encoder_jump",
     "fault_short",
     "fault_loss_of_contact",
+    "fault_power_up_away",
+    "fault_power_up_stuck_encoder",
 ];
 
 /// A built-in scene by name (see [`NAMES`]).
@@ -172,6 +174,29 @@ pub fn by_name(name: &str) -> Option<Scene> {
                 remove_object_at_s: 3.5,
                 ..FaultSpec::NONE
             },
+            ..table2()
+        },
+        // Table 2 with the finger powered up 0.45 rad flexed (as after a reset mid-approach),
+        // the encoder reading 0 there.
+        "fault_power_up_away" => Scene {
+            name: "fault_power_up_away",
+            faults: FaultSpec {
+                power_up_offset_rad: 0.45,
+                ..FaultSpec::NONE
+            },
+            duration_s: 20.0,
+            ..table2()
+        },
+        // Powered up 0.3 rad flexed with the encoder stuck from the start: no rest can be
+        // found (the count never shows the return to rest).
+        "fault_power_up_stuck_encoder" => Scene {
+            name: "fault_power_up_stuck_encoder",
+            faults: FaultSpec {
+                power_up_offset_rad: 0.3,
+                encoder_stuck_at_s: 0.0,
+                ..FaultSpec::NONE
+            },
+            duration_s: 25.0,
             ..table2()
         },
         _ => return None,

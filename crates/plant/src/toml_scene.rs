@@ -136,6 +136,7 @@ section!(FaultsT {
     short_r_ohm: f64,
     remove_object_at_s: f64,
     over_current_a: f64,
+    power_up_offset_rad: f64,
 });
 
 #[derive(Deserialize, Default)]
@@ -295,7 +296,8 @@ pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
             short_at_s,
             short_r_ohm,
             remove_object_at_s,
-            over_current_a
+            over_current_a,
+            power_up_offset_rad
         );
         g.encoder_jump_counts = int(
             f.encoder_jump_counts,
@@ -454,9 +456,9 @@ pub fn to_toml_string(s: &Scene) -> String {
     };
     let _ = writeln!(
         o,
-        "[faults]\nencoder_stuck_at_s = {}\nencoder_jump_at_s = {}\nencoder_jump_counts = {}\nshort_at_s = {}\nshort_r_ohm = {:?}\nremove_object_at_s = {}\nover_current_a = {:?}",
+        "[faults]\nencoder_stuck_at_s = {}\nencoder_jump_at_s = {}\nencoder_jump_counts = {}\nshort_at_s = {}\nshort_r_ohm = {:?}\nremove_object_at_s = {}\nover_current_a = {:?}\npower_up_offset_rad = {:?}",
         t(fl.encoder_stuck_at_s), t(fl.encoder_jump_at_s), fl.encoder_jump_counts, t(fl.short_at_s),
-        fl.short_r_ohm, t(fl.remove_object_at_s), fl.over_current_a
+        fl.short_r_ohm, t(fl.remove_object_at_s), fl.over_current_a, fl.power_up_offset_rad
     );
     o
 }
@@ -511,7 +513,7 @@ pub fn to_rust_expr(s: &Scene) -> String {
          drive: plant::drive::DriveParams {{ supply_v: {}, r_ohm: {}, l_h: {}, kt_nm_per_a: {}, rotor_inertia_kgm2: {}, gear_ratio: {}, eff_drive: {}, eff_back: {}, backlash_rad: {}, coulomb_nm: {}, stiction_nm: {}, viscous_nm_s_per_rad: {}, stick_speed_rad_s: {}, substeps: {} }}, \
          sensors: plant::sensors::SensorParams {{ encoder_cpt: {}, shunt_ohm: {}, amp_gain: {}, offset_v: {}, offset_error_v: {}, gain_error: {}, noise_v_rms: {}, adc_vref_v: {}, adc_bits: {}, seed: {} }}, \
          command: plant::scene::CommandProfile {{ mode: plant::scene::CommandMode::{:?}, from: {}, to: {}, t_start_s: {}, ramp_s: {} }}, \
-         faults: plant::scene::FaultSpec {{ encoder_stuck_at_s: {}, encoder_jump_at_s: {}, encoder_jump_counts: {}, short_at_s: {}, short_r_ohm: {}, remove_object_at_s: {}, over_current_a: {} }}, \
+         faults: plant::scene::FaultSpec {{ encoder_stuck_at_s: {}, encoder_jump_at_s: {}, encoder_jump_counts: {}, short_at_s: {}, short_r_ohm: {}, remove_object_at_s: {}, over_current_a: {}, power_up_offset_rad: {} }}, \
          dt_s: {}, duration_s: {}, start_theta_a_rad: {start} }}",
         s.name,
         r(f.l1_m), r(f.l2_m), r(f.a_m), r(f.b_m), r(f.c_m), r(f.phi2_rad), r(f.theta01_rad),
@@ -524,7 +526,7 @@ pub fn to_rust_expr(s: &Scene) -> String {
         r(x.gain_error), r(x.noise_v_rms), r(x.adc_vref_v), x.adc_bits, x.seed,
         c.mode, r(c.from), r(c.to), r(c.t_start_s), r(c.ramp_s),
         r(fl.encoder_stuck_at_s), r(fl.encoder_jump_at_s), fl.encoder_jump_counts,
-        r(fl.short_at_s), r(fl.short_r_ohm), r(fl.remove_object_at_s), r(fl.over_current_a),
+        r(fl.short_at_s), r(fl.short_r_ohm), r(fl.remove_object_at_s), r(fl.over_current_a), r(fl.power_up_offset_rad),
         r(s.dt_s), r(s.duration_s)
     )
 }

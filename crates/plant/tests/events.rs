@@ -321,3 +321,33 @@ fn corner_contacts_never_fail() {
         }
     }
 }
+
+/// A finger powered up away from rest stays there (held by the gear's friction, no current)
+/// and its encoder reads 0 there: a controller zeroing at power-up is off by the offset.
+#[test]
+fn powered_up_away_from_rest_reads_zero_there() {
+    let mut s = plant::scenes::table2();
+    s.faults.power_up_offset_rad = 0.3;
+    let mut p = Plant::new(&s).unwrap();
+    let rest = p.theta_a_rest_rad();
+    assert_eq!(p.encoder_count(), 0);
+    assert!((p.truth().theta_a_rad - (rest + 0.3)).abs() < 1e-12);
+    assert_eq!(p.truth().current_a, 0.0);
+    for _ in 0..1000 {
+        p.step_off();
+    }
+    // Held: the springs' torque back-driven through the gear does not beat its stiction.
+    assert!((p.truth().theta_a_rad - (rest + 0.3)).abs() < 1e-9);
+    assert_eq!(p.encoder_count(), 0);
+    assert!((p.measured_theta_a_rad() - rest).abs() < 1e-9);
+    // Refused with the approach shortcut (two starting poses) and beyond ±1 rad.
+    let mut b = s;
+    b.start_theta_a_rad = Some(-0.3);
+    assert_eq!(
+        Plant::new(&b).err(),
+        Some(plant::PlantError::Invalid("faults.power_up_offset_rad"))
+    );
+    b = s;
+    b.faults.power_up_offset_rad = f64::NAN;
+    assert!(b.validate().is_err());
+}

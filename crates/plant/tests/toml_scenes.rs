@@ -107,3 +107,13 @@ fn start_pose_in_toml() {
     let expr = plant::toml_scene::to_rust_expr(&scenes::by_name("fault_short").unwrap());
     assert!(expr.contains("f64::INFINITY") && !expr.contains(" inf"));
 }
+
+#[test]
+fn power_up_offset_in_toml() {
+    let s = from_toml_str("[faults]\npower_up_offset_rad = 0.45").unwrap();
+    assert_eq!(s.faults.power_up_offset_rad, 0.45);
+    assert_eq!(from_toml_str(&to_toml_string(&s)).unwrap(), s);
+    assert!(plant::toml_scene::to_rust_expr(&s).contains("power_up_offset_rad: 0.45"));
+    let e = from_toml_str("[faults]\npower_up_offset_rad = 2.0").unwrap_err();
+    assert_eq!(e.key, "faults.power_up_offset_rad");
+}

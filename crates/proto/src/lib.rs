@@ -330,6 +330,8 @@ pub enum FaultKind {
     SupervisorStalled,
     /// The host connection was lost during a grasp: torque off.
     HostLost,
+    /// The rest check found no open stop (the encoder cannot be zeroed): torque off.
+    RestNotFound,
 }
 
 /// What the device sends.

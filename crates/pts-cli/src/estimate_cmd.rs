@@ -24,6 +24,8 @@ pub fn read_text(path: &Path) -> Result<String, String> {
 /// [`read_text`] with a given limit (bytes).
 pub fn read_text_limited(path: &Path, limit: u64) -> Result<String, String> {
     let too_big = |what: &str| format!("{what} is larger than the {limit}-byte limit for a trace");
+    // Sized from the file's length when it has one, so that reading does not grow the buffer
+    // geometrically (up to twice the file).
     let mut bytes = vec![];
     if path.as_os_str() == "-" {
         std::io::stdin()
@@ -37,6 +39,9 @@ pub fn read_text_limited(path: &Path, limit: u64) -> Result<String, String> {
     } else {
         let f = std::fs::File::open(path)
             .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        if let Ok(m) = f.metadata() {
+            bytes.reserve_exact(m.len().min(limit + 1) as usize + 1);
+        }
         f.take(limit + 1)
             .read_to_end(&mut bytes)
             .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
@@ -44,7 +49,9 @@ pub fn read_text_limited(path: &Path, limit: u64) -> Result<String, String> {
             return Err(too_big(&path.display().to_string()));
         }
     }
-    Ok(String::from_utf8_lossy(&bytes).into_owned())
+    // Valid UTF-8 (the usual case) becomes the string without a copy.
+    Ok(String::from_utf8(bytes)
+        .unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
 }
 
 /// Loads and replays a trace; the returned trace is the one replayed.
@@ -68,9 +75,8 @@ pub fn replay_text(
     dt_s: Option<f64>,
     method: Method,
 ) -> Result<(Trace, replay::Replay, f64), String> {
-    let text = text.to_string();
     let mut file = crate::load_finger(finger)?;
-    let meta = TraceMeta::find(&text);
+    let meta = TraceMeta::find(text);
     // A trace from `pts sim` says which drive constants its controller used: without a
     // finger file, replay with those (e.g. an ideal-drive scene has η = 1).
     if let (None, Some(d)) = (finger, meta.and_then(|m| m.drive)) {
@@ -81,7 +87,7 @@ pub fn replay_text(
         }
     }
     let conv = |i: f64| file.torque_from_current(i);
-    let tr = trace::read_csv(&text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    let tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
     let dta = dta.or(meta.map(|m| m.dta_nm)).unwrap_or(DEFAULT_DTA_NM);
     if !(dta.is_finite() && dta > 0.0 && dta <= 2.0) {
         return Err("--dta must be in (0, 2] N·m".into());
@@ -520,6 +526,9 @@ mod limit_tests {
         assert!(e.contains("100-byte limit"), "{e}");
         std::fs::write(&p, vec![b'x'; 100]).unwrap();
         assert_eq!(read_text_limited(&p, 100).unwrap().len(), 100);
+        // Bytes that are not UTF-8 are replaced, not refused.
+        std::fs::write(&p, [b'a', 0xFF, b'b']).unwrap();
+        assert_eq!(read_text_limited(&p, 100).unwrap(), "a\u{FFFD}b");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -215,7 +215,12 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
             .map(|c| c.trim().to_string())
             .filter(|c| !c.is_empty())
     };
-    let mut trace = Trace::default();
+    // As many rows as lines (a cheap count): the vector is not grown geometrically (up to
+    // twice the rows' size).
+    let mut trace = Trace {
+        rows: Vec::with_capacity(text.lines().count()),
+        warnings: Vec::new(),
+    };
     let mut skipped: Vec<usize> = vec![];
     let mut first_reason: Option<String> = None;
     for (line_no, line) in lines {

@@ -10,7 +10,7 @@
 pub mod log;
 pub mod run;
 
-use grasp::{DriveConfig, Hardware, DUTY_MAX};
+use grasp::{DriveConfig, Hardware, RestCheck, DUTY_MAX};
 use plant::{Plant, Scene};
 
 /// The plant wired to an H-bridge: the duty the controller sets is applied for the next
@@ -140,4 +140,28 @@ pub fn scene_drive(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
         adc_zero_code: s.zero_code(),
         theta_a_rest_rad,
     }
+}
+
+/// The rest check for a simulated finger: its open stop (both joints on their extension stops)
+/// relative to its rest pose from the scene's geometry, the stop's stiffness and the drive's
+/// backlash, what a board would take from its finger's data; the torques and times of
+/// [`RestCheck::PAPER`]. `None` when the geometry has no rest or stop pose.
+pub fn scene_rest_check(scene: &Scene) -> Option<RestCheck> {
+    let g = &scene.finger;
+    let kin = plant::kin::Kin::new(*g, None);
+    let rest = kin.rest().ok()?.theta_a_rad;
+    let stop = g.theta1_min_rad + g.linkage(g.theta2_min_rad).ok()?.phi_rad;
+    // T_a holding the free finger at the stop's pose: the springs' share, not the stop's.
+    let held = kin
+        .solve(stop, plant::kin::Active::None, g.theta2_min_rad)
+        .ok()?
+        .torque_nm;
+    Some(RestCheck {
+        stop_from_rest_rad: stop - rest,
+        stop_spring_nm: -held,
+        friction_nm: scene.drive.coulomb_nm * scene.drive.gear_ratio * scene.drive.eff_drive,
+        stop_compliance_rad_per_nm: 1.0 / g.k_lock_nm_per_rad,
+        backlash_rad: scene.drive.backlash_rad,
+        ..RestCheck::PAPER
+    })
 }
