@@ -455,12 +455,92 @@ impl ControlLoop {
         self.acc_n = 0;
     }
 
+    /// The encoder and ADC readings checked and converted: (θa µrad, T_a µN·m), also put in
+    /// `out`; `None` after tripping on a jump or an impossible code.
+    #[inline(always)]
+    fn read_sensors<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        link: &mut Link,
+        raw_enc: u16,
+        code: u16,
+        out: &mut LoopOutput,
+    ) -> Option<(i32, i32)> {
+        if let Err(j) = self.enc.update(raw_enc, self.p.encoder_max_step) {
+            let reason = FaultReason::EncoderJump {
+                step_counts: j.step_counts,
+            };
+            self.trip(hw, link, reason, out);
+            return None;
+        }
+        let theta = self.enc.theta_a_urad(&self.p);
+        if code > 4095 {
+            self.trip(hw, link, FaultReason::AdcCode { code }, out);
+            return None;
+        }
+        let torque = self.cur.torque_unm(code, &self.p);
+        out.theta_a_urad = theta;
+        out.torque_unm = torque;
+        Some((theta, torque))
+    }
+
+    /// A tick before the loop drives: tripped (bridge off), the first tick, the rest check or
+    /// the current calibration.
+    #[inline(never)]
+    fn before_running<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        link: &mut Link,
+        raw_enc: u16,
+        code: u16,
+        out: &mut LoopOutput,
+    ) {
+        match self.phase {
+            Phase::Tripped => {
+                hw.bridge_off();
+                return;
+            }
+            Phase::Init => {
+                // First tick. Without a rest check the finger is taken to be at rest and the
+                // reading there is θa,rest; with one, the count runs from here until the
+                // check zeroes it at the open stop.
+                hw.bridge_off();
+                self.enc = Encoder::new(raw_enc);
+                self.phase = Phase::Calibrating;
+                if let Some(rp) = self.p.rest {
+                    self.rest = Some(RestState::new(rp, 0));
+                    self.phase = Phase::Homing;
+                }
+                link.started = true;
+            }
+            _ => {}
+        }
+        if self.read_sensors(hw, link, raw_enc, code, out).is_none() {
+            return;
+        }
+        if self.phase == Phase::Homing {
+            self.homing(hw, link, code, out);
+            return;
+        }
+        self.cur.calib_add(code);
+        if self.tick.wrapping_sub(self.calib_from) >= self.p.calib_ticks {
+            match self.cur.calib_finish(&self.p) {
+                Ok(offset_q8) => {
+                    self.phase = Phase::Running;
+                    link.calibrated = Some((self.tick, offset_q8));
+                }
+                Err(offset_q8) => self.trip(hw, link, FaultReason::AdcOffset { offset_q8 }, out),
+            }
+        }
+    }
+
     /// The current faults of a driving tick: an ADC pinned at a rail, or over-current.
     fn current_fault(&mut self, code: u16, ua: i32) -> Option<FaultReason> {
         // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
         // Over the over-current time it is a fault of its own (the configuration keeps the
         // limit inside the sensor's range, so a healthy drive trips over-current first).
-        if code == 0 || code >= 4095 {
+        // code 0 or 4095 (4096… were refused as AdcCode): one unsigned compare.
+        if code.wrapping_sub(1) >= 4094 {
             self.rail_count += 1;
             if self.rail_count >= self.p.overcurrent_ticks {
                 return Some(FaultReason::AdcRail { code });
@@ -545,61 +625,14 @@ impl ControlLoop {
             tick: self.tick,
             ..LoopOutput::default()
         };
-        match self.phase {
-            Phase::Tripped => {
-                hw.bridge_off();
-                return out;
-            }
-            Phase::Init => {
-                // First tick. Without a rest check the finger is taken to be at rest and the
-                // reading there is θa,rest; with one, the count runs from here until the
-                // check zeroes it at the open stop.
-                hw.bridge_off();
-                self.enc = Encoder::new(raw_enc);
-                self.phase = Phase::Calibrating;
-                if let Some(rp) = self.p.rest {
-                    self.rest = Some(RestState::new(rp, 0));
-                    self.phase = Phase::Homing;
-                }
-                link.started = true;
-            }
-            _ => {}
-        }
-        if let Err(j) = self.enc.update(raw_enc, self.p.encoder_max_step) {
-            let reason = FaultReason::EncoderJump {
-                step_counts: j.step_counts,
-            };
-            self.trip(hw, link, reason, &mut out);
+        // One compare on the driving path; the other phases out of line.
+        if self.phase != Phase::Running {
+            self.before_running(hw, link, raw_enc, code, &mut out);
             return out;
         }
-        let theta = self.enc.theta_a_urad(&self.p);
-        if code > 4095 {
-            self.trip(hw, link, FaultReason::AdcCode { code }, &mut out);
+        let Some((theta, torque)) = self.read_sensors(hw, link, raw_enc, code, &mut out) else {
             return out;
-        }
-        let torque = self.cur.torque_unm(code, &self.p);
-        out.theta_a_urad = theta;
-        out.torque_unm = torque;
-
-        if self.phase == Phase::Homing {
-            self.homing(hw, link, code, &mut out);
-            return out;
-        }
-        if self.phase == Phase::Calibrating {
-            self.cur.calib_add(code);
-            if self.tick.wrapping_sub(self.calib_from) >= self.p.calib_ticks {
-                match self.cur.calib_finish(&self.p) {
-                    Ok(offset_q8) => {
-                        self.phase = Phase::Running;
-                        link.calibrated = Some((self.tick, offset_q8));
-                    }
-                    Err(offset_q8) => {
-                        self.trip(hw, link, FaultReason::AdcOffset { offset_q8 }, &mut out)
-                    }
-                }
-            }
-            return out;
-        }
+        };
 
         let sp = link.setpoint;
         if !sp.enable {
