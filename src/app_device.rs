@@ -49,33 +49,6 @@ mod app {
     use crate::platform::{self, Board};
     use crate::telemetry::{self as tm, Msg, QUEUE};
 
-    /// Static storage the host link borrows for the whole run (an init-local): the USB
-    /// stack's on the board, none for the UART.
-    #[cfg(not(feature = "qemu"))]
-    type LinkStore = platform::usb::Storage;
-    /// Static storage the host link borrows for the whole run (an init-local): the USB
-    /// stack's on the board, none for the UART.
-    #[cfg(feature = "qemu")]
-    type LinkStore = NoStorage;
-
-    /// The UART needs no storage.
-    #[cfg(feature = "qemu")]
-    pub struct NoStorage;
-
-    #[cfg(feature = "qemu")]
-    impl NoStorage {
-        const fn new() -> Self {
-            NoStorage
-        }
-    }
-
-    /// The link, for the log.
-    #[cfg(not(feature = "qemu"))]
-    const LINK_NAME: &str = "USB CDC-ACM";
-    /// The link, for the log.
-    #[cfg(feature = "qemu")]
-    const LINK_NAME: &str = "UART0";
-
     #[shared]
     struct Shared {
         link: Link,
@@ -97,7 +70,7 @@ mod app {
 
     #[init(local = [
         table_store: ctl::TableSlot = ctl::TableSlot::Empty,
-        link_store: LinkStore = LinkStore::new(),
+        link_store: platform::LinkStore = platform::LinkStore::new(),
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
@@ -129,12 +102,9 @@ mod app {
         let (lp, link, sup) = ctrl.into_parts();
         let boot = crate::settings_flash::boot();
         #[cfg(feature = "qemu")]
-        let io = {
-            let _ = cx.local.link_store;
-            device::uart::init()
-        };
+        let io = platform::open_link(cx.local.link_store);
         #[cfg(not(feature = "qemu"))]
-        let io = platform::usb::init(cx.local.link_store, usb);
+        let io = platform::open_link(cx.local.link_store, usb);
         let mut dev = Device::new(crate::config::SCENE, io);
         match boot
             .status
@@ -155,7 +125,10 @@ mod app {
         host::spawn(tel_rx).ok();
         let mut board = board;
         board.start_watchdog();
-        defmt::info!("DEVICE ready: waiting for the host on {=str}", LINK_NAME);
+        defmt::info!(
+            "DEVICE ready: waiting for the host on {=str}",
+            platform::LINK_NAME
+        );
         (
             Shared {
                 link,

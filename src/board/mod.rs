@@ -335,6 +335,23 @@ impl Hardware for Board {
     }
 }
 
+/// Device mode's link to the host: USB CDC-ACM.
+#[cfg(feature = "device")]
+pub const LINK_NAME: &str = "USB CDC-ACM";
+
+/// Static storage device mode's link borrows for the whole run (an RTIC init-local).
+#[cfg(feature = "device")]
+pub use usb::Storage as LinkStore;
+
+/// Device mode's link to the host on the OTG FS block `usb` from [`init`].
+#[cfg(feature = "device")]
+pub fn open_link(
+    store: &'static mut LinkStore,
+    usb: stm32f4xx_hal::otg_fs::USB,
+) -> crate::device::Link {
+    usb::init(store, usb)
+}
+
 /// Nothing to re-arm: the timer triggers the next conversion by itself.
 pub fn rearm_sampling() {}
 
