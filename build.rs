@@ -58,7 +58,7 @@ fn main() {
 
 /// Weak defaults for the QEMU interrupt table (names of src/sim/pac.rs).
 const DEVICE_X: &str = "\
-PROVIDE(UART0RX = DefaultHandler);
+PROVIDE(OTG_FS = DefaultHandler);
 PROVIDE(UART0TX = DefaultHandler);
 PROVIDE(UART1RX = DefaultHandler);
 PROVIDE(UART1TX = DefaultHandler);

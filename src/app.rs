@@ -21,7 +21,7 @@
     feature = "qemu",
     rtic::app(
         device = crate::sim::pac,
-        dispatchers = [UART0RX, UART0TX, UART1RX],
+        dispatchers = [UART0TX, UART1RX, UART1TX],
         peripherals = false
     )
 )]
@@ -86,27 +86,7 @@ mod app {
             },
             (ctl::DELTA_TA_NM * 1e6) as i32
         );
-        // A fault that caused the last reset is latched: report it and do not move (the
-        // encoder would be zeroed wherever the finger stopped). A power-on clears the latch.
-        let (cause, power_on) = platform::reset_cause();
-        let latched = crate::fault::latch::get();
-        let (code, info) = latched.unwrap_or((0, 0));
-        defmt::info!(
-            "RESET cause={=str} latched_code={=u32} latched_info={=u32}",
-            cause,
-            code,
-            info
-        );
-        if power_on {
-            crate::fault::latch::clear();
-        } else if latched.is_some() || cause == "independent_watchdog" {
-            defmt::error!(
-                "LATCHED fault (code {=u32}) from before the {=str} reset: bridge off, waiting for a power cycle",
-                code,
-                cause
-            );
-            platform::wait_latched();
-        }
+        crate::fault::latch::check_at_boot();
         // The stored settings (issue 18): loaded once, the status logged; the build's
         // defaults apply unless it is Loaded.
         let _settings = crate::settings_flash::boot();

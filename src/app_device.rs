@@ -1,22 +1,34 @@
-//! The RTIC application of device mode (QEMU, feature `device`): the tasks of `app.rs` (same
-//! priorities and controller path) plus the host link, so one power-up runs many grasps.
+//! The RTIC application of device mode (feature `device`, board or QEMU): the tasks of
+//! `app.rs` (same priorities, controller path and watchdog supervision) plus the host link, so
+//! one power-up runs many grasps.
 //!
 //! | prio | task        | kind                           | work                                            |
 //! |------|-------------|--------------------------------|-------------------------------------------------|
-//! | 4    | `sample`    | hardware, `ADC`, 10 kHz        | as in `app.rs` while a grasp runs; bridge off while halted; the host's silence checked |
+//! | 4    | `sample`    | hardware, `ADC`, 10 kHz        | as in `app.rs` while a grasp runs; bridge off while halted; the host's silence checked; the watchdog fed |
 //! | 3    | `supervise` | software                       | the grasp state machine                         |
 //! | 2    | `estimate`  | software                       | the estimator the grasp's settings name         |
-//! | 1    | `uart_rx`   | hardware, `UART0RX`            | decode requests, answer them; stop switches the bridge off at once |
+//! | 1    | `link_rx`   | hardware, `OTG_FS` (board: USB; QEMU: UART0 RX) | service the link, decode requests, answer them; stop switches the bridge off at once; a closed link stops a grasp in motion |
 //! | 1    | `host`      | software                       | events, contacts and samples to the host (and defmt) |
 //!
-//! A grasp starts from a fresh controller (`Controller::new` with the host's settings) and a
-//! fresh simulated finger at its rest pose: the same start as a power-up grasp, so its estimate
-//! equals the host runner's with the same scene and settings.
+//! A grasp starts from a fresh controller (`Controller::new` with the host's settings); on QEMU
+//! also from a fresh simulated finger at its rest pose: the same start as a power-up grasp, so
+//! its estimate equals the host runner's with the same scene and settings.
 
-#[rtic::app(
-    device = crate::sim::pac,
-    dispatchers = [UART1TX, UART2RX, UART2TX],
-    peripherals = false
+#[cfg_attr(
+    feature = "qemu",
+    rtic::app(
+        device = crate::sim::pac,
+        dispatchers = [UART1TX, UART2RX, UART2TX],
+        peripherals = false
+    )
+)]
+#[cfg_attr(
+    not(feature = "qemu"),
+    rtic::app(
+        device = stm32f4xx_hal::pac,
+        dispatchers = [SPI2, SPI3, SPI4],
+        peripherals = true
+    )
 )]
 mod app {
     use core::sync::atomic::Ordering;
@@ -32,7 +44,7 @@ mod app {
     use settings::LoadStatus;
 
     use crate::ctl;
-    use crate::device::{self, uart, Device, ACTIVE, HALT, HOST_LOST, LAST_RX_TICK};
+    use crate::device::{self, Device, Transport, ACTIVE, HALT, HOST_LOST, LAST_RX_TICK};
     use crate::fault::supervision;
     use crate::platform::{self, Board};
     use crate::telemetry::{self as tm, Msg, QUEUE};
@@ -56,10 +68,16 @@ mod app {
         finger: pts::Finger,
     }
 
-    #[init(local = [table_store: ctl::TableSlot = ctl::TableSlot::Empty])]
+    #[init(local = [
+        table_store: ctl::TableSlot = ctl::TableSlot::Empty,
+        link_store: platform::LinkStore = platform::LinkStore::new(),
+    ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let (tel_tx, tel_rx) = make_channel!(Msg, QUEUE);
+        #[cfg(feature = "qemu")]
         let (board, cfg) = platform::init(cx.core);
+        #[cfg(not(feature = "qemu"))]
+        let (board, cfg, usb) = platform::init(cx.core, cx.device);
         defmt::info!(
             "BOOT finger={=str} l2_um={=u32} scene={=str} board={=str} dt_us={=u32} mode=device",
             crate::config::FINGER_NAME,
@@ -68,6 +86,7 @@ mod app {
             platform::NAME,
             (cfg.drive.dt_s * 1e6) as u32
         );
+        crate::fault::latch::check_at_boot();
         let ctrl = match Controller::new(cfg) {
             Ok(c) => c,
             Err(_) => {
@@ -82,7 +101,11 @@ mod app {
         let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
         let boot = crate::settings_flash::boot();
-        let mut dev = Device::new(crate::config::SCENE);
+        #[cfg(feature = "qemu")]
+        let io = platform::open_link(cx.local.link_store);
+        #[cfg(not(feature = "qemu"))]
+        let io = platform::open_link(cx.local.link_store, usb);
+        let mut dev = Device::new(crate::config::SCENE, io);
         match boot
             .status
             .map_err(|_| StoreFailure::Flash)
@@ -99,11 +122,13 @@ mod app {
             }
             Err(why) => defmt::warn!("SETTINGS source=defaults ({=str})", failure_name(why)),
         }
-        uart::init();
         host::spawn(tel_rx).ok();
         let mut board = board;
         board.start_watchdog();
-        defmt::info!("DEVICE ready: waiting for the host on UART0");
+        defmt::info!(
+            "DEVICE ready: waiting for the host on {=str}",
+            platform::LINK_NAME
+        );
         (
             Shared {
                 link,
@@ -197,6 +222,11 @@ mod app {
             board.advance();
             while let Some(p) = board.poll_plant_event() {
                 send(tel, Msg::Plant(p));
+            }
+            // The watchdog, as in `app.rs`: fed while this loop runs and the supervisor has
+            // checked in recently, whether or not a grasp runs.
+            if supervision::may_feed(tick) {
+                board.feed_watchdog();
             }
         });
         if tick % supervision::SUP_HEARTBEAT_TICKS == 0 {
@@ -292,21 +322,75 @@ mod app {
         }
     }
 
-    /// Bytes from the host: decoded into requests, each answered.
-    #[task(binds = UART0RX, priority = 1, shared = [dev, lp, board, link, sup, store])]
-    fn uart_rx(cx: uart_rx::Context) {
-        let mut sh = cx.shared;
-        while let Some(b) = uart::read() {
-            let r = sh.dev.lock(|d| d.rx.push(b));
-            if let Some(r) = r {
-                LAST_RX_TICK.store(tm::TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
-                handle(&mut sh, r);
+    /// The host link's interrupt: USB events and bytes on the board (OTG FS), received bytes on
+    /// QEMU (UART0, whose line src/sim/pac.rs names `OTG_FS` too). Below the loop, the
+    /// supervisor and the estimate, so host traffic never delays them.
+    #[task(binds = OTG_FS, priority = 1, shared = [dev, lp, board, link, sup, store], local = [was_open: bool = false])]
+    fn link_rx(cx: link_rx::Context) {
+        receive(&mut { cx.shared }, cx.local.was_open);
+    }
+
+    /// The shared resources of the receive task.
+    type Rx<'a> = link_rx::SharedResources<'a>;
+
+    /// Bytes from the host: decoded into requests, each answered. A link that closes while a
+    /// grasp is in motion stops it (`was_open`: the link's state at the last call).
+    fn receive(sh: &mut Rx<'_>, was_open: &mut bool) {
+        loop {
+            let mut buf = [0u8; 64];
+            let (n, open) = sh.dev.lock(|d| (d.io.read(&mut buf), d.io.open()));
+            if open != *was_open {
+                *was_open = open;
+                if open {
+                    defmt::info!("HOST link open");
+                    // A new host starts with a new frame.
+                    sh.dev.lock(|d| d.rx = proto::Decoder::new());
+                } else {
+                    defmt::warn!("HOST link closed");
+                    link_closed(sh);
+                }
+            }
+            if n == 0 {
+                break;
+            }
+            for &b in buf.get(..n).unwrap_or(&[]) {
+                let r = sh.dev.lock(|d| d.rx.push(b));
+                if let Some(r) = r {
+                    LAST_RX_TICK.store(tm::TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
+                    handle(sh, r);
+                }
             }
         }
         sh.dev.lock(|d| d.flush());
     }
 
-    fn handle(sh: &mut uart_rx::SharedResources<'_>, r: Result<Request, FrameError>) {
+    /// The host let go of the link (USB: port closed, cable pulled, bus suspended): a grasp in
+    /// motion ends as for a silent host (bridge off, `HostLost` fault until a stop); a finger
+    /// holding keeps holding.
+    fn link_closed(sh: &mut Rx<'_>) {
+        let state = sh.link.lock(|l| l.state);
+        if !(ACTIVE.load(Ordering::Relaxed) && device::in_motion(state)) {
+            return;
+        }
+        HALT.store(true, Ordering::SeqCst);
+        ACTIVE.store(false, Ordering::SeqCst);
+        HOST_LOST.store(true, Ordering::SeqCst);
+        (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
+        let tick = tm::TICKS.load(Ordering::Relaxed);
+        let silent = tick.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed));
+        defmt::warn!(
+            "HOST lost at tick {=u32} (link closed mid-grasp): bridge off",
+            tick
+        );
+        sh.dev.lock(|d| {
+            d.send(&DeviceMsg::Event(Event {
+                tick,
+                kind: EventKind::Fault(device::host_lost(silent)),
+            }))
+        });
+    }
+
+    fn handle(sh: &mut Rx<'_>, r: Result<Request, FrameError>) {
         let req = match r {
             Ok(req) => req,
             Err(FrameError::UnknownCommand { id, tag }) => {
@@ -341,12 +425,12 @@ mod app {
     }
 
     /// The state the host sees: the controller's during a grasp, the device's otherwise.
-    fn current(sh: &mut uart_rx::SharedResources<'_>) -> DeviceState {
+    fn current(sh: &mut Rx<'_>) -> DeviceState {
         let s = sh.link.lock(|l| l.state);
         sh.dev.lock(|d| d.device_state(s))
     }
 
-    fn command(sh: &mut uart_rx::SharedResources<'_>, cmd: Command) -> Result<Reply, Error> {
+    fn command(sh: &mut Rx<'_>, cmd: Command) -> Result<Reply, Error> {
         match cmd {
             Command::Hello { version } => {
                 if version != VERSION {
@@ -398,11 +482,15 @@ mod app {
                         tick: tm::TICKS.load(Ordering::Relaxed),
                         grasps: d.grasps,
                         settings: d.settings,
-                        scene: Some(d.scene.clone()),
+                        // A real finger has no scene to choose.
+                        scene: cfg!(feature = "qemu").then(|| d.scene.clone()),
                         bridge_on,
                     })
                 }))
             }
+            Command::Get(ParamId::Scene) if !cfg!(feature = "qemu") => Err(Error::NotSupported {
+                what: Unsupported::Scene,
+            }),
             Command::Get(ParamId::Scene) => Ok(sh
                 .dev
                 .lock(|d| Reply::Param(proto::Param::Scene(d.scene.clone())))),
@@ -419,6 +507,11 @@ mod app {
                     idle_or_busy(sh)?;
                 }
                 if let proto::Param::Scene(name) = &p {
+                    if !cfg!(feature = "qemu") {
+                        return Err(Error::NotSupported {
+                            what: Unsupported::Scene,
+                        });
+                    }
                     if plant::scenes::by_name(name.as_str()).is_none() {
                         return Err(Error::UnknownChoice {
                             param: ParamId::Scene,
@@ -530,13 +623,19 @@ mod app {
             // Answered by `handle`, which resets after the acknowledgement.
             Command::Reboot => Ok(Reply::Ack),
             Command::Drive => {
-                let scene_name = sh.dev.lock(|d| d.scene.clone());
-                let scene = plant::scenes::by_name(scene_name.as_str())
-                    .map(ctl::finger_scene)
-                    .ok_or(Error::UnknownChoice {
-                        param: ParamId::Scene,
-                    })?;
-                Ok(Reply::Drive(device::drive(&ctl::scene_drive(&scene))))
+                #[cfg(feature = "qemu")]
+                let drive = {
+                    let scene_name = sh.dev.lock(|d| d.scene.clone());
+                    let scene = plant::scenes::by_name(scene_name.as_str())
+                        .map(ctl::finger_scene)
+                        .ok_or(Error::UnknownChoice {
+                            param: ParamId::Scene,
+                        })?;
+                    ctl::scene_drive(&scene)
+                };
+                #[cfg(not(feature = "qemu"))]
+                let drive = ctl::board_drive();
+                Ok(Reply::Drive(device::drive(&drive)))
             }
         }
     }
@@ -572,7 +671,7 @@ mod app {
     }
 
     /// Ok when no grasp runs and no fault is latched.
-    fn idle_or_busy(sh: &mut uart_rx::SharedResources<'_>) -> Result<(), Error> {
+    fn idle_or_busy(sh: &mut Rx<'_>) -> Result<(), Error> {
         let state = current(sh);
         match state {
             DeviceState::Fault(fault) => Err(Error::FaultLatched { fault }),
@@ -581,21 +680,31 @@ mod app {
         }
     }
 
-    /// A fresh finger at rest in the selected scene and a fresh controller with the settings.
-    fn start_grasp(sh: &mut uart_rx::SharedResources<'_>) -> Result<Reply, Error> {
+    /// A fresh controller with the settings (QEMU: and a fresh finger at rest in the selected
+    /// scene; board: the real finger where it is, the build's drive constants).
+    fn start_grasp(sh: &mut Rx<'_>) -> Result<Reply, Error> {
         let (settings, scene_name) = sh.dev.lock(|d| (d.settings, d.scene.clone()));
-        let scene = plant::scenes::by_name(scene_name.as_str())
-            .map(ctl::finger_scene)
-            .ok_or(Error::UnknownChoice {
+        #[cfg(feature = "qemu")]
+        let (cfg, plant) = {
+            let scene = plant::scenes::by_name(scene_name.as_str())
+                .map(ctl::finger_scene)
+                .ok_or(Error::UnknownChoice {
+                    param: ParamId::Scene,
+                })?;
+            let plant = plant::Plant::new(&scene).map_err(|_| Error::UnknownChoice {
                 param: ParamId::Scene,
             })?;
-        let plant = plant::Plant::new(&scene).map_err(|_| Error::UnknownChoice {
-            param: ParamId::Scene,
-        })?;
-        let cfg = ctl::with_scene_rest_check(
-            ctl::config_with(ctl::scene_drive(&scene), &settings),
-            &scene,
-        );
+            let cfg = ctl::with_scene_rest_check(
+                ctl::config_with(ctl::scene_drive(&scene), &settings),
+                &scene,
+            );
+            (cfg, plant)
+        };
+        #[cfg(not(feature = "qemu"))]
+        let cfg = {
+            let _ = &scene_name;
+            ctl::config_with(ctl::board_drive(), &settings)
+        };
         let ctrl = Controller::new(cfg).map_err(|_| Error::ConfigRejected)?;
         let (lp_new, link_new, sup_new) = ctrl.into_parts();
         // Read inside the lock (the sampling task cannot run meanwhile): the new controller's
@@ -607,7 +716,10 @@ mod app {
                 *lp = lp_new;
                 *link = link_new;
                 *sup = sup_new;
+                #[cfg(feature = "qemu")]
                 board.reset_plant(plant);
+                #[cfg(not(feature = "qemu"))]
+                let _ = board;
                 HOST_LOST.store(false, Ordering::SeqCst);
                 ACTIVE.store(true, Ordering::SeqCst);
                 HALT.store(false, Ordering::SeqCst);

@@ -1,6 +1,7 @@
-//! Device mode (QEMU build, feature `device`): the host drives the finger over the mps2-an386
-//! CMSDK UART0 in the crates/proto protocol: many grasps per power-up, settings and the
-//! simulated scene changed between grasps, stop honoured from any state.
+//! Device mode (feature `device`): the host drives the finger in the crates/proto protocol over
+//! a byte [`Transport`]: USB CDC-ACM on the board (`board::usb`), the mps2-an386 CMSDK UART0 on
+//! QEMU ([`uart`]). Many grasps per power-up, settings (and on QEMU the simulated scene)
+//! changed between grasps, stop honoured from any state.
 //!
 //! The sampling task and this module meet in a few atomics: [`HALT`] (bridge off on the next
 //! tick, whatever the controller asks), [`ACTIVE`] (the controller is ticked) and the host's
@@ -48,7 +49,26 @@ pub fn in_motion(state: State) -> bool {
     )
 }
 
+/// The byte link to the host, as device mode uses it: non-blocking reads and writes.
+pub trait Transport {
+    /// Reads what has arrived into `buf`; returns the count (0: nothing now).
+    fn read(&mut self, buf: &mut [u8]) -> usize;
+    /// Hands as many of `bytes` to the link as it takes now; returns the count.
+    fn write(&mut self, bytes: &[u8]) -> usize;
+    /// Whether a host is attached: false once it let go of the link (USB: port closed or
+    /// bus suspended), which stops a grasp in motion at once.
+    fn open(&self) -> bool;
+}
+
+/// This build's transport.
+#[cfg(not(feature = "qemu"))]
+pub use crate::board::usb::Usb as Link;
+/// This build's transport.
+#[cfg(feature = "qemu")]
+pub use uart::Uart as Link;
+
 /// The CMSDK APB UART0 of mps2-an386 (QEMU connects it to its first `-serial`).
+#[cfg(feature = "qemu")]
 pub mod uart {
     const BASE: usize = 0x4000_4000;
     const DATA: *mut u32 = BASE as *mut u32;
@@ -57,12 +77,39 @@ pub mod uart {
     const INTSTATUS: *mut u32 = (BASE + 0x0C) as *mut u32;
     const BAUDDIV: *mut u32 = (BASE + 0x10) as *mut u32;
 
-    /// Transmitter and receiver on, the receive interrupt on (UART0RX).
-    pub fn init() {
+    /// UART0 as device mode's [`super::Transport`].
+    pub struct Uart(());
+
+    /// Transmitter and receiver on, the receive interrupt on (IRQ 0, `OTG_FS` in src/sim/pac.rs).
+    pub fn init() -> Uart {
         // SAFETY: UART0's registers, used by nobody else.
         unsafe {
             BAUDDIV.write_volatile(16);
             CTRL.write_volatile(0b1011);
+        }
+        Uart(())
+    }
+
+    impl super::Transport for Uart {
+        fn read(&mut self, buf: &mut [u8]) -> usize {
+            let mut n = 0;
+            for slot in buf.iter_mut() {
+                match read() {
+                    Some(b) => *slot = b,
+                    None => break,
+                }
+                n += 1;
+            }
+            n
+        }
+
+        fn write(&mut self, bytes: &[u8]) -> usize {
+            bytes.iter().take_while(|&&b| try_write(b)).count()
+        }
+
+        /// A UART cannot tell; the host's silence is what counts.
+        fn open(&self) -> bool {
+            true
         }
     }
 
@@ -107,15 +154,17 @@ pub struct Device {
     pub rest: Option<DeviceState>,
     /// The request decoder.
     pub rx: proto::Decoder<Request, { proto::MAX_FRAME }>,
-    /// Encoded frames waiting for the UART.
+    /// Encoded frames waiting for the link.
     pub tx: heapless::Deque<u8, TX_QUEUE>,
     /// Frames dropped for a full TX queue.
     pub tx_dropped: u32,
+    /// The link to the host.
+    pub io: Link,
 }
 
 impl Device {
-    /// Idle with the build's settings and scene.
-    pub fn new(scene: &str) -> Self {
+    /// Idle with the build's settings and scene, talking over `io`.
+    pub fn new(scene: &str, io: Link) -> Self {
         let settings = crate::ctl::default_settings();
         set_decimation(settings.telemetry_hz);
         Self {
@@ -127,10 +176,11 @@ impl Device {
             rx: proto::Decoder::new(),
             tx: heapless::Deque::new(),
             tx_dropped: 0,
+            io,
         }
     }
 
-    /// Encodes a message into the TX queue (whole frames only) and sends what the UART takes.
+    /// Encodes a message into the TX queue (whole frames only) and sends what the link takes.
     pub fn send(&mut self, msg: &DeviceMsg) {
         let mut buf = [0u8; proto::MAX_FRAME];
         match proto::encode(msg, &mut buf) {
@@ -149,13 +199,20 @@ impl Device {
         self.flush();
     }
 
-    /// Hands queued bytes to the UART while it has room.
+    /// Hands queued bytes to the link while it has room.
     pub fn flush(&mut self) {
-        while let Some(&b) = self.tx.front() {
-            if !uart::try_write(b) {
+        loop {
+            let (front, _) = self.tx.as_slices();
+            let n = match front.len() {
+                0 => break,
+                _ => self.io.write(front),
+            };
+            if n == 0 {
                 break;
             }
-            self.tx.pop_front();
+            for _ in 0..n {
+                self.tx.pop_front();
+            }
         }
     }
 

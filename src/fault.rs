@@ -236,6 +236,31 @@ pub mod latch {
         core::ptr::addr_of_mut!(LATCH).cast::<u32>()
     }
 
+    /// At boot: a fault that caused the last reset (a latch, or the watchdog) is reported and
+    /// the MCU does not move, waiting for a power cycle with the bridge off (the encoder would
+    /// be zeroed wherever the finger stopped). A power-on clears the latch.
+    pub fn check_at_boot() {
+        let (cause, power_on) = crate::platform::reset_cause();
+        let latched = get();
+        let (code, info) = latched.unwrap_or((0, 0));
+        defmt::info!(
+            "RESET cause={=str} latched_code={=u32} latched_info={=u32}",
+            cause,
+            code,
+            info
+        );
+        if power_on {
+            clear();
+        } else if latched.is_some() || cause == "independent_watchdog" {
+            defmt::error!(
+                "LATCHED fault (code {=u32}) from before the {=str} reset: bridge off, waiting for a power cycle",
+                code,
+                cause
+            );
+            crate::platform::wait_latched();
+        }
+    }
+
     /// Latches a fault (code, tick or PC).
     pub fn set(code: u32, info: u32) {
         let w = words();

@@ -3,7 +3,10 @@
 //! Target builds (`target_os = "none"`, thumbv7em-none-eabihf):
 //! * feature `board` (default): STM32F411CEU6 Black Pill, drivers in `board/`, defmt over RTT;
 //! * feature `qemu`: QEMU mps2-an386 with the simulated finger (crates/plant) as the board,
-//!   defmt over semihosting, exits with a status.
+//!   defmt over semihosting, exits with a status;
+//! * with either, feature `device`: many grasps per power-up driven by the host
+//!   (`app_device.rs`, `device.rs`; USB CDC-ACM on the board, UART0 on QEMU) instead of one
+//!   grasp at power-up (`app.rs`).
 //!
 //! On the host the package builds an inert binary (no registers, no linker scripts), so
 //! `cargo build/test/clippy --workspace` stays host-only and harmless.

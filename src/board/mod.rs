@@ -1,4 +1,4 @@
-//! The real board: STM32F411CEU6 "Black Pill" (25 MHz HSE, 100 MHz core), RE10 motor with a
+//! The real board: STM32F411CEU6 "Black Pill" (25 MHz HSE, core at [`SYSCLK_HZ`]), RE10 motor with a
 //! quadrature encoder, DRV8871 H-bridge, shunt + amplifier on an ADC input. The only module
 //! of the workspace that touches registers.
 //!
@@ -10,12 +10,21 @@
 //! | DRV8871 IN2 (extend)      | PA9  | TIM1_CH2 (AF1)                 | 10 kΩ pull-down                    |
 //! | shunt amplifier output    | PA4  | ADC1_IN4, injected, TIM1_TRGO  | mid-scale (1.65 V) at 0 A          |
 //! | watchdog                  | —    | IWDG, 10 ms                    | started at the end of init; fed by the sampling task while the supervisor checks in |
+//! | USB D− / D+ (device mode) | PA11 / PA12 | OTG_FS (AF10), CDC-ACM [`usb`] | the Black Pill's USB-C socket |
 //!
-//! Timing: TIM1 runs centre-aligned at 20 kHz (ARR = 2500 at 100 MHz); its repetition counter
+//! Clocks: the core runs at 100 MHz, or at 96 MHz in device mode, where the OTG FS block needs
+//! an exact 48 MHz: from the 25 MHz HSE the one PLL makes both 96 and 48 MHz (VCO 384 MHz,
+//! P = 4, Q = 8) but no 100 MHz together with 48 MHz (100·P = 48·Q has no solution for the
+//! even P ≤ 8 the PLL allows). Every timer constant below derives from [`SYSCLK_HZ`].
+//!
+//! Timing: TIM1 runs centre-aligned at 20 kHz (ARR = [`PWM_ARR`]); its repetition counter
 //! (RCR = 3 for the controller's dt = 100 µs) makes an update event every second PWM period, at the counter underflow, i.e. in
 //! the middle of the active pulse, away from the switching edges. The update is TIM1_TRGO,
 //! which starts the injected ADC conversion; its end (JEOC) raises the ADC interrupt: the
 //! sampling task at 10 kHz, with the current sampled in step with the PWM.
+
+#[cfg(feature = "device")]
+pub mod usb;
 
 use core::sync::atomic::{AtomicBool, Ordering};
 
@@ -33,10 +42,22 @@ use crate::telemetry::{PlantEvent, Truth};
 /// Name of this board in the log.
 pub const NAME: &str = "stm32f411ceu6";
 
+/// Core clock (Hz): 96 MHz in device mode (the USB clock needs the PLL's 48 MHz output
+/// exact), 100 MHz (the part's maximum) otherwise. TIM1 runs at this rate (APB2 undivided).
+#[cfg(feature = "device")]
+pub const SYSCLK_HZ: u32 = 96_000_000;
+/// Core clock (Hz): 96 MHz in device mode (the USB clock needs the PLL's 48 MHz output
+/// exact), 100 MHz (the part's maximum) otherwise. TIM1 runs at this rate (APB2 undivided).
+#[cfg(not(feature = "device"))]
+pub const SYSCLK_HZ: u32 = 100_000_000;
+
 /// PWM frequency (Hz).
 const PWM_HZ: f64 = 20_000.0;
-/// PWM period in timer ticks (centre-aligned: 100 MHz / (2 × 2500) = 20 kHz).
-const PWM_ARR: u32 = 2500;
+/// PWM period in timer ticks, centre-aligned (counts up then down): SYSCLK / (2 × 20 kHz),
+/// 2500 at 100 MHz, 2400 at 96 MHz.
+pub const PWM_ARR: u32 = SYSCLK_HZ / (2 * PWM_HZ as u32);
+// The PWM frequency is exact at either clock (the ARR is a whole number of ticks).
+const _: () = assert!(PWM_ARR * 2 * PWM_HZ as u32 == SYSCLK_HZ);
 
 /// Repetition counter for one update (→ ADC trigger → sampling task) per control period:
 /// RCR + 1 half PWM periods. 10 kHz (dt = 100 µs) → 4 half periods → RCR = 3. An odd RCR
@@ -99,16 +120,46 @@ pub fn wait_latched() -> ! {
 
 /// Clocks, pins, PWM, encoder timer, ADC and watchdog; the first sample interrupt comes one
 /// control period later.
+#[cfg(not(feature = "device"))]
 pub fn init(
-    mut core: rtic::export::Peripherals,
+    core: rtic::export::Peripherals,
     dp: pac::Peripherals,
 ) -> (Board, grasp::ControllerConfig) {
-    let mut rcc = dp.RCC.freeze(
-        rcc::Config::hse(25.MHz())
-            .sysclk(100.MHz())
-            .pclk1(50.MHz())
-            .pclk2(100.MHz()),
-    );
+    let (board, cfg, ()) = setup(core, dp);
+    (board, cfg)
+}
+
+/// Device mode: as the power-up build's `init`, plus the OTG FS block and its pins for the
+/// host link ([`usb::init`]), the PLL's 48 MHz output checked.
+#[cfg(feature = "device")]
+pub fn init(
+    core: rtic::export::Peripherals,
+    dp: pac::Peripherals,
+) -> (Board, grasp::ControllerConfig, stm32f4xx_hal::otg_fs::USB) {
+    setup(core, dp)
+}
+
+/// What `setup` hands on besides the drivers: the USB block in device mode.
+#[cfg(feature = "device")]
+type Spare = stm32f4xx_hal::otg_fs::USB;
+/// What `setup` hands on besides the drivers: nothing without device mode.
+#[cfg(not(feature = "device"))]
+type Spare = ();
+
+fn setup(
+    mut core: rtic::export::Peripherals,
+    dp: pac::Peripherals,
+) -> (Board, grasp::ControllerConfig, Spare) {
+    // APB1 at its 50 MHz maximum or below, APB2 (TIM1, ADC) at the core clock.
+    let clocks = rcc::Config::hse(25.MHz())
+        .sysclk(SYSCLK_HZ.Hz())
+        .pclk1((SYSCLK_HZ / 2).Hz())
+        .pclk2(SYSCLK_HZ.Hz());
+    // The HAL asserts (at init, before anything drives) that the 48 MHz clock is within the
+    // USB specification's ±0.25 %; with 96 MHz it is exact (see the module doc).
+    #[cfg(feature = "device")]
+    let clocks = clocks.require_pll48clk();
+    let mut rcc = dp.RCC.freeze(clocks);
 
     // Cycle counter for the work measurements.
     core.DCB.enable_trace();
@@ -146,7 +197,7 @@ pub fn init(
 
     let adc = dp.ADC1;
     unsafe {
-        // ADC clock = PCLK2 / 4 = 25 MHz; one injected conversion of IN4 (JL = 0 → JSQ4),
+        // ADC clock = PCLK2 / 4 = 25 MHz (24 MHz in device mode); one injected conversion of IN4 (JL = 0 → JSQ4),
         // 28-cycle sampling, triggered by TIM1_TRGO (JEXTSEL = 0001) on the rising edge,
         // interrupt at the end of the injected conversion.
         dp.ADC_COMMON.ccr().write(|w| w.bits(0b01 << 16));
@@ -180,6 +231,15 @@ pub fn init(
     // Started by `start_watchdog` at the end of init, after the long work there.
     let wdg = IndependentWatchdog::new(dp.IWDG);
 
+    #[cfg(feature = "device")]
+    let spare = stm32f4xx_hal::otg_fs::USB::new(
+        (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
+        (gpioa.pa11, gpioa.pa12),
+        &rcc.clocks,
+    );
+    #[cfg(not(feature = "device"))]
+    let spare = ();
+
     (
         Board {
             adc_code: 2048,
@@ -189,6 +249,7 @@ pub fn init(
             wdg_start: 0,
         },
         crate::ctl::config(drive),
+        spare,
     )
 }
 
@@ -282,6 +343,23 @@ impl Hardware for Board {
         }
         self.off = true;
     }
+}
+
+/// Device mode's link to the host: USB CDC-ACM.
+#[cfg(feature = "device")]
+pub const LINK_NAME: &str = "USB CDC-ACM";
+
+/// Static storage device mode's link borrows for the whole run (an RTIC init-local).
+#[cfg(feature = "device")]
+pub use usb::Storage as LinkStore;
+
+/// Device mode's link to the host on the OTG FS block `usb` from [`init`].
+#[cfg(feature = "device")]
+pub fn open_link(
+    store: &'static mut LinkStore,
+    usb: stm32f4xx_hal::otg_fs::USB,
+) -> crate::device::Link {
+    usb::init(store, usb)
 }
 
 /// Nothing to re-arm: the timer triggers the next conversion by itself.

@@ -186,6 +186,28 @@ pub fn rearm_sampling() {
     cortex_m::peripheral::NVIC::unpend(pac::Interrupt::ADC);
 }
 
+/// Device mode's link to the host: the CMSDK UART0 (QEMU's first `-serial`).
+#[cfg(feature = "device")]
+pub const LINK_NAME: &str = "UART0";
+
+/// Static storage device mode's link borrows (an RTIC init-local): none for the UART.
+#[cfg(feature = "device")]
+pub struct LinkStore;
+
+#[cfg(feature = "device")]
+impl LinkStore {
+    /// The (empty) storage.
+    pub const fn new() -> Self {
+        LinkStore
+    }
+}
+
+/// Device mode's link to the host: UART0, its receive interrupt on.
+#[cfg(feature = "device")]
+pub fn open_link(_store: &'static mut LinkStore) -> crate::device::Link {
+    crate::device::uart::init()
+}
+
 /// Why the MCU last reset: QEMU has no reset flags. A fresh QEMU start is a power-on; a reset
 /// from inside the run (SYSRESETREQ) keeps RAM, which the latch's checksum tells apart.
 pub fn reset_cause() -> (&'static str, bool) {

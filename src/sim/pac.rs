@@ -17,7 +17,10 @@ pub const NVIC_PRIO_BITS: u8 = 3;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u16)]
 pub enum Interrupt {
-    UART0RX = 0,
+    /// UART0's receive interrupt (AN386 IRQ 0), under the name of the board's USB interrupt:
+    /// device mode's host-link task binds one name on both builds (RTIC takes the name
+    /// literally), and on both it is the interrupt of the link to the host.
+    OTG_FS = 0,
     UART0TX = 1,
     UART1RX = 2,
     UART1TX = 3,
@@ -46,7 +49,7 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Interrupt {
 }
 
 extern "C" {
-    fn UART0RX();
+    fn OTG_FS();
     fn UART0TX();
     fn UART1RX();
     fn UART1TX();
@@ -73,7 +76,7 @@ pub union Vector {
 #[link_section = ".vector_table.interrupts"]
 #[no_mangle]
 pub static __INTERRUPTS: [Vector; 17] = [
-    Vector { _handler: UART0RX },
+    Vector { _handler: OTG_FS },
     Vector { _handler: UART0TX },
     Vector { _handler: UART1RX },
     Vector { _handler: UART1TX },

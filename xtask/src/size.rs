@@ -48,16 +48,40 @@ pub fn measure(elf: &std::path::Path) -> Res<Sizes> {
     Ok(s)
 }
 
-/// Builds the release board firmware; returns its ELF.
+/// Builds the release board firmware (the power-up grasp); returns its ELF.
 pub fn build_board() -> Res<std::path::PathBuf> {
-    util::run(util::cargo().args([
-        "build",
-        "--release",
-        "-p",
-        "finger-fw",
-        "--target",
-        crate::qemu::TARGET,
-    ]))?;
+    build_board_with(&[])
+}
+
+/// Cargo features of the board's device-mode build: USB CDC-ACM, the protocol, the settings
+/// store, the two-point estimator (what `cargo board --features device` flashes).
+pub const DEVICE_FEATURES: &str = "board,device";
+/// The same with both estimators at run time (`path-fit` builds in the path fit's table and
+/// keeps the two-point method): the largest board build, the one issue 18's budget names.
+pub const DEVICE_BOTH_FEATURES: &str = "board,device,path-fit";
+
+/// Builds the release board firmware in device mode with `features` (one of the two above);
+/// returns its ELF (kept apart: the next build overwrites the one in place).
+pub fn build_board_device(features: &str) -> Res<std::path::PathBuf> {
+    let elf = build_board_with(&["--no-default-features", "--features", features])?;
+    let kept = elf.with_file_name(format!("finger-fw-{}", features.replace(',', "-")));
+    std::fs::copy(&elf, &kept).map_err(|e| format!("{}: {e}", kept.display()))?;
+    Ok(kept)
+}
+
+fn build_board_with(extra: &[&str]) -> Res<std::path::PathBuf> {
+    util::run(
+        util::cargo()
+            .args([
+                "build",
+                "--release",
+                "-p",
+                "finger-fw",
+                "--target",
+                crate::qemu::TARGET,
+            ])
+            .args(extra),
+    )?;
     Ok(util::root()
         .join("target")
         .join(crate::qemu::TARGET)
@@ -65,10 +89,10 @@ pub fn build_board() -> Res<std::path::PathBuf> {
         .join("finger-fw"))
 }
 
-/// Prints both numbers against the budgets; `Err` when over.
-pub fn report(s: Sizes) -> Res {
+/// Prints both numbers of the build `label` against the budgets; `Err` when over.
+pub fn report(label: &str, s: Sizes) -> Res {
     println!(
-        "board firmware: flash {} B ({:.1} KiB) of {} KiB, static RAM {} B ({:.1} KiB) of {} KiB",
+        "board firmware ({label}): flash {} B ({:.1} KiB) of {} KiB, static RAM {} B ({:.1} KiB) of {} KiB",
         s.flash,
         s.flash as f64 / 1024.0,
         FLASH_BUDGET / 1024,
@@ -133,11 +157,23 @@ pub fn stack_check(frames: &[crate::qemu::Frame]) -> Res<String> {
     }
 }
 
-/// `cargo xtask size`: flash and static RAM of the board build, then the stack's high-water
-/// mark of the Table 2 scene in QEMU for both estimators.
+/// `cargo xtask size`: flash and static RAM of the board builds (power-up grasp; device mode
+/// with USB, with one and with both estimators), then the stack's high-water mark of the
+/// Table 2 scene in QEMU for both estimators.
 pub fn main(_args: &[String]) -> Res {
-    let elf = build_board()?;
-    let sized = report(measure(&elf)?);
+    let mut sized = vec![build_board().and_then(|elf| report("power-up grasp", measure(&elf)?))];
+    for features in [DEVICE_FEATURES, DEVICE_BOTH_FEATURES] {
+        sized.push(
+            build_board_device(features)
+                .and_then(|elf| report(&format!("device mode, USB, {features}"), measure(&elf)?)),
+        );
+    }
+    let sized: Vec<String> = sized.into_iter().filter_map(Result::err).collect();
+    let sized = if sized.is_empty() {
+        Ok(())
+    } else {
+        Err(sized.join("\n"))
+    };
     let mut errs = Vec::new();
     for est in ["two-point", "path-fit"] {
         std::env::set_var("FINGER_FW_ESTIMATOR", est);
