@@ -113,6 +113,7 @@ mod app {
         {
             Ok(s) => {
                 dev.settings = s;
+                dev.source = proto::SettingsSource::Store;
                 dev.estimator = s.estimator;
                 device::set_decimation(s.telemetry_hz);
                 defmt::info!(
@@ -120,7 +121,10 @@ mod app {
                     (s.delta_ta_nm * 1e6) as i32
                 );
             }
-            Err(why) => defmt::warn!("SETTINGS source=defaults ({=str})", failure_name(why)),
+            Err(why) => {
+                dev.source = proto::SettingsSource::Defaults { why };
+                defmt::warn!("SETTINGS source=defaults ({=str})", failure_name(why))
+            }
         }
         host::spawn(tel_rx).ok();
         let mut board = board;
@@ -485,6 +489,8 @@ mod app {
                         // A real finger has no scene to choose.
                         scene: cfg!(feature = "qemu").then(|| d.scene.clone()),
                         bridge_on,
+                        settings_source: d.source,
+                        settings_changed: d.changed,
                     })
                 }))
             }
@@ -525,7 +531,9 @@ mod app {
                         .iter()
                         .map(|e| ctl::proto_estimator(*e))
                         .collect();
+                    let before = d.settings;
                     d.settings.set(&p, &avail)?;
+                    d.changed |= d.settings != before;
                     device::set_decimation(d.settings.telemetry_hz);
                     Ok(Reply::Ack)
                 })
@@ -577,6 +585,10 @@ mod app {
                 });
                 match r {
                     Ok(seq) => {
+                        sh.dev.lock(|d| {
+                            d.source = proto::SettingsSource::Store;
+                            d.changed = false;
+                        });
                         defmt::info!(
                             "SETTINGS stored sequence={=u32} len={=usize}",
                             seq,
@@ -606,7 +618,11 @@ mod app {
                 });
                 match r {
                     Ok(s) => {
-                        sh.dev.lock(|d| d.settings = s);
+                        sh.dev.lock(|d| {
+                            d.settings = s;
+                            d.source = proto::SettingsSource::Store;
+                            d.changed = false;
+                        });
                         device::set_decimation(s.telemetry_hz);
                         defmt::info!(
                             "SETTINGS source=store dta_unm={=i32}",

@@ -160,6 +160,10 @@ pub struct Device {
     pub tx_dropped: u32,
     /// The link to the host.
     pub io: Link,
+    /// Where `settings` came from.
+    pub source: proto::SettingsSource,
+    /// A `set` changed `settings` since they were loaded or stored.
+    pub changed: bool,
 }
 
 impl Device {
@@ -177,6 +181,10 @@ impl Device {
             tx: heapless::Deque::new(),
             tx_dropped: 0,
             io,
+            source: proto::SettingsSource::Defaults {
+                why: proto::StoreFailure::Empty,
+            },
+            changed: false,
         }
     }
 

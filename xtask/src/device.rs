@@ -496,9 +496,31 @@ fn dta_of(v: &Value) -> Option<f64> {
 /// the RAM store survives it) boots with the stored value.
 fn store_and_reboot(s: &Session) -> Res<Vec<String>> {
     let mut errs = Vec::new();
+    // (settings_source, settings_changed) of a status reply.
+    let source = |s: &Session| -> Res<(Value, Value)> {
+        let v = s.state()?.2;
+        let st = &v["reply"]["Status"];
+        Ok((
+            st["settings_source"].clone(),
+            st["settings_changed"].clone(),
+        ))
+    };
     let dta = STORED_DTA.to_string();
     s.ok(&["set", "delta_ta_nm", &dta])?;
+    // Nothing stored since power-up (QEMU's store starts empty), and changed by the session.
+    let (src, changed) = source(s)?;
+    if src["Defaults"]["why"] != "Empty" || changed != Value::Bool(true) {
+        errs.push(format!(
+            "status before any store: source {src}, changed {changed}"
+        ));
+    }
     s.ok(&["store"])?;
+    let (src, changed) = source(s)?;
+    if src != "Store" || changed != Value::Bool(false) {
+        errs.push(format!(
+            "status after store: source {src}, changed {changed}"
+        ));
+    }
     s.ok(&["set", "delta_ta_nm", "0.9"])?;
     s.ok(&["load"])?;
     let got = dta_of(&s.ok(&["get", "delta_ta_nm"])?);
@@ -544,6 +566,12 @@ fn store_and_reboot(s: &Session) -> Res<Vec<String>> {
         .rfind(|f| f.msg.starts_with("SETTINGS source="))
         .map(|f| f.msg.clone());
     println!("after reboot: ΔT_a {got:?} N·m, log {src:?}");
+    let (status_src, changed) = source(s)?;
+    if status_src != "Store" || changed != Value::Bool(false) {
+        errs.push(format!(
+            "status after reboot: source {status_src}, changed {changed}"
+        ));
+    }
     if got != Some(STORED_DTA) || !src.as_deref().is_some_and(|m| m.contains("source=store")) {
         errs.push(format!(
             "reboot: ΔT_a {got:?} (stored {STORED_DTA}), log {src:?}"

@@ -415,6 +415,22 @@ pub struct Status {
     pub scene: Option<SceneName>,
     /// True while the H-bridge drives the motor.
     pub bridge_on: bool,
+    /// Where the settings came from (the store, or the build's defaults and why).
+    pub settings_source: SettingsSource,
+    /// A `set` changed them since they were loaded or stored.
+    pub settings_changed: bool,
+}
+
+/// Where the settings in use came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SettingsSource {
+    /// The build's defaults: the store held nothing usable.
+    Defaults {
+        /// Why the store was not used.
+        why: StoreFailure,
+    },
+    /// The settings store (at boot, or by `load` or `store`).
+    Store,
 }
 
 /// Why a request was refused.

@@ -106,6 +106,10 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
             settings: settings(),
             scene: Some(scene("table2")),
             bridge_on: true,
+            settings_source: proto::SettingsSource::Defaults {
+                why: proto::StoreFailure::Foreign,
+            },
+            settings_changed: true,
         })),
         Ok(Reply::Drive(proto::Drive {
             dt_s: 100e-6,

@@ -579,12 +579,22 @@ mod erased {
                     board,
                 } => format!("protocol {version}, {firmware} on {board}"),
                 Reply::Status(s) => format!(
-                    "state {} (bridge {}), tick {}, grasps {}, scene {}\nsettings: {:?}",
+                    "state {} (bridge {}), tick {}, grasps {}, scene {}\nsettings ({}{}): {:?}",
                     s.state.name(),
                     if s.bridge_on { "on" } else { "off" },
                     s.tick,
                     s.grasps,
                     s.scene.as_deref().unwrap_or("-"),
+                    match s.settings_source {
+                        proto::SettingsSource::Store => "from the store".to_string(),
+                        proto::SettingsSource::Defaults { why } =>
+                            format!("build defaults: store {why:?}"),
+                    },
+                    if s.settings_changed {
+                        ", changed since, not stored"
+                    } else {
+                        ""
+                    },
                     s.settings
                 ),
                 Reply::Param(p) => format!("{p:?}"),
