@@ -64,11 +64,82 @@ fn check_dta(dta: &[f64]) -> Result<(), String> {
     Ok(())
 }
 
+/// A scene in words, from its data: the object and where it is touched, the drive, the faults.
+pub fn scene_summary(sc: &plant::Scene) -> String {
+    use plant::scene::ObjectSpec;
+    let mm = |m: f64| format!("{:.1} mm", m * 1e3);
+    let shape = |r: f64| {
+        if r > 0.0 {
+            format!("cylinder R {}", mm(r))
+        } else {
+            "vertex".to_string()
+        }
+    };
+    let mut parts = vec![match sc.object {
+        ObjectSpec::None => "no object (free motion)".to_string(),
+        ObjectSpec::At(o) => format!(
+            "{} fixed at ({}, {}) from O1",
+            shape(o.radius_m),
+            mm(o.x_m),
+            mm(o.y_m)
+        ),
+        ObjectSpec::Touching(c) => format!(
+            "{} first touching the {} phalanx at k = {} (θ1,c = {} rad)",
+            shape(c.radius_m),
+            match c.phalanx {
+                plant::kin::Phalanx::Proximal => "proximal",
+                plant::kin::Phalanx::Distal => "distal",
+            },
+            mm(c.k_c_m),
+            c.theta1_c_rad
+        ),
+    }];
+    let ideal = *sc == plant::Scene { ..sc.ideal() };
+    parts.push(
+        if ideal {
+            "ideal drive"
+        } else {
+            "realistic drive"
+        }
+        .to_string(),
+    );
+    let f = &sc.faults;
+    let at = |t: f64| t.is_finite().then_some(t);
+    if let Some(t) = at(f.encoder_stuck_at_s) {
+        parts.push(format!("encoder stuck from {t} s"));
+    }
+    if let Some(t) = at(f.encoder_jump_at_s) {
+        parts.push(format!(
+            "encoder jumps {} counts at {t} s",
+            f.encoder_jump_counts
+        ));
+    }
+    if let Some(t) = at(f.short_at_s) {
+        parts.push(format!("winding shorted to {} Ω at {t} s", f.short_r_ohm));
+    }
+    if let Some(t) = at(f.remove_object_at_s) {
+        parts.push(format!("object removed at {t} s"));
+    }
+    if f.power_up_offset_rad != 0.0 {
+        parts.push(format!(
+            "powered up {} rad from rest",
+            f.power_up_offset_rad
+        ));
+    }
+    parts.join("; ")
+}
+
 /// Runs `pts sim`.
 pub fn run(a: &Args) -> Result<(), String> {
     if a.list {
+        let width = plant::scenes::NAMES
+            .iter()
+            .map(|n| n.len())
+            .max()
+            .unwrap_or(0);
         for n in plant::scenes::NAMES {
-            crate::outln!("{n}");
+            let what = plant::scenes::by_name(n).map_or(String::new(), |sc| scene_summary(&sc));
+            crate::outln!("{n:<width$}  {what}");
         }
         return Ok(());
     }
@@ -604,4 +675,30 @@ fn progress(done: usize, total: usize, t0: Instant) {
         ".".repeat(width - filled)
     );
     let _ = std::io::stderr().flush();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The `--list` descriptions say what the scene data holds: the values written in
+    /// plant's scene catalogue (cylinder 10 mm at k2 = 15 mm; a 2 Ω short at 1 s; the ideal
+    /// variant of table2; the power-up offset).
+    #[test]
+    fn scene_summaries_name_object_drive_and_faults() {
+        let s = |n: &str| scene_summary(&plant::scenes::by_name(n).unwrap());
+        let cyl = s("cyl10_k2_20");
+        assert!(
+            cyl.starts_with("cylinder R 10.0 mm first touching the distal phalanx at k = 15.0 mm")
+                && cyl.ends_with("realistic drive"),
+            "{cyl}"
+        );
+        assert!(s("table2_ideal").ends_with("; ideal drive"));
+        assert!(s("vertex_k2_30").starts_with("vertex first touching the distal"));
+        assert!(s("proximal_vertex_k1_50").contains("proximal phalanx at k = 50.0 mm"));
+        assert!(s("free").starts_with("no object"));
+        assert!(s("fault_short").ends_with("winding shorted to 2 Ω at 1 s"));
+        assert!(s("fault_power_up_away").ends_with("powered up 0.45 rad from rest"));
+        assert!(!s("table2").contains("stuck"));
+    }
 }
