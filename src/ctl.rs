@@ -124,24 +124,38 @@ pub const AVAILABLE: &[Estimator] = match ESTIMATOR {
 /// The estimate with the estimator the request names (device mode: chosen per grasp): the
 /// build's own estimator on its table ([`run_estimate`]); in a path-fit build the two-point
 /// method too, from the fixed-point model (its table is not built in); a two-point build
-/// refuses the path fit (its table is not built in).
+/// refuses the path fit (its table is not built in). A path-fit answer carries the two-point
+/// k2 beside it for reference.
 pub fn run_estimate_as(
     finger: &pts::Finger,
     req: &EstimateRequest,
     table: Option<&EstimatorTable>,
 ) -> Result<EstimateResult, EstimateError> {
     match (req.estimator, ESTIMATOR) {
-        (Estimator::TwoPoint, Estimator::TwoPoint) | (Estimator::PathFit, Estimator::PathFit) => {
-            run_estimate(finger, req, table)
+        (Estimator::TwoPoint, Estimator::TwoPoint) => run_estimate(finger, req, table),
+        (Estimator::PathFit, Estimator::PathFit) => {
+            let mut r = run_estimate(finger, req, table)?;
+            // The paper's method beside the fit, for reference; its failure does not fail
+            // the fit's answer.
+            r.two_point_k2_um = two_point_model(finger, req).ok().and_then(|t| t.k2_um);
+            Ok(r)
         }
-        (Estimator::TwoPoint, Estimator::PathFit) => {
-            let model = pts::Model::<grasp::EstReal>::new(finger)?;
-            grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
-        }
+        (Estimator::TwoPoint, Estimator::PathFit) => two_point_model(finger, req),
         (Estimator::PathFit, Estimator::TwoPoint) => Err(EstimateError::PathFit(
             PathFitError::Model(PtsError::OutOfRange),
         )),
     }
+}
+
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+/// The two-point estimate in a path-fit build, whose two-point table is not built in: from
+/// the fixed-point model's Newton solves.
+fn two_point_model(
+    finger: &pts::Finger,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, EstimateError> {
+    let model = pts::Model::<grasp::EstReal>::new(finger)?;
+    grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
 }
 
 #[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode

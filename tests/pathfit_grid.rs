@@ -69,6 +69,10 @@ struct Case {
     fit_q: Option<Result<FitOut, PathFitError>>,
     /// Two-point k2 (m), when it gave one.
     two_point: Option<f64>,
+    /// The firmware's path-fit entry on the same request.
+    fw: Option<Result<grasp::EstimateResult, grasp::EstimateError>>,
+    /// The same estimate on the generic f64 back end.
+    fw_f64: Option<Result<grasp::EstimateResult, grasp::EstimateError>>,
     /// The controller never produced a request (state at the end).
     no_request: Option<State>,
 }
@@ -130,6 +134,8 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         fit: None,
         fit_q: None,
         two_point: None,
+        fw: None,
+        fw_f64: None,
         no_request: None,
     };
     let Ok(plant) = Plant::new(&scene) else {
@@ -250,6 +256,10 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
                     fit_path_q(&table, fx(th_c), Some(fx(t_c)), raw_samples(&req))
                         .map(FitOut::from),
                 );
+                let mut fw_req = req.clone();
+                fw_req.estimator = grasp::Estimator::PathFit;
+                case.fw = Some(run_estimate(&pts::Finger::PAPER, &fw_req));
+                case.fw_f64 = Some(grasp::run_estimate_with(&m, &fw_req));
                 let r = run_estimate(&pts::Finger::PAPER, &req);
                 case.two_point = r.ok().and_then(|e| e.k2_um.map(|k| f64::from(k) * 1e-6));
                 c.deliver(&mut hw, r);
@@ -740,5 +750,43 @@ fn pathfit_table2_case() {
             let f = f.as_ref().expect("request").as_ref().expect("estimate");
             assert!((f.k2 - k * L2).abs() < 0.02 * L2, "{f:?}");
         }
+        // The firmware's σ and radius (µm) against the same estimate on the generic f64 back
+        // end (the same request, the contact point from f64 Newton solves).
+        let fw =
+            c.fw.as_ref()
+                .expect("request")
+                .as_ref()
+                .expect("firmware estimate");
+        let f64_ref = c
+            .fw_f64
+            .as_ref()
+            .expect("request")
+            .as_ref()
+            .expect("f64 estimate");
+        println!("{name}: firmware {fw:?}\n{name}: f64 {f64_ref:?}");
+        let (s_fw, s_ref) = (
+            fw.k2_sigma_um.expect("σ of a distal answer"),
+            f64_ref.k2_sigma_um.expect("σ of a distal answer"),
+        );
+        assert!(s_ref > 0, "{name}: σ {s_ref} µm");
+        assert!(
+            f64::from((s_fw - s_ref).abs()) < 0.1 * f64::from(s_ref),
+            "{name}: firmware σ {s_fw} µm, f64 σ {s_ref} µm"
+        );
+        assert_eq!(
+            fw.radius_um.is_some(),
+            f64_ref.radius_um.is_some(),
+            "{name}"
+        );
+        if let (Some(r_fw), Some(r_ref)) = (fw.radius_um, f64_ref.radius_um) {
+            assert!(
+                f64::from((r_fw - r_ref).abs()) < 0.1 * f64::from(r_ref).max(5_000.0),
+                "{name}: firmware R {r_fw} µm, f64 R {r_ref} µm"
+            );
+        }
+        assert_eq!(
+            fw.two_point_k2_um, None,
+            "the estimator leaves the reference to its caller"
+        );
     }
 }

@@ -150,8 +150,18 @@ fn cobs_encode(data: &[u8]) -> Vec<u8> {
     out
 }
 
-/// The host runner's estimate of the same grasp: (k2 µm, l2 µm).
-fn host_k2(scene: &str, dta: &str, estimator: &str) -> Res<(i64, f64)> {
+/// The host runner's estimate of a grasp (µm), and the finger's l2 (µm).
+struct HostEstimate {
+    k2_um: i64,
+    l2_um: f64,
+    /// σ of k2 (path fit).
+    sigma_um: Option<i64>,
+    /// The two-point reference beside the path fit.
+    two_point_k2_um: Option<i64>,
+}
+
+/// The host runner's estimate of the same grasp.
+fn host_estimate(scene: &str, dta: &str, estimator: &str) -> Res<HostEstimate> {
     let (out, _) = util::output_code(
         util::cargo()
             .args([
@@ -176,12 +186,16 @@ fn host_k2(scene: &str, dta: &str, estimator: &str) -> Res<(i64, f64)> {
         .find(|l| l.starts_with("BOOT"))
         .and_then(|l| int(l, "l2_um"))
         .ok_or("host run: no BOOT line")? as f64;
-    let k2 = out
+    let estimated = out
         .lines()
         .rfind(|l| l.starts_with("E Estimated"))
-        .and_then(|l| int(l, "k2_um"))
-        .ok_or_else(|| format!("host run of {scene} gave no k2"))?;
-    Ok((k2, l2))
+        .ok_or_else(|| format!("host run of {scene} gave no estimate"))?;
+    Ok(HostEstimate {
+        k2_um: int(estimated, "k2_um").ok_or_else(|| format!("host run of {scene}: no k2"))?,
+        l2_um: l2,
+        sigma_um: int(estimated, "k2_sigma_um"),
+        two_point_k2_um: int(estimated, "two_point_k2_um"),
+    })
 }
 
 fn free_port() -> Res<u16> {
@@ -373,7 +387,8 @@ fn session(s: &Session) -> Res {
             .as_i64()
             .ok_or_else(|| format!("{scene}: no k2 in {v}"))?;
         let dev_est = v["contact"]["estimator"].as_str().unwrap_or("");
-        let (k2_host, l2) = host_k2(scene, dta, est)?;
+        let host = host_estimate(scene, dta, est)?;
+        let (k2_host, l2) = (host.k2_um, host.l2_um);
         let d = (k2_dev - k2_host).abs() as f64;
         println!(
             "grasp {scene} ΔT_a {dta} N·m {est}: k2 device {k2_dev} µm, host {k2_host} µm, |Δ| {d} µm (tolerance {:.1} µm), {:.1} s",
@@ -384,6 +399,23 @@ fn session(s: &Session) -> Res {
             errs.push(format!(
                 "{scene} ΔT_a {dta} {est}: device k2 {k2_dev} µm vs host {k2_host} µm"
             ));
+        }
+        // A path fit reports its σ and the paper's two-point k2 beside it, as the host does.
+        if *est == "path-fit" {
+            for (field, host_v) in [
+                ("sigma_um", host.sigma_um),
+                ("two_point_k2_um", host.two_point_k2_um),
+            ] {
+                let dev_v = v["contact"][field].as_i64();
+                let close = matches!((dev_v, host_v), (Some(a), Some(b))
+                    if ((a - b).abs() as f64) <= K2_TOL_REL_L2 * l2);
+                println!("  {field}: device {dev_v:?}, host {host_v:?}");
+                if !close {
+                    errs.push(format!(
+                        "{scene} {est}: {field} device {dev_v:?} vs host {host_v:?}"
+                    ));
+                }
+            }
         }
         let want = if *est == "path-fit" {
             "PathFit"

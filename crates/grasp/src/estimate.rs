@@ -154,6 +154,14 @@ pub struct EstimateResult {
     pub located: Located,
     /// Distal contact location from O2 (µm), when distal or ambiguous.
     pub k2_um: Option<i32>,
+    /// One standard deviation of `k2_um` (µm), when the estimator gives one (the path fit).
+    pub k2_sigma_um: Option<i32>,
+    /// Radius of the object at the contact (µm), when the path determines it (the path fit
+    /// of a rolling contact).
+    pub radius_um: Option<i32>,
+    /// The paper's two-point k2 (µm) for reference, when the caller computed it beside another
+    /// estimator (the estimators themselves leave it `None`).
+    pub two_point_k2_um: Option<i32>,
     /// K̂c = ΔT_a/Δθa (µN·m/rad).
     pub kc_hat_unm_per_rad: i32,
     /// K_c of a proximal contact at the contact configuration (µN·m/rad).
@@ -436,6 +444,9 @@ fn path_fit_result<R: EstNum>(
     let base = EstimateResult {
         located: Located::Proximal,
         k2_um: None,
+        k2_sigma_um: None,
+        radius_um: None,
+        two_point_k2_um: None,
         kc_hat_unm_per_rad: 0,
         kc_proximal_unm_per_rad: 0,
         kc_tip_unm_per_rad: 0,
@@ -462,6 +473,12 @@ fn path_fit_result<R: EstNum>(
     let r = EstimateResult {
         located: Located::Distal,
         k2_um: Some(fit.k2_contact_m.micro()),
+        k2_sigma_um: Some(sigma.micro()),
+        radius_um: if fit.radius_observable {
+            Some(fit.radius_m.micro())
+        } else {
+            None
+        },
         kc_hat_unm_per_rad: fit.kc_contact.micro(),
         theta_a_c_urad: fit.theta_a_c_rad.micro(),
         quality: if sigma > l2_m * R::from_f64(0.05) {
@@ -517,6 +534,9 @@ fn two_point_result<R: EstNum>(
     Ok(EstimateResult {
         located,
         k2_um: k2,
+        k2_sigma_um: None,
+        radius_um: None,
+        two_point_k2_um: None,
         kc_hat_unm_per_rad: kc.micro(),
         kc_proximal_unm_per_rad: c.kc_proximal.micro(),
         kc_tip_unm_per_rad: c.kc_tip.micro(),

@@ -642,14 +642,11 @@ mod erased {
         fn text(&self) -> String {
             match self {
                 Outcome::Contact(c) => format!(
-                    "grasp {}: {:?} contact, k2 {} µm, K̂c {} µN·m/rad, ΔT_a {} µN·m, Δθa {} µrad ({:?})",
+                    "grasp {}: {}, ΔT_a {:.3} N·m, Δθa {:.2} mrad",
                     c.grasp,
-                    c.phalanx,
-                    c.k2_um.map_or("-".into(), |k| k.to_string()),
-                    c.kc_hat_unm_per_rad,
-                    c.delta_ta_unm,
-                    c.delta_theta_a_urad,
-                    c.estimator
+                    pts_cli::watch::estimate_words(c),
+                    f64::from(c.delta_ta_unm) * 1e-6,
+                    f64::from(c.delta_theta_a_urad) * 1e-3,
                 ),
                 Outcome::Fault(f) => format!("fault {:?} (value {}): bridge off", f.kind, f.value),
                 Outcome::Stopped => "stopped: bridge off".into(),

@@ -171,13 +171,24 @@ pub fn event_words(k: &EventKind) -> String {
     }
 }
 
-/// A contact estimate in words.
+/// A contact estimate in words: phalanx, k2 with its σ when given, the radius when observed,
+/// K̂c, the estimator and the two-point reference when computed beside it.
 pub fn estimate_words(c: &Contact) -> String {
+    let mm = |um: i32| format!("{:.2}", f64::from(um) / 1000.0);
+    let k2 = match (c.k2_um, c.sigma_um) {
+        (Some(k), Some(s)) => format!("{} ± {} mm", mm(k), mm(s)),
+        (Some(k), None) => format!("{} mm", mm(k)),
+        (None, _) => "-".into(),
+    };
+    let radius = c
+        .r_um
+        .map_or(String::new(), |r| format!(", R {} mm", mm(r)));
+    let reference = c
+        .two_point_k2_um
+        .map_or(String::new(), |k| format!("; two-point {} mm", mm(k)));
     format!(
-        "{:?}, k2 {}, K̂c {:.3} N·m/rad ({:?})",
+        "{:?}, k2 {k2}{radius}, K̂c {:.3} N·m/rad ({:?}{reference})",
         c.phalanx,
-        c.k2_um
-            .map_or("-".into(), |k| format!("{:.2} mm", f64::from(k) / 1000.0)),
         f64::from(c.kc_hat_unm_per_rad) * 1e-6,
         c.estimator
     )
@@ -487,7 +498,7 @@ mod tests {
                 400_000 + 1500 * k as i32,
             ));
         }
-        w.push(&DeviceMsg::Contact(Contact {
+        let contact = Contact {
             grasp: 1,
             estimator: proto::Estimator::TwoPoint,
             phalanx: proto::Phalanx::Distal,
@@ -501,7 +512,8 @@ mod tests {
             delta_ta_unm: 704_014,
             delta_theta_a_urad: 130_814,
             good: true,
-        }));
+        };
+        w.push(&DeviceMsg::Contact(contact));
         let mut term = ratatui::Terminal::new(TestBackend::new(100, 40)).unwrap();
         term.draw(|f| draw(f, &w)).unwrap();
         let buf = term.backend().buffer();
@@ -520,6 +532,20 @@ mod tests {
             "{text}"
         );
         assert!(text.contains("k2 22.21 mm"), "{text}");
+        let full = Contact {
+            estimator: proto::Estimator::PathFit,
+            k2_um: Some(29_719),
+            sigma_um: Some(1_184),
+            r_um: Some(48_560),
+            two_point_k2_um: Some(41_993),
+            ..contact
+        };
+        let words = estimate_words(&full);
+        assert!(
+            words.contains("k2 29.72 ± 1.18 mm, R 48.56 mm")
+                && words.contains("(PathFit; two-point 41.99 mm)"),
+            "{words}"
+        );
         assert!(text.contains("contact at θa -0.2200 rad"), "{text}");
         let braille = text
             .chars()
