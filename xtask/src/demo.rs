@@ -1,9 +1,11 @@
 //! `cargo xtask demo [--scene NAME|FILE]`: the README's main command.
 //!
-//! Builds the QEMU firmware for the scene, runs it in qemu-system-arm (installing it when
-//! missing), decodes the defmt stream live and ends with the estimate next to the plant's truth.
-//! Exits with the firmware's status (0: estimate delivered; 2: the controller faulted and
-//! switched the bridge off; 101/102: panic/HardFault).
+//! Without options it runs [`crate::demo_device`]: grasps driven over the host protocol. With
+//! `--scene` it builds the power-up firmware for that scene, runs it in qemu-system-arm
+//! (installing it when missing), decodes the defmt stream live and ends with the estimate next
+//! to the plant's truth, exiting with the firmware's status (0: estimate delivered; 2: the
+//! controller faulted and switched the bridge off; 101/102: panic/HardFault). The words this
+//! view gives events are shared with the device demo and `cargo xtask device`.
 
 use crate::log::{self, int, word};
 use crate::qemu::{self, Frame};
@@ -191,9 +193,14 @@ pub fn event_words(msg: &str) -> Option<String> {
         "Estimated" => {
             let located = ids.get(2).copied().unwrap_or("?");
             let quality = ids.last().copied().unwrap_or("?").to_lowercase();
+            let sigma = int(msg, "k2_sigma_um").map_or(String::new(), |s| format!(" ± {}", mm(s)));
+            let radius =
+                int(msg, "radius_um").map_or(String::new(), |r| format!(", R = {}", mm(r)));
+            let reference = int(msg, "two_point_k2_um")
+                .map_or(String::new(), |t| format!("; two-point method {}", mm(t)));
             match int(msg, "k2_um") {
                 Some(k2) => format!(
-                    "estimate: {} phalanx, k2 = {} from O2 (K_c = {:.3} N·m/rad, quality {quality})",
+                    "estimate: {} phalanx, k2 = {}{sigma} from O2{radius} (K_c = {:.3} N·m/rad, quality {quality}{reference})",
                     located.to_lowercase(),
                     mm(k2),
                     v("kc_hat_unm_per_rad") as f64 * 1e-6
@@ -216,6 +223,14 @@ pub fn event_words(msg: &str) -> Option<String> {
     })
 }
 
+/// The finger's name in a BOOT line (it may contain spaces).
+pub fn boot_finger(boot: &str) -> &str {
+    boot.split("finger=")
+        .nth(1)
+        .and_then(|r| r.split(" l2_um=").next())
+        .unwrap_or("?")
+}
+
 /// The live view: the build's settings, events in words, samples at a calm rate (one a second
 /// during the approach, five a second after contact, and at every change of state).
 #[derive(Default)]
@@ -232,10 +247,7 @@ impl View {
         if m.starts_with("BOOT ") {
             println!(
                 "finger     {} (l2 = {})",
-                m.split("finger=")
-                    .nth(1)
-                    .and_then(|r| r.split(" l2_um=").next())
-                    .unwrap_or("?"),
+                boot_finger(m),
                 mm(int(m, "l2_um").unwrap_or(0))
             );
             println!(
@@ -425,6 +437,9 @@ pub fn summary(frames: &[Frame], status: i32) {
 
 /// `cargo xtask demo`.
 pub fn main(args: &[String]) -> Res<i32> {
+    if args.is_empty() {
+        return crate::demo_device::main();
+    }
     let scene = scene_from_args(args)?;
     qemu::ensure_qemu()?;
     let elf = qemu::build(&scene)?;
@@ -446,6 +461,13 @@ mod tests {
         assert!(w.contains("distal phalanx, k2 = 41.99 mm"), "{w}");
         assert!(
             w.contains("K_c = 10.152 N·m/rad") && w.contains("quality good"),
+            "{w}"
+        );
+        let fit = "Estimated { tick: 1, result: EstimateResult { located: Distal, k2_um: Some(29719), k2_sigma_um: Some(1184), radius_um: None, two_point_k2_um: Some(41993), kc_hat_unm_per_rad: 7079086, quality: Good } }";
+        let w = event_words(fit).unwrap();
+        assert!(
+            w.contains("k2 = 29.72 mm ± 1.18 mm from O2 (")
+                && w.contains("two-point method 41.99 mm"),
             "{w}"
         );
         let fault = "Fault { tick: 5, reason: NoMotion { travel_urad: 12 } }";

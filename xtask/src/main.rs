@@ -1,6 +1,7 @@
 //! Project automation: `cargo xtask <command>`; `cargo xtask <command> --help` for details.
 //!
-//! * `demo [--scene NAME|FILE]`: the QEMU firmware with the simulated finger, decoded live.
+//! * `demo [--scene NAME|FILE]`: the QEMU firmware with the simulated finger: three grasps over
+//!   the host protocol (or one power-up grasp of a scene), live, then estimates vs truth.
 //! * `test`: every check the project has (the CI entry point, see .ci/run).
 //! * `size`: flash and static RAM of the board firmware against the budgets.
 //! * `bench [--check] [--quick] [--no-criterion]`: solver cost against error.
@@ -16,6 +17,7 @@ mod bench;
 mod callgraph;
 mod ci;
 mod demo;
+mod demo_device;
 mod device;
 mod figures;
 mod fuzz;
@@ -47,27 +49,32 @@ const COMMANDS: &[Cmd] = &[
     Cmd {
         name: "demo",
         args: "[--scene NAME|FILE]",
-        summary: "the firmware in QEMU with the simulated finger, live, then the estimate",
+        summary: "the QEMU firmware and simulated finger: grasps live, then vs truth",
         help: "\
-Builds the firmware for QEMU's mps2-an386 (Cortex-M4) with the simulated finger of one scene
-running inside it, runs it in qemu-system-arm (installed with apt-get when missing and possible),
-shows the grasp live from the decoded defmt log and ends with the estimate next to the plant's
-truth. The first run compiles the firmware, which takes a few minutes.
+Without options: builds the device-mode firmware for QEMU's mps2-an386 (Cortex-M4) with the
+simulated finger inside it and drives it over its host protocol, as a robot drives the board:
+one power-up, three grasps on different objects and torque steps (table2 at 0.8 N·m,
+cyl10_k2_20 at 0.6, vertex_k2_30 at 1.0), each with the path fit, shown live by
+`pts board watch --grasp` (a terminal UI on a terminal, summary lines otherwise) and released
+before the next. Ends with a table: k2 ± σ, the paper's two-point k2 beside it, the plant's
+first contact and the error. The first run compiles the firmware, which takes a few minutes.
 
 options:
-  --scene NAME|FILE     a built-in scene (the file stems of crates/plant/scenes/*.toml, e.g.
-                        vertex_k2_30, cyl10_k2_20, fault_encoder_stuck) or a scene TOML file;
-                        default table2 (the paper's Table 2 contact)
+  --scene NAME|FILE     instead, the power-up build: the firmware grasps once at power-up with
+                        the build's settings, its decoded log shown live, then the estimate
+                        next to the truth. A built-in scene (the file stems of
+                        crates/plant/scenes/*.toml, e.g. table2, vertex_k2_30,
+                        fault_encoder_stuck) or a scene TOML file
   -h, --help            print this help and exit
 
-environment (read when the firmware is built):
+environment (read when the --scene firmware is built):
   FINGER_FW_ESTIMATOR   two-point (default) or path-fit
   FINGER_FW_DELTA_TA_NM the torque step ΔT_a after contact, in N·m (default 0.8)
   FINGER_TOML           a finger file (default: the paper's prototype,
                         crates/pts-cli/fingers/paper.toml)
 
-exit status: the firmware's: 0 an estimate was delivered; 2 the controller faulted and switched
-the bridge off; 101 / 102 a panic / HardFault (bridge off); 1 the demo itself failed.
+exit status: 0 every grasp gave an estimate; 2 the controller faulted and switched the bridge
+off; with --scene also 101 / 102 a panic / HardFault (bridge off); 1 the demo itself failed.
 ",
         run: demo::main,
     },
