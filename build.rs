@@ -223,8 +223,9 @@ fn inject_consts(src: &mut String) {
 }
 
 /// The estimator linked into the firmware: the Cargo feature `path-fit` selects the path fit;
-/// `FINGER_FW_ESTIMATOR=two-point|path-fit` is an alias kept for scripts and xtask (default:
-/// the controller's default). Both map to the same cfg; a conflict is an error.
+/// `FINGER_FW_ESTIMATOR=two-point|path-fit` chooses too (default: the path fit, the
+/// controller's default; `two-point` builds the smaller firmware with the paper's method only).
+/// Both map to the same cfg; a conflict is an error.
 fn estimator_consts(src: &mut String) {
     // `fw_path_fit`: the path fit's table slot exists only in that build (3.6 KB of RAM).
     println!("cargo::rustc-check-cfg=cfg(fw_path_fit)");
@@ -237,8 +238,8 @@ fn estimator_consts(src: &mut String) {
         ),
         Ok("two-point" | "twopoint") => "Some(grasp::Estimator::TwoPoint)",
         Ok("path-fit" | "pathfit") => path_fit,
-        Ok("") | Err(_) if feature => path_fit,
-        Ok("") | Err(_) => "None",
+        // The controller's default estimator, the path fit.
+        Ok("") | Err(_) => path_fit,
         Ok(other) => fail(&format!(
             "FINGER_FW_ESTIMATOR={other}: not an estimator; allowed: two-point, path-fit"
         )),

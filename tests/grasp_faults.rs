@@ -212,13 +212,14 @@ fn undelivered_estimate_times_out_into_the_safe_state() {
 
 #[test]
 fn torque_step_instead_of_ramp_gives_the_same_estimate() {
-    // ΔT_a applied as one step: the impact is absorbed by the damping and the estimate uses
-    // static points only, so it matches the ramp's within the grid's noise.
+    // ΔT_a applied as one step: the impact is absorbed by the damping and the two-point
+    // estimate uses static points only, so it matches the ramp's within the grid's noise.
     let scene = table2_ideal();
     let mut k = Vec::new();
     for shape in [grasp::StepShape::Ramp(1.0), grasp::StepShape::Step] {
         let cfg = grasp::ControllerConfig {
             step_shape: shape,
+            estimator: grasp::Estimator::TwoPoint,
             ..config(&scene, 0.8)
         };
         let o = run(&scene, cfg, 20.0, 0.0, |_, _, _| {});

@@ -93,7 +93,13 @@ type Pf = Option<Result<f64, &'static str>>;
 
 fn run_case(c: &Case) -> (Res, Pf) {
     let s = scene(c);
-    let o = run(&s, config(&s, c.dta), 20.0, 0.0, |_, _, _| {});
+    // The grid measures the paper's two-point method in closed loop (the path fit is run
+    // on the same request below).
+    let cfg = grasp::ControllerConfig {
+        estimator: grasp::Estimator::TwoPoint,
+        ..config(&s, c.dta)
+    };
+    let o = run(&s, cfg, 20.0, 0.0, |_, _, _| {});
     let pf = o.request.as_ref().map(|req| {
         let m = pts::Model::<f64>::paper().expect("paper model");
         match grasp::estimate::path_fit(&m, req) {

@@ -10,7 +10,11 @@ const K2_HAT_MODEL: f64 = 0.041529;
 #[test]
 fn table2_ideal_matches_the_model_two_point_result() {
     let scene = plant::scenes::by_name("table2_ideal").expect("scene");
-    let o = run(&scene, config(&scene, 0.8), 10.0, 0.0, |_, _, _| {});
+    let cfg = ControllerConfig {
+        estimator: Estimator::TwoPoint,
+        ..config(&scene, 0.8)
+    };
+    let o = run(&scene, cfg, 10.0, 0.0, |_, _, _| {});
     assert_eq!(o.state, State::Holding, "events {:?}", o.events);
     let r = o.estimate.unwrap().unwrap();
     let k2 = k2_hat(&o).unwrap();

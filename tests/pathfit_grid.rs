@@ -260,7 +260,9 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
                 fw_req.estimator = grasp::Estimator::PathFit;
                 case.fw = Some(run_estimate(&pts::Finger::PAPER, &fw_req));
                 case.fw_f64 = Some(grasp::run_estimate_with(&m, &fw_req));
-                let r = run_estimate(&pts::Finger::PAPER, &req);
+                let mut tp_req = req.clone();
+                tp_req.estimator = grasp::Estimator::TwoPoint;
+                let r = run_estimate(&pts::Finger::PAPER, &tp_req);
                 case.two_point = r.ok().and_then(|e| e.k2_um.map(|k| f64::from(k) * 1e-6));
                 c.deliver(&mut hw, r);
                 break;

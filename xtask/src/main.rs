@@ -68,7 +68,7 @@ options:
   -h, --help            print this help and exit
 
 environment (read when the --scene firmware is built):
-  FINGER_FW_ESTIMATOR   two-point (default) or path-fit
+  FINGER_FW_ESTIMATOR   path-fit (default) or two-point (the paper's method only)
   FINGER_FW_DELTA_TA_NM the torque step ΔT_a after contact, in N·m (default 0.8)
   FINGER_TOML           a finger file (default: the paper's prototype,
                         crates/pts-cli/fingers/paper.toml)
@@ -152,7 +152,7 @@ options:
   -h, --help            print this help and exit
 
 environment: FINGER_FW_ESTIMATOR, FINGER_FW_DELTA_TA_NM and FINGER_TOML as for `demo`
-(e.g. FINGER_FW_ESTIMATOR=path-fit cargo xtask size measures the path-fit build).
+(e.g. FINGER_FW_ESTIMATOR=two-point cargo xtask size measures the two-point build).
 
 exit status: 0 within both budgets, 1 over either or when the build fails.
 ",

@@ -50,7 +50,7 @@ pub fn measure(elf: &std::path::Path) -> Res<Sizes> {
 
 /// Builds the release board firmware (the power-up grasp); returns its ELF.
 pub fn build_board() -> Res<std::path::PathBuf> {
-    build_board_with(&[])
+    build_board_with(&[], None)
 }
 
 /// Cargo features of the board's device-mode build: USB CDC-ACM, the protocol, the settings
@@ -63,25 +63,38 @@ pub const DEVICE_BOTH_FEATURES: &str = "board,device,path-fit";
 /// Builds the release board firmware in device mode with `features` (one of the two above);
 /// returns its ELF (kept apart: the next build overwrites the one in place).
 pub fn build_board_device(features: &str) -> Res<std::path::PathBuf> {
-    let elf = build_board_with(&["--no-default-features", "--features", features])?;
+    // Without the feature the estimator is the two-point method, chosen explicitly: the
+    // firmware's default is the path fit.
+    let estimator = if features.contains("path-fit") {
+        "path-fit"
+    } else {
+        "two-point"
+    };
+    let elf = build_board_with(
+        &["--no-default-features", "--features", features],
+        Some(estimator),
+    )?;
     let kept = elf.with_file_name(format!("finger-fw-{}", features.replace(',', "-")));
     std::fs::copy(&elf, &kept).map_err(|e| format!("{}: {e}", kept.display()))?;
     Ok(kept)
 }
 
-fn build_board_with(extra: &[&str]) -> Res<std::path::PathBuf> {
-    util::run(
-        util::cargo()
-            .args([
-                "build",
-                "--release",
-                "-p",
-                "finger-fw",
-                "--target",
-                crate::qemu::TARGET,
-            ])
-            .args(extra),
-    )?;
+/// `estimator`: `FINGER_FW_ESTIMATOR` for the build; `None` keeps the caller's environment.
+fn build_board_with(extra: &[&str], estimator: Option<&str>) -> Res<std::path::PathBuf> {
+    let mut cmd = util::cargo();
+    cmd.args([
+        "build",
+        "--release",
+        "-p",
+        "finger-fw",
+        "--target",
+        crate::qemu::TARGET,
+    ])
+    .args(extra);
+    if let Some(e) = estimator {
+        cmd.env("FINGER_FW_ESTIMATOR", e);
+    }
+    util::run(&mut cmd)?;
     Ok(util::root()
         .join("target")
         .join(crate::qemu::TARGET)

@@ -255,7 +255,7 @@ impl ControllerConfig {
         encoder_max_counts_per_tick: 64,
         kp_rel: 0.2,
         ki_rel: 0.3,
-        estimator: Estimator::TwoPoint,
+        estimator: Estimator::PathFit,
         after_estimate: AfterEstimate::Hold,
         release_rate_nm_per_s: 1.0,
         rest_check: None,

@@ -100,8 +100,10 @@ fn drive() -> DriveConfig {
 }
 
 fn cfg(dta: f64) -> ControllerConfig {
-    // The mock has no inertia: no damping needed, no speed limit.
+    // The mock has no inertia: no damping needed, no speed limit. Its linear spring is what
+    // the two-point method inverts exactly; the path fit's model is the finger's.
     ControllerConfig {
+        estimator: grasp::Estimator::TwoPoint,
         drive: drive(),
         damping_nm_s_per_rad: 0.0,
         approach_speed_max_rad_s: 100.0,
