@@ -30,8 +30,11 @@ const TEST_FINGER: &str = "crates/pts-cli/fingers/long_stiff.toml";
 /// The firmware's default ΔT_a (src/ctl.rs), given to `pts sim` so both run the same grasp (N·m).
 const FW_DELTA_TA: &str = "0.8";
 /// How far the firmware's default estimate (the path fit) may sit from the plant's first
-/// contact, × l2: the worst case of the plant grid with the realistic drive is below 2 %.
-const PATH_FIT_VS_FIRST_CONTACT_TOL_REL_L2: f64 = 0.02;
+/// contact with the non-paper finger, × l2: the bound issue 16 sets for recordings (4 %). This
+/// grasp measures 2.9 % (the paper finger's plant grid stays below 2 %); the same grasp
+/// estimated on the paper finger's model misses by 12.8 % (`pts estimate --trace
+/// target/finger_check.csv` without `--finger`).
+const PATH_FIT_VS_FIRST_CONTACT_TOL_REL_L2: f64 = 0.04;
 
 struct Stages {
     passed: Vec<String>,

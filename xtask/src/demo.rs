@@ -325,7 +325,7 @@ fn meaning(estimator: &str) -> &'static str {
     } else {
         "the two-point method (the paper's) measures the stiffness between the contact and \
          the settled step; a contact that slides outward reads between its first and final \
-         location (the paper's Table 2 shows the same bias); FINGER_FW_ESTIMATOR=path-fit \
+         location (the paper's Table 2 shows the same bias); the default build's path fit \
          estimates the first contact"
     }
 }

@@ -277,6 +277,24 @@ pub fn run_estimate(
     }
 }
 
+/// [`run_estimate`], and for a path-fit request the paper's two-point k2 beside the answer
+/// ([`EstimateResult::two_point_k2_um`]) for reference: what the host tools report. A
+/// two-point refusal leaves the reference empty; it never fails the fit's answer.
+pub fn run_estimate_with_reference(
+    finger: &Finger,
+    req: &EstimateRequest,
+) -> Result<EstimateResult, EstimateError> {
+    let mut r = run_estimate(finger, req)?;
+    if req.estimator == Estimator::PathFit {
+        let two_point = EstimateRequest {
+            estimator: Estimator::TwoPoint,
+            ..req.clone()
+        };
+        r.two_point_k2_um = run_estimate(finger, &two_point).ok().and_then(|t| t.k2_um);
+    }
+    Ok(r)
+}
+
 /// Runs the estimator the request names with a given model (any back end; the contact
 /// point from the model's Newton solves in f64): the generic reference of the firmware's
 /// estimate.

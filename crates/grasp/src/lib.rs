@@ -72,9 +72,9 @@ pub use control_loop::{
 };
 pub use controller::{Controller, Supervisor, TickOutput};
 pub use estimate::{
-    path_fit_fw, path_table, run_estimate, run_estimate_fw, run_estimate_with, two_point_fw,
-    two_point_table, EstNum, EstReal, EstimateError, EstimateRequest, EstimateResult, Located,
-    Quality, Sample, TwoPointTable, PATH_CAPACITY,
+    path_fit_fw, path_table, run_estimate, run_estimate_fw, run_estimate_with,
+    run_estimate_with_reference, two_point_fw, two_point_table, EstNum, EstReal, EstimateError,
+    EstimateRequest, EstimateResult, Located, Quality, Sample, TwoPointTable, PATH_CAPACITY,
 };
 pub use rest::{RestCheck, RestReport};
 pub use state::{Event, FaultReason, State};

@@ -139,7 +139,7 @@ pub fn run(
     }
     // The recording's own estimator unless the user names one.
     let recorded = TraceMeta::find(&text).and_then(|m| m.controller.estimator);
-    let method = method.or(recorded).unwrap_or(Method::TwoPoint);
+    let method = method.or(recorded).unwrap_or(Method::Pathfit);
     let (tr, rep, dta) = replay_text(path, &text, finger, dta, dt_s, method)?;
     let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
     let fault = match rep.state {

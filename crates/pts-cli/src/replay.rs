@@ -233,7 +233,6 @@ pub fn drive_config(f: &FingerFile, dt_s: f64) -> Result<DriveConfig, String> {
 struct ReplayFeed<'a> {
     rows: &'a [crate::trace::TraceRow],
     finger: &'a FingerFile,
-    model: &'a pts::Model<grasp::EstReal>,
     /// The rows carry raw encoder counts and ADC codes.
     raw: bool,
     /// θa at rest (rad).
@@ -290,7 +289,7 @@ impl Observer<TraceHw> for ReplayFeed<'_> {
         req: &grasp::EstimateRequest,
         _hw: &TraceHw,
     ) -> Result<EstimateResult, grasp::EstimateError> {
-        let r = grasp::run_estimate_fw(&self.finger.finger, self.model, req);
+        let r = grasp::run_estimate_with_reference(&self.finger.finger, req);
         self.rep.estimate = Some(r.map_err(|e| crate::sim::EstError::new(e.kind(), &e)));
         r
     }
@@ -385,7 +384,8 @@ pub fn replay(
     let mut ctl = Controller::new(cfg).map_err(|e| {
         format!("controller configuration for dt = {dt} s, ΔT_a = {dta_nm} N·m: {e:?}")
     })?;
-    let model = pts::Model::<grasp::EstReal>::new(&finger.finger)
+    // Refused here, with the reason, rather than as an estimate error after the grasp.
+    pts::Model::<grasp::EstReal>::new(&finger.finger)
         .map_err(|e| format!("finger on the firmware back end: {e}"))?;
     let raw = trace
         .rows
@@ -418,7 +418,6 @@ pub fn replay(
     let mut obs = ReplayFeed {
         rows: &trace.rows,
         finger,
-        model: &model,
         raw,
         rest,
         dt,

@@ -231,12 +231,20 @@ fn ctl_event(e: &grasp::Event, dt: f64) -> TimedEvent {
 
 /// One line about an estimate.
 pub fn describe(r: &EstimateResult) -> String {
-    let k2 = r
-        .k2_um
-        .map(|k| format!(", k2 = {:.2} mm", f64::from(k) * 1e-3))
-        .unwrap_or_default();
+    let mm = |um: i32| format!("{:.2} mm", f64::from(um) * 1e-3);
+    let k2 = match (r.k2_um, r.k2_sigma_um) {
+        (Some(k), Some(s)) => format!(", k2 = {} ± {}", mm(k), mm(s)),
+        (Some(k), None) => format!(", k2 = {}", mm(k)),
+        (None, _) => String::new(),
+    };
+    let radius = r
+        .radius_um
+        .map_or(String::new(), |v| format!(", R = {}", mm(v)));
+    let reference = r.two_point_k2_um.map_or(String::new(), |v| {
+        format!("; two-point k2 = {} (reference)", mm(v))
+    });
     format!(
-        "{}{k2}, K̂c = {:.4} N·m/rad, ΔT_a = {:.4} N·m, Δθa = {:.5} rad, quality {}",
+        "{}{k2}{radius}, K̂c = {:.4} N·m/rad, ΔT_a = {:.4} N·m, Δθa = {:.5} rad, quality {}{reference}",
         crate::trace::located_name(r.located),
         f64::from(r.kc_hat_unm_per_rad) / 1e6,
         f64::from(r.delta_ta_unm) / 1e6,
@@ -262,7 +270,8 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
     let finger = pts_finger(&scene.finger);
     let rest = grasp::config::finger_rest_theta_a_rad(&finger)
         .map_err(|e| format!("scene finger rest pose: {e:?}"))?;
-    let est_model = pts::Model::<grasp::EstReal>::new(&finger)
+    // Refused here, with the reason, rather than as an estimate error after the grasp.
+    pts::Model::<grasp::EstReal>::new(&finger)
         .map_err(|e| format!("scene finger on the firmware back end: {e}"))?;
     let drive = drive_config(scene, rest);
     let cfg = ControllerConfig {
@@ -301,7 +310,6 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
     let mut obs = SimRecorder {
         rep: &mut rep,
         finger: &finger,
-        model: &est_model,
         record: opts.record,
         before: None,
     };
@@ -320,7 +328,6 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
 struct SimRecorder<'a> {
     rep: &'a mut SimReport,
     finger: &'a pts::Finger,
-    model: &'a pts::Model<grasp::EstReal>,
     record: bool,
     /// The raw readings and the truth before the tick.
     before: Option<(u16, u16, plant::Truth)>,
@@ -340,7 +347,7 @@ impl Observer<PlantHw> for SimRecorder<'_> {
         _hw: &PlantHw,
     ) -> Result<EstimateResult, grasp::EstimateError> {
         self.rep.k_at_settle_m = self.before.map(|(_, _, truth)| truth.k_m);
-        let r = grasp::run_estimate_fw(self.finger, self.model, req);
+        let r = grasp::run_estimate_with_reference(self.finger, req);
         self.rep.estimate = Some(r.map_err(|e| EstError::new(e.kind(), &e)));
         r
     }

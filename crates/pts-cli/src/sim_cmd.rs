@@ -257,6 +257,9 @@ fn report_json(rep: &SimReport, dta: f64) -> Value {
         Some(Ok(r)) => json!({
             "phalanx": located_name(r.located),
             "k2": r.k2_um.map(|k| num(f64::from(k) / 1e6)),
+            "sigma_k2": r.k2_sigma_um.map(|s| num(f64::from(s) / 1e6)),
+            "radius": r.radius_um.map(|v| num(f64::from(v) / 1e6)),
+            "two_point_k2": r.two_point_k2_um.map(|k| num(f64::from(k) / 1e6)),
             "kc_hat": num(f64::from(r.kc_hat_unm_per_rad) / 1e6),
             "dta": num(f64::from(r.delta_ta_unm) / 1e6),
             "dtheta_a": num(f64::from(r.delta_theta_a_urad) / 1e6),
