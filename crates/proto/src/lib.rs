@@ -644,3 +644,12 @@ impl Message for Request {
         }
     }
 }
+
+impl DeviceMsg {
+    /// Encodes this message as one frame into `out` ([`encode`]); returns the frame's length.
+    /// Not generic: the encoder is compiled once, here, with this crate's optimisation level
+    /// (size, in the firmware's release profile) instead of in each caller.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        encode(self, out)
+    }
+}
