@@ -157,6 +157,7 @@ impl RestCheck {
 /// A torque (N·m) as duty ([`DUTY_MAX`] units) of a drive stalling at `stall_full_nm` at
 /// full duty: at least 1, at most full duty.
 #[inline(never)]
+#[allow(clippy::float_arithmetic)] // once, at configuration
 fn duty_of(nm: f64, stall_full_nm: f64) -> Result<i16, ConfigError> {
     let x = nm / stall_full_nm * f64::from(DUTY_MAX);
     if x.is_finite() && x >= 1.0 && x <= f64::from(DUTY_MAX) {
@@ -168,6 +169,7 @@ fn duty_of(nm: f64, stall_full_nm: f64) -> Result<i16, ConfigError> {
 
 /// An angle (rad) as encoder counts of `rad_per_count` (rad), truncated; below 10⁹ in size.
 #[inline(never)]
+#[allow(clippy::float_arithmetic)] // once, at configuration
 fn counts_of(rad: f64, rad_per_count: f64) -> Result<i32, ConfigError> {
     let c = rad / rad_per_count;
     if c.is_finite() && c.abs() < 1e9 {
@@ -179,6 +181,7 @@ fn counts_of(rad: f64, rad_per_count: f64) -> Result<i32, ConfigError> {
 
 /// A duration (s) as control ticks of `dt_s` (s), truncated; at least 1, below 4·10⁹.
 #[inline(never)]
+#[allow(clippy::float_arithmetic)] // once, at configuration
 fn ticks_of(secs: f64, dt_s: f64) -> Result<u32, ConfigError> {
     let t = secs / dt_s;
     if t.is_finite() && (1.0..4e9).contains(&t) {
