@@ -632,6 +632,12 @@ pub struct Sample {
 impl Message for DeviceMsg {}
 
 impl Message for Request {
+    // The firmware's one request decoder, compiled here (see `Message::decode_frame`).
+    #[inline(never)]
+    fn decode_frame(frame: &mut [u8]) -> Result<Self, FrameError> {
+        frame::decode(frame)
+    }
+
     fn classify(body: &[u8]) -> FrameError {
         // A request whose id reads but whose command tag is beyond this version's: an
         // unknown command (answerable with the id), not a broken frame.
