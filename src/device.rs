@@ -191,7 +191,7 @@ impl Device {
     /// Encodes a message into the TX queue (whole frames only) and sends what the link takes.
     pub fn send(&mut self, msg: &DeviceMsg) {
         let mut buf = [0u8; proto::MAX_FRAME];
-        match proto::encode(msg, &mut buf) {
+        match msg.encode(&mut buf) {
             Ok(n) => {
                 let frame = buf.get(..n).unwrap_or(&[]);
                 if self.tx.capacity() - self.tx.len() < frame.len() {

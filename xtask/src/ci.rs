@@ -946,6 +946,17 @@ pub fn main(args: &[String]) -> Res<i32> {
             )
         },
     );
+    st.run(
+        "board firmware in device mode, USB, both estimators (release): flash budget or its regression guard",
+        || {
+            let elf = size::build_board_device(size::DEVICE_BOTH_FEATURES)?;
+            size::report_guarded(
+                &format!("device mode, USB, {}", size::DEVICE_BOTH_FEATURES),
+                size::measure(&elf)?,
+                size::DEVICE_BOTH_FLASH_GUARD,
+            )
+        },
+    );
     let mut work = Vec::new();
     for s in ESTIMATE_SCENES {
         st.run(

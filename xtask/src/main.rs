@@ -144,9 +144,10 @@ exit status: 0 when drawn (or all current), 1 when a figure is stale or a step f
         args: "",
         summary: "flash / static RAM of the board firmware against the budgets",
         help: "\
-Builds the release firmware for the board (STM32F411, thumbv7em-none-eabihf) and prints its
-flash and static RAM (.data + .bss + .uninit, without the stack) against the budgets of 128 KiB
-and 32 KiB.
+Builds the release firmware for the board (STM32F411, thumbv7em-none-eabihf): the power-up
+build and the device-mode builds with one and with both estimators, and prints their flash and
+static RAM (.data + .bss + .uninit, without the stack) against the budgets of 128 KiB and 32 KiB;
+then the stack's high-water mark in QEMU.
 
 options:
   -h, --help            print this help and exit

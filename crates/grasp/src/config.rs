@@ -722,15 +722,20 @@ pub struct Params {
     pub rest: Option<crate::rest::RestParams>,
 }
 
+// The conversions of `params`, out of line: called from a dozen places once per grasp, one
+// copy of the soft-float rounding is enough (inlined, each call site carried its own).
+#[inline(never)]
 fn to_i64(x: f64) -> i64 {
     // `as` saturates and maps NaN to 0: no panic; ranges are checked by the callers.
     libm_round(x) as i64
 }
 
+#[inline(never)]
 fn to_i32(x: f64) -> i32 {
     libm_round(x) as i32
 }
 
+#[inline(never)]
 fn to_u32(x: f64) -> u32 {
     libm_round(x) as u32
 }

@@ -124,32 +124,11 @@ impl RestCheck {
         }
         // Stall torque at full duty: N·η·kt·V/R (N·m).
         let stall_full_nm = d.torque_per_amp() * d.bus_v / d.resistance_ohm;
-        let duty = |nm: f64| {
-            let x = nm / stall_full_nm * f64::from(DUTY_MAX);
-            if x.is_finite() && x >= 1.0 && x <= f64::from(DUTY_MAX) {
-                Ok(x as i16)
-            } else {
-                Err(ConfigError::OutOfRange)
-            }
-        };
+        let duty = |nm: f64| duty_of(nm, stall_full_nm);
         let open_duty = duty(self.open_torque_nm)?;
         let rpc = d.rad_per_count();
-        let counts = |rad: f64| {
-            let c = rad / rpc;
-            if c.is_finite() && c.abs() < 1e9 {
-                Ok(c as i32)
-            } else {
-                Err(ConfigError::OutOfRange)
-            }
-        };
-        let ticks = |s: f64| {
-            let t = s / d.dt_s;
-            if t.is_finite() && (1.0..4e9).contains(&t) {
-                Ok(t as u32)
-            } else {
-                Err(ConfigError::OutOfRange)
-            }
-        };
+        let counts = |rad: f64| counts_of(rad, rpc);
+        let ticks = |secs: f64| ticks_of(secs, d.dt_s);
         // The torque the stop carries once the motor stands: the opening duty's stall value.
         let stall_nm = f64::from(open_duty) / f64::from(DUTY_MAX) * stall_full_nm;
         let stall_ua = stall_nm / d.torque_per_amp() * 1e6;
@@ -169,6 +148,46 @@ impl RestCheck {
             return_counts: counts(self.return_band_rad)?.max(1),
             stall_ua_min: (stall_ua * 0.85) as i32,
         })
+    }
+}
+
+// The conversions of [`RestCheck::params`], out of line: called several times each, once
+// per grasp, so one copy of each soft-float sequence is enough.
+
+/// A torque (N·m) as duty ([`DUTY_MAX`] units) of a drive stalling at `stall_full_nm` at
+/// full duty: at least 1, at most full duty.
+#[inline(never)]
+#[allow(clippy::float_arithmetic)] // once, at configuration
+fn duty_of(nm: f64, stall_full_nm: f64) -> Result<i16, ConfigError> {
+    let x = nm / stall_full_nm * f64::from(DUTY_MAX);
+    if x.is_finite() && x >= 1.0 && x <= f64::from(DUTY_MAX) {
+        Ok(x as i16)
+    } else {
+        Err(ConfigError::OutOfRange)
+    }
+}
+
+/// An angle (rad) as encoder counts of `rad_per_count` (rad), truncated; below 10⁹ in size.
+#[inline(never)]
+#[allow(clippy::float_arithmetic)] // once, at configuration
+fn counts_of(rad: f64, rad_per_count: f64) -> Result<i32, ConfigError> {
+    let c = rad / rad_per_count;
+    if c.is_finite() && c.abs() < 1e9 {
+        Ok(c as i32)
+    } else {
+        Err(ConfigError::OutOfRange)
+    }
+}
+
+/// A duration (s) as control ticks of `dt_s` (s), truncated; at least 1, below 4·10⁹.
+#[inline(never)]
+#[allow(clippy::float_arithmetic)] // once, at configuration
+fn ticks_of(secs: f64, dt_s: f64) -> Result<u32, ConfigError> {
+    let t = secs / dt_s;
+    if t.is_finite() && (1.0..4e9).contains(&t) {
+        Ok(t as u32)
+    } else {
+        Err(ConfigError::OutOfRange)
     }
 }
 

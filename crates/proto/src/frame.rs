@@ -25,6 +25,13 @@ pub trait Message: Serialize + DeserializeOwned {
     fn classify(_body: &[u8]) -> FrameError {
         FrameError::Malformed
     }
+
+    /// [`decode`] for this type, which [`Decoder`] calls. A message type may implement it as
+    /// `decode(frame)` so that its decoder is compiled once, in this crate (with its
+    /// optimisation level), rather than in each user of [`Decoder`].
+    fn decode_frame(frame: &mut [u8]) -> Result<Self, FrameError> {
+        decode(frame)
+    }
 }
 
 /// Why a frame was not a message.
@@ -182,7 +189,7 @@ impl<T: Message, const N: usize> Decoder<T, N> {
         if self.buf.is_empty() {
             return None;
         }
-        let r = decode(&mut self.buf);
+        let r = T::decode_frame(&mut self.buf);
         self.buf.clear();
         Some(r)
     }

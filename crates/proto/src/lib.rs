@@ -632,6 +632,12 @@ pub struct Sample {
 impl Message for DeviceMsg {}
 
 impl Message for Request {
+    // The firmware's one request decoder, compiled here (see `Message::decode_frame`).
+    #[inline(never)]
+    fn decode_frame(frame: &mut [u8]) -> Result<Self, FrameError> {
+        frame::decode(frame)
+    }
+
     fn classify(body: &[u8]) -> FrameError {
         // A request whose id reads but whose command tag is beyond this version's: an
         // unknown command (answerable with the id), not a broken frame.
@@ -642,5 +648,14 @@ impl Message for Request {
             Ok((tag, _)) if tag >= Command::COUNT => FrameError::UnknownCommand { id, tag },
             _ => FrameError::Malformed,
         }
+    }
+}
+
+impl DeviceMsg {
+    /// Encodes this message as one frame into `out` ([`encode`]); returns the frame's length.
+    /// Not generic: the encoder is compiled once, here, with this crate's optimisation level
+    /// (size, in the firmware's release profile) instead of in each caller.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        encode(self, out)
     }
 }
