@@ -257,6 +257,10 @@ struct SimArgs {
     /// it (geometry, springs, drive constants, current limit); default: the scene's finger.
     #[arg(long)]
     finger: Option<PathBuf>,
+    /// How ΔT_a is applied: ramp rates (N·m/s, 0 = one step); default: the controller's
+    /// (1 N·m/s). A sweep runs each and ends with the time to know against the error.
+    #[arg(long, value_delimiter = ',')]
+    step_ramp: Vec<f64>,
 }
 
 #[derive(clap::Args)]
@@ -801,6 +805,7 @@ impl From<SimArgs> for pts_cli::sim_cmd::Args {
             ideal: a.ideal,
             method: a.method,
             finger: a.finger,
+            step_ramp: a.step_ramp,
         }
     }
 }

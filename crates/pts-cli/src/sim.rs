@@ -71,6 +71,8 @@ pub struct SimOptions {
     /// The over-current limit (A) of the finger file the scene was built from
     /// ([`finger_scene`]); `None`: the controller's default.
     pub overcurrent_a: Option<f64>,
+    /// How ΔT_a is applied; `None`: the controller's default.
+    pub step_shape: Option<grasp::StepShape>,
 }
 
 /// A scene as the finger of a finger file: its geometry, springs and drive constants in the
@@ -144,6 +146,17 @@ impl SimReport {
             return None;
         }
         Some((self.k2_hat_m()? - k) / self.l2_m * 100.0)
+    }
+
+    /// Time to know (s): from the plant's first contact to the estimate delivered.
+    pub fn time_to_know_s(&self) -> Option<f64> {
+        let (t_contact, _, _) = self.first_contact?;
+        let t_estimate = self
+            .events
+            .iter()
+            .find(|e| e.source == "ctl" && e.name == "estimated")?
+            .t_s;
+        Some(t_estimate - t_contact)
     }
 
     /// Fault kind, if the controller ended in its safe state.
@@ -278,6 +291,9 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         finger,
         drive,
         estimator: opts.method.estimator(),
+        step_shape: opts
+            .step_shape
+            .unwrap_or(ControllerConfig::DEFAULT.step_shape),
         overcurrent_a: opts
             .overcurrent_a
             .unwrap_or(ControllerConfig::DEFAULT.overcurrent_a),

@@ -39,6 +39,44 @@ pub struct Args {
     /// Finger description: the plant and the controller are built from it (default: the
     /// scene's finger).
     pub finger: Option<PathBuf>,
+    /// Step ramp rates (N·m/s, 0 = one step); empty: the controller's default.
+    pub step_ramp: Vec<f64>,
+}
+
+/// Largest step ramp rate accepted (N·m/s): above it a ramp is a step for any ΔT_a.
+const STEP_RAMP_MAX_NM_PER_S: f64 = 1000.0;
+
+/// The controller's step shape for a ramp rate (N·m/s; 0 = one step), checked.
+fn step_shape(rate: f64) -> Result<grasp::StepShape, String> {
+    if !(rate.is_finite() && (0.0..=STEP_RAMP_MAX_NM_PER_S).contains(&rate)) {
+        return Err(format!(
+            "--step-ramp {rate}: a ramp rate in 0..={STEP_RAMP_MAX_NM_PER_S} N·m/s (0 = one step)"
+        ));
+    }
+    Ok(if rate == 0.0 {
+        grasp::StepShape::Step
+    } else {
+        grasp::StepShape::Ramp(rate)
+    })
+}
+
+/// The step settings a run or sweep uses: `None` is the controller's default.
+fn step_shapes(a: &Args) -> Result<Vec<Option<grasp::StepShape>>, String> {
+    if a.step_ramp.is_empty() {
+        return Ok(vec![None]);
+    }
+    a.step_ramp
+        .iter()
+        .map(|&r| step_shape(r).map(Some))
+        .collect()
+}
+
+/// A step setting in words.
+fn step_name(s: Option<grasp::StepShape>) -> String {
+    match s.unwrap_or(grasp::ControllerConfig::DEFAULT.step_shape) {
+        grasp::StepShape::Step => "step".into(),
+        grasp::StepShape::Ramp(r) => format!("ramp {r} N·m/s"),
+    }
 }
 
 /// The scene as the finger file's finger, and the file's current limit (none without a file).
@@ -153,6 +191,10 @@ pub fn run(a: &Args) -> Result<(), String> {
     if a.dta.len() != 1 {
         return Err("--dta takes one value without --sweep".into());
     }
+    let step = match step_shapes(a)?.as_slice() {
+        [one] => *one,
+        _ => return Err("--step-ramp takes one value without --sweep".into()),
+    };
     let (scene, overcurrent_a) = with_finger(a, sim::load_scene(&a.scene)?)?;
     let t0 = Instant::now();
     let rep = sim::run(&SimOptions {
@@ -163,6 +205,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         record: a.csv.is_some() || a.plot.is_some(),
         method: a.method,
         overcurrent_a,
+        step_shape: step,
     })?;
     let wall = t0.elapsed().as_secs_f64();
     if let Some(path) = &a.csv {
@@ -173,7 +216,15 @@ pub fn run(a: &Args) -> Result<(), String> {
             dta_nm: a.dta[0],
             dt_s: rep.dt_s,
             drive: Some(crate::replay::MetaDrive::of(&rep.drive)),
-            controller: Default::default(),
+            // What the replay needs to run the same controller.
+            controller: crate::replay::MetaController {
+                estimator: Some(a.method),
+                step_ramp_nm_per_s: step.map(|s| match s {
+                    grasp::StepShape::Step => 0.0,
+                    grasp::StepShape::Ramp(r) => r,
+                }),
+                ..Default::default()
+            },
         };
         writeln!(w, "{}", meta.line())
             .and_then(|()| write_csv(&rep.rows, &mut w))
@@ -282,6 +333,7 @@ fn report_json(rep: &SimReport, dta: f64) -> Value {
         },
         "method": rep.method.name(),
         "error_pct_l2": rep.error_pct_l2().map(num),
+        "time_to_know_s": rep.time_to_know_s().map(num),
         "events": rep.events.iter().map(|e| json!({
             "t_s": num(e.t_s), "source": e.source, "event": e.name, "detail": e.detail
         })).collect::<Vec<_>>(),
@@ -324,6 +376,9 @@ fn print_report(rep: &SimReport, dta: f64, wall_s: f64) {
                 ),
                 None => crate::outln!("error:    n/a (no distal location to compare)"),
             }
+            if let Some(t) = rep.time_to_know_s() {
+                crate::outln!("known:    {t:.3} s after the first contact");
+            }
         }
         (Some(Err(e)), _) => crate::outln!("estimate refused: {} ({e})", e.kind),
         (None, _) => crate::outln!("no estimate"),
@@ -338,7 +393,10 @@ struct Cell {
     radius_cm: f64,
     k2_pct: f64,
     dta: f64,
+    step: Option<grasp::StepShape>,
     err: Option<f64>,
+    /// First contact → estimate delivered (s).
+    time_to_know_s: Option<f64>,
     outcome: String,
 }
 
@@ -357,18 +415,24 @@ fn sweep(a: &Args) -> Result<(), String> {
             return Err("--k2-pct: locations in (0, 100] % of l2".into());
         }
     }
+    let steps = step_shapes(a)?;
+    if a.plot.is_some() && steps.len() > 1 {
+        return Err("--plot draws one step setting: give one --step-ramp value".into());
+    }
     let mut jobs = vec![];
-    for &r in &a.radii_cm {
-        for &k in &a.k2_pct {
-            for &d in &a.dta {
-                jobs.push((r, k, d));
+    for &st in &steps {
+        for &r in &a.radii_cm {
+            for &k in &a.k2_pct {
+                for &d in &a.dta {
+                    jobs.push((st, r, k, d));
+                }
             }
         }
     }
     let total = jobs.len();
     let t0 = Instant::now();
     let mut cells = vec![];
-    for (i, (r, k, d)) in jobs.into_iter().enumerate() {
+    for (i, (st, r, k, d)) in jobs.into_iter().enumerate() {
         progress(i, total, t0);
         let scene = plant::Scene {
             name: "sweep",
@@ -388,7 +452,9 @@ fn sweep(a: &Args) -> Result<(), String> {
             record: false,
             method: a.method,
             overcurrent_a,
+            step_shape: st,
         });
+        let time_to_know_s = rep.as_ref().ok().and_then(SimReport::time_to_know_s);
         let (err, outcome) = match rep {
             Err(e) => (None, format!("scene: {e}")),
             Ok(rep) => match (&rep.estimate, rep.error_pct_l2(), rep.fault()) {
@@ -406,24 +472,14 @@ fn sweep(a: &Args) -> Result<(), String> {
             radius_cm: r,
             k2_pct: k,
             dta: d,
+            step: st,
             err,
+            time_to_know_s,
             outcome,
         });
     }
     progress(total, total, t0);
     eprintln!();
-    // Max |error| over the contact locations, per radius × ΔT_a (as MODEL.md's table).
-    let max_abs = |r: f64, d: f64| -> Option<f64> {
-        let v: Vec<Option<f64>> = cells
-            .iter()
-            .filter(|c| c.radius_cm == r && c.dta == d)
-            .map(|c| c.err.map(f64::abs))
-            .collect();
-        if v.iter().any(Option::is_none) && v.iter().all(Option::is_none) {
-            return None;
-        }
-        v.into_iter().flatten().reduce(f64::max)
-    };
     if a.json {
         let out = json!({
             "method": a.method.name(),
@@ -433,58 +489,19 @@ fn sweep(a: &Args) -> Result<(), String> {
                 "radius": num(c.radius_cm / 100.0),
                 "k2_c": num(c.k2_pct / 100.0 * l2),
                 "dta": num(c.dta),
+                "step": step_name(c.step),
                 "error_pct_l2": c.err.map(num),
+                "time_to_know_s": c.time_to_know_s.map(num),
                 "outcome": c.outcome,
             })).collect::<Vec<_>>(),
         });
         crate::outln!("{out}");
     } else {
-        crate::outln!(
-            "location error k̂2 − k2,c (% of l2), {} estimate, closed loop{}; rows: object, contact location; columns: ΔT_a (N·m)",
-            a.method.name(),
-            if a.ideal { ", ideal drive" } else { "" }
-        );
-        let w = cells
-            .iter()
-            .map(|c| c.outcome.len() + 2)
-            .chain([10])
-            .max()
-            .unwrap_or(10);
-        let mut head = format!("{:<22}", "object / k2,c");
-        for d in &a.dta {
-            head += &format!("{:>w$}", format!("{d}"));
+        for &st in &steps {
+            let cells: Vec<&Cell> = cells.iter().filter(|c| c.step == st).collect();
+            print_error_table(a, &cells, st);
         }
-        crate::outln!("{head}");
-        for &r in &a.radii_cm {
-            let obj = if r == 0.0 {
-                "vertex".to_string()
-            } else {
-                format!("R = {r} cm")
-            };
-            for &k in &a.k2_pct {
-                let mut line = format!("{:<22}", format!("{obj}, {k} %"));
-                for &d in &a.dta {
-                    let c = cells
-                        .iter()
-                        .find(|c| c.radius_cm == r && c.k2_pct == k && c.dta == d);
-                    let txt = match c {
-                        Some(Cell { err: Some(e), .. }) => format!("{e:+.2}"),
-                        Some(c) => c.outcome.clone(),
-                        None => "-".into(),
-                    };
-                    line += &format!("{txt:>w$}");
-                }
-                crate::outln!("{line}");
-            }
-            let mut line = format!("{:<22}", format!("{obj}, max |err|"));
-            for &d in &a.dta {
-                line += &format!(
-                    "{:>w$}",
-                    max_abs(r, d).map_or("-".to_string(), |v| format!("{v:.2}"))
-                );
-            }
-            crate::outln!("{line}");
-        }
+        print_time_to_know(a, &cells, &steps);
         crate::outln!("({} runs in {:.1} s)", total, t0.elapsed().as_secs_f64());
     }
     if let Some(path) = &a.plot {
@@ -504,6 +521,114 @@ fn sweep(a: &Args) -> Result<(), String> {
         eprintln!("wrote {}", path.display());
     }
     Ok(())
+}
+
+/// The location error per object × contact location (rows) and ΔT_a (columns) of one step
+/// setting, with the largest |error| per object (as MODEL.md's table).
+fn print_error_table(a: &Args, cells: &[&Cell], step: Option<grasp::StepShape>) {
+    crate::outln!(
+        "location error k̂2 − k2,c (% of l2), {} estimate, closed loop{}, {}; rows: object, contact location; columns: ΔT_a (N·m)",
+        a.method.name(),
+        if a.ideal { ", ideal drive" } else { "" },
+        step_name(step)
+    );
+    let max_abs = |r: f64, d: f64| -> Option<f64> {
+        let v: Vec<Option<f64>> = cells
+            .iter()
+            .filter(|c| c.radius_cm == r && c.dta == d)
+            .map(|c| c.err.map(f64::abs))
+            .collect();
+        v.into_iter().flatten().reduce(f64::max)
+    };
+    let w = cells
+        .iter()
+        .map(|c| c.outcome.len() + 2)
+        .chain([10])
+        .max()
+        .unwrap_or(10);
+    let mut head = format!("{:<22}", "object / k2,c");
+    for d in &a.dta {
+        head += &format!("{:>w$}", format!("{d}"));
+    }
+    crate::outln!("{head}");
+    for &r in &a.radii_cm {
+        let obj = if r == 0.0 {
+            "vertex".to_string()
+        } else {
+            format!("R = {r} cm")
+        };
+        for &k in &a.k2_pct {
+            let mut line = format!("{:<22}", format!("{obj}, {k} %"));
+            for &d in &a.dta {
+                let c = cells
+                    .iter()
+                    .find(|c| c.radius_cm == r && c.k2_pct == k && c.dta == d);
+                let txt = match c {
+                    Some(Cell { err: Some(e), .. }) => format!("{e:+.2}"),
+                    Some(c) => c.outcome.clone(),
+                    None => "-".into(),
+                };
+                line += &format!("{txt:>w$}");
+            }
+            crate::outln!("{line}");
+        }
+        let mut line = format!("{:<22}", format!("{obj}, max |err|"));
+        for &d in &a.dta {
+            line += &format!(
+                "{:>w$}",
+                max_abs(r, d).map_or("-".to_string(), |v| format!("{v:.2}"))
+            );
+        }
+        crate::outln!("{line}");
+    }
+}
+
+/// Time to know against the error, per step setting and ΔT_a over the grid's objects and
+/// contact locations: distal contacts answered, mean and largest |error|, median and largest
+/// time from the first contact to the estimate.
+fn print_time_to_know(a: &Args, cells: &[Cell], steps: &[Option<grasp::StepShape>]) {
+    crate::outln!(
+        "\ntime to know (first contact → estimate delivered) against the error, {} estimate:",
+        a.method.name()
+    );
+    crate::outln!(
+        "{:<18} {:>6} {:>9} {:>12} {:>11} {:>15} {:>12}",
+        "step",
+        "ΔT_a",
+        "answered",
+        "mean |err|",
+        "max |err|",
+        "median to know",
+        "max to know"
+    );
+    for &st in steps {
+        for &d in &a.dta {
+            let sel: Vec<&Cell> = cells
+                .iter()
+                .filter(|c| c.step == st && c.dta == d)
+                .collect();
+            let errs: Vec<f64> = sel.iter().filter_map(|c| c.err.map(f64::abs)).collect();
+            let mut know: Vec<f64> = sel
+                .iter()
+                .filter(|c| c.err.is_some())
+                .filter_map(|c| c.time_to_know_s)
+                .collect();
+            know.sort_by(f64::total_cmp);
+            let pct = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2} %"));
+            let secs = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3} s"));
+            let mean = (!errs.is_empty()).then(|| errs.iter().sum::<f64>() / errs.len() as f64);
+            crate::outln!(
+                "{:<18} {:>6} {:>9} {:>12} {:>11} {:>15} {:>12}",
+                step_name(st),
+                d,
+                format!("{}/{}", errs.len(), sel.len()),
+                pct(mean),
+                pct(errs.iter().copied().reduce(f64::max)),
+                secs(know.get(know.len() / 2).copied()),
+                secs(know.last().copied())
+            );
+        }
+    }
 }
 
 /// A sweep result: (radius cm, k2,c % of l2, ΔT_a N·m, signed error % of l2 or no estimate).

@@ -122,6 +122,7 @@ fn grasp_errors(
         record: true,
         method,
         overcurrent_a: None,
+        step_shape: None,
     })
     .expect("grasp");
     let Some((_, "distal", k_true)) = rep.first_contact else {
@@ -377,6 +378,7 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
         record: false,
         method: Method::TwoPoint,
         overcurrent_a: Some(imax),
+        step_shape: None,
     })
     .expect("pts sim --finger");
     assert!(rep.k2_hat_m().is_some(), "{:?}", rep.state);
