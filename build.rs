@@ -232,7 +232,7 @@ fn estimator_consts(src: &mut String) {
     let feature = env::var_os("CARGO_FEATURE_PATH_FIT").is_some();
     let path_fit = "Some(grasp::Estimator::PathFit)";
     let e = match env::var("FINGER_FW_ESTIMATOR").as_deref() {
-        // The host tool's spelling (`--method pathfit`) is accepted too.
+        // The host tool's former spelling (`pathfit`) is accepted too.
         Ok("two-point" | "twopoint") if feature => fail(
             "FINGER_FW_ESTIMATOR=two-point contradicts the feature `path-fit`; use one of them",
         ),

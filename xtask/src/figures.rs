@@ -62,6 +62,8 @@ const FIGURES: &[Figure] = &[
                 "table2",
                 "--dta",
                 "0.8",
+                "--method",
+                "two-point",
                 "--csv",
                 "{tmp}/t2.csv",
             ],
@@ -70,6 +72,8 @@ const FIGURES: &[Figure] = &[
                 "signals",
                 "--trace",
                 "{tmp}/t2.csv",
+                "--method",
+                "two-point",
                 "--from-s",
                 "3.9",
                 "-o",
@@ -87,7 +91,7 @@ const FIGURES: &[Figure] = &[
                 "--dta",
                 "0.8",
                 "--method",
-                "pathfit",
+                "path-fit",
                 "--csv",
                 "{tmp}/t2.csv",
             ],
@@ -97,7 +101,7 @@ const FIGURES: &[Figure] = &[
                 "--trace",
                 "{tmp}/t2.csv",
                 "--method",
-                "pathfit",
+                "path-fit",
                 "--from-s",
                 "3.9",
                 "-o",
@@ -111,11 +115,20 @@ const FIGURES: &[Figure] = &[
     },
     Figure {
         file: "sweep_pathfit.svg",
-        steps: &[&["{sweep}", "--method", "pathfit", ">{tmp}/s.json"], HEAT],
+        steps: &[&["{sweep}", "--method", "path-fit", ">{tmp}/s.json"], HEAT],
     },
     Figure {
         file: "sweep_ideal.svg",
-        steps: &[&["{sweep}", "--ideal", ">{tmp}/s.json"], HEAT],
+        steps: &[
+            &[
+                "{sweep}",
+                "--ideal",
+                "--method",
+                "two-point",
+                ">{tmp}/s.json",
+            ],
+            HEAT,
+        ],
     },
 ];
 

@@ -251,7 +251,7 @@ struct SimArgs {
     ideal: bool,
     /// The estimator the controller runs on the settled step (the path fit reports the
     /// two-point k2 beside it).
-    #[arg(long, value_enum, default_value = "pathfit")]
+    #[arg(long, value_enum, default_value = "path-fit")]
     method: pts_cli::method::Method,
     /// Finger description (TOML): the simulated finger and the controller are both built from
     /// it (geometry, springs, drive constants, current limit); default: the scene's finger.
@@ -329,7 +329,7 @@ enum PlotCmd {
         #[arg(long)]
         dta: Option<f64>,
         /// The estimator the controller runs on the settled step.
-        #[arg(long, value_enum, default_value = "pathfit")]
+        #[arg(long, value_enum, default_value = "path-fit")]
         method: pts_cli::method::Method,
         /// Start of the time window (s); e.g. shortly before contact.
         #[arg(long)]

@@ -7,7 +7,9 @@
 pub enum Method {
     /// Eq. 1: K̂c = ΔT_a/Δθa from the contact point and the settled end, inverted at contact.
     TwoPoint,
-    /// The whole contact-to-settle path fitted with the quasi-static contact model.
+    /// The whole contact-to-settle path fitted with the quasi-static contact model (the
+    /// firmware's spelling; `pathfit` is accepted too).
+    #[value(name = "path-fit", alias = "pathfit")]
     Pathfit,
 }
 
@@ -24,7 +26,25 @@ impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::TwoPoint => "two-point",
-            Method::Pathfit => "pathfit",
+            Method::Pathfit => "path-fit",
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    /// One spelling with the firmware (`FINGER_FW_ESTIMATOR=path-fit`), the old one still read
+    /// (command lines, `# pts-sim` lines of older traces).
+    #[test]
+    fn names_match_the_firmware_and_the_old_spelling_still_parses() {
+        for m in Method::value_variants() {
+            assert_eq!(Method::from_str(m.name(), false), Ok(*m));
+        }
+        assert_eq!(Method::Pathfit.name(), "path-fit");
+        assert_eq!(Method::from_str("pathfit", false), Ok(Method::Pathfit));
+        assert!(Method::from_str("path_fit", false).is_err());
     }
 }

@@ -232,7 +232,7 @@ fn calibration_acceptance_on_the_plant() {
             }
         }
     }
-    for (mi, name) in ["two-point", "pathfit"].iter().enumerate() {
+    for (mi, name) in ["two-point", "path-fit"].iter().enumerate() {
         let n = counts[mi].max(1) as f64;
         let a = sums[mi][0] / nominal_counts[mi].max(1) as f64;
         let (b, c) = (sums[mi][1] / n, sums[mi][2] / n);

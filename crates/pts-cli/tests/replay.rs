@@ -263,19 +263,19 @@ fn pathfit_method_on_the_replay_matches_the_closed_loop_one() {
         "--dta",
         "0.8",
         "--method",
-        "pathfit",
+        "path-fit",
         "--csv",
         csv.to_str().unwrap(),
         "--json",
     ]));
-    assert_eq!(sim["method"], "pathfit");
+    assert_eq!(sim["method"], "path-fit");
     let est = &sim["estimate"];
     // Ideal drive: the path fit finds the Table 2 contact (k2,c = 29.27 mm) within 2 % of l2
     // (the two-point estimate is 16 % off here, MODEL.md).
     assert!((f(est, "k2") - 0.02927).abs() < 0.02 * 0.075, "{est}");
     assert!(f(&sim, "error_pct_l2").abs() < 2.0, "{sim}");
-    let rep = json_of(&estimate(&csv, &["--method", "pathfit"]));
-    assert_eq!(rep["method"], "pathfit");
+    let rep = json_of(&estimate(&csv, &["--method", "path-fit"]));
+    assert_eq!(rep["method"], "path-fit");
     let c = &rep["contacts"][0];
     for k in ["k2", "kc_hat", "dta", "dtheta_a", "phalanx"] {
         assert_eq!(c[k], est[k], "{k}: replay {c} vs sim {est}");
