@@ -119,12 +119,15 @@ impl Watch {
     }
 
     /// The live contact stiffness K̂c (N·m/rad): the secant from the detected contact to the
-    /// latest sample, (T_a − T_a,c)/(θa − θa,c), once θa has moved [`KC_MIN_DTHETA_RAD`].
+    /// latest sample, (T_a − T_a,c)/(θa − θa,c), once θa has closed [`KC_MIN_DTHETA_RAD`] past
+    /// the contact.
     pub fn kc_live(&self) -> Option<f64> {
         let (thc, tac) = self.contact?;
         let &(_, th, ta, _) = self.samples.back()?;
+        // Only once the finger closed past the contact: the impact's bounce (θa back below
+        // it) gives a secant of the wrong sign that no contact has.
         let d = th - thc;
-        (d.abs() >= KC_MIN_DTHETA_RAD).then(|| (ta - tac) / d)
+        (d >= KC_MIN_DTHETA_RAD).then(|| (ta - tac) / d)
     }
 
     /// One line for a log: state, θa, T_a, K̂c, the estimate.
@@ -461,6 +464,9 @@ mod tests {
         w.push(&sample(12, -150_000, 700_000));
         let k = w.kc_live().unwrap();
         assert!((k - 0.3 / 0.07).abs() < 1e-9, "{k}");
+        // Bounced back 2 mrad below the contact: no stiffness to show.
+        w.push(&sample(13, -222_000, 500_000));
+        assert_eq!(w.kc_live(), None);
         // A new grasp forgets the old contact.
         w.push(&event(EventKind::GraspStarted { grasp: 2 }));
         assert_eq!(w.kc_live(), None);
