@@ -41,6 +41,8 @@ struct Stages {
     failed: Vec<(String, String)>,
     /// Run only the stages whose name contains this (case-insensitive); `None`: all.
     only: Option<String>,
+    /// The stages not selected, by name (listed when none was).
+    skipped: Vec<String>,
 }
 
 impl Stages {
@@ -52,6 +54,7 @@ impl Stages {
 
     fn run(&mut self, name: &str, f: impl FnOnce() -> Res) {
         if !self.selected(name) {
+            self.skipped.push(name.to_string());
             return;
         }
         eprintln!("\n==== {name} ====");
@@ -856,6 +859,7 @@ pub fn main(args: &[String]) -> Res<i32> {
         passed: Vec::new(),
         failed: Vec::new(),
         only: args.first().cloned(),
+        skipped: Vec::new(),
     };
     // Set-up runs whatever was selected.
     if let Err(e) = toolchain().and_then(|()| qemu::ensure_qemu()) {
@@ -1064,8 +1068,9 @@ pub fn main(args: &[String]) -> Res<i32> {
     }
     if st.passed.is_empty() && st.failed.is_empty() {
         return Err(format!(
-            "no stage name contains {:?}; run `cargo xtask test` for the list",
-            st.only.unwrap_or_default()
+            "no stage name contains {:?}; the stages:\n  {}",
+            st.only.unwrap_or_default(),
+            st.skipped.join("\n  ")
         ));
     }
     println!("{} passed, {} failed", st.passed.len(), st.failed.len());
