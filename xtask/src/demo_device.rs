@@ -107,10 +107,7 @@ pub fn main() -> Res<i32> {
     let elf = crate::device::build()?;
     util::run(util::cargo().args(["build", "-q", "--release", "-p", "pts-cli"]))?;
     let pts: PathBuf = util::root().join("target").join("release").join("pts");
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map_err(|e| e.to_string())?
-        .port();
+    let port = crate::device::free_port()?;
     let addr = format!("127.0.0.1:{port}");
     let log_path = util::root().join("target").join("finger-fw-demo.defmt");
     let mut child = qemu::spawn_device(&elf, port, &log_path)?;

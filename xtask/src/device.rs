@@ -198,7 +198,8 @@ fn host_estimate(scene: &str, dta: &str, estimator: &str) -> Res<HostEstimate> {
     })
 }
 
-fn free_port() -> Res<u16> {
+/// A TCP port free on the loopback interface now (for QEMU's UART socket).
+pub fn free_port() -> Res<u16> {
     let l = std::net::TcpListener::bind("127.0.0.1:0").map_err(|e| e.to_string())?;
     Ok(l.local_addr().map_err(|e| e.to_string())?.port())
 }
