@@ -24,6 +24,7 @@
 //! multiplies and no saturating 64-bit multiply is needed.
 #![deny(clippy::float_arithmetic)]
 
+use crate::calibrate::{AbortReason, Phase as SweepPhase, Sweep};
 use crate::config::Params;
 use crate::rest::{RestReport, RestState, RestStep};
 use crate::sensors::{sat_i32, CurrentSense, Encoder};
@@ -280,8 +281,11 @@ pub struct LoopOutput {
     pub duty: i16,
     /// A finished sample went into the link this tick: run the supervisor.
     pub sample_ready: bool,
-    /// The loop switched the bridge off this tick (its own fault, or the setpoint).
+    /// The loop switched the bridge off this tick (its own fault, the setpoint, or the end
+    /// of a calibration sweep).
     pub went_off: bool,
+    /// A calibration sweep's row: record this tick ([`ControlLoop::for_sweep`]).
+    pub record: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -291,6 +295,10 @@ enum Phase {
     Homing,
     Calibrating,
     Running,
+    /// The calibration sweep drives the torque reference (no supervisor).
+    Sweeping,
+    /// The sweep is over (done or aborted): bridge off for good.
+    SweepOver,
     /// The loop's own fault: latched, bridge off for good.
     Tripped,
 }
@@ -305,6 +313,10 @@ struct Acc {
     duty: i32,
     ua: i32,
 }
+
+/// Encoder counts the motor must turn while the sweep's duty is saturated for it not to be a
+/// stall (a few counts of quantisation and gear play).
+const SWEEP_STALL_COUNTS: u32 = 8;
 
 /// Limits a per-tick value to ±2²⁴ before it is summed (one instruction on Cortex-M4).
 #[inline(always)]
@@ -347,6 +359,10 @@ pub struct ControlLoop {
     rest_report: Option<RestReport>,
     /// Tick the current calibration started after (0, or the end of the rest check).
     calib_from: u32,
+    /// The calibration sweep that replaces the supervisor's setpoints ([`ControlLoop::for_sweep`]).
+    sweep: Option<Sweep>,
+    /// Encoder count where the sweep's duty last started saturating.
+    stall_from_counts: i32,
 }
 
 impl ControlLoop {
@@ -375,7 +391,32 @@ impl ControlLoop {
             rest: None,
             rest_report: None,
             calib_from: 0,
+            sweep: None,
+            stall_from_counts: 0,
         }
+    }
+
+    /// A loop that runs a calibration sweep instead of a grasp: the same sensors, current
+    /// calibration (and rest check, when configured), fast faults and torque loop, with the
+    /// sweep's reference in place of the supervisor's setpoints. It tells the supervisor
+    /// nothing but its own faults, and stops for good (bridge off) when the sweep ends.
+    pub fn for_sweep(p: &Params, sweep: Sweep) -> Self {
+        let mut lp = Self::new(p);
+        lp.sweep = Some(sweep);
+        lp
+    }
+
+    /// Where the sweep of a [`ControlLoop::for_sweep`] loop is (`None` for a grasp loop); a
+    /// loop fault reads as [`AbortReason::Fault`].
+    pub fn sweep_phase(&self) -> Option<SweepPhase> {
+        let sweep = self.sweep.as_ref()?;
+        Some(match (self.phase, sweep.phase()) {
+            (Phase::Tripped, _) => SweepPhase::Aborted(AbortReason::Fault),
+            (Phase::SweepOver, p @ (SweepPhase::Done | SweepPhase::Aborted(_))) => p,
+            // Over without the sweep having run (it could not start): not a calibration.
+            (Phase::SweepOver, _) => SweepPhase::Aborted(AbortReason::Fault),
+            (_, p) => p,
+        })
     }
 
     /// What the rest check found: θa at power-up relative to the rest and its times
@@ -496,7 +537,7 @@ impl ControlLoop {
         out: &mut LoopOutput,
     ) {
         match self.phase {
-            Phase::Tripped => {
+            Phase::Tripped | Phase::SweepOver => {
                 hw.bridge_off();
                 return;
             }
@@ -511,7 +552,8 @@ impl ControlLoop {
                     self.rest = Some(RestState::new(rp, 0));
                     self.phase = Phase::Homing;
                 }
-                link.started = true;
+                // A sweep has no supervisor to start.
+                link.started = self.sweep.is_none();
             }
             _ => {}
         }
@@ -522,13 +564,22 @@ impl ControlLoop {
             self.homing(hw, link, code, out);
             return;
         }
+        if self.phase == Phase::Sweeping {
+            self.sweeping(hw, link, code, out);
+            return;
+        }
         self.cur.calib_add(code);
         if self.tick.wrapping_sub(self.calib_from) >= self.p.calib_ticks {
             match self.cur.calib_finish(&self.p) {
-                Ok(offset_q8) => {
-                    self.phase = Phase::Running;
-                    link.calibrated = Some((self.tick, offset_q8));
-                }
+                Ok(offset_q8) => match self.sweep.as_mut().map(|sw| sw.start(false)) {
+                    // A validated sweep that is not running always starts.
+                    Some(Ok(())) => self.phase = Phase::Sweeping,
+                    Some(Err(_)) => self.phase = Phase::SweepOver,
+                    None => {
+                        self.phase = Phase::Running;
+                        link.calibrated = Some((self.tick, offset_q8));
+                    }
+                },
                 Err(offset_q8) => self.trip(hw, link, FaultReason::AdcOffset { offset_q8 }, out),
             }
         }
@@ -561,6 +612,59 @@ impl ControlLoop {
             self.oc_count = self.oc_count.saturating_sub(1);
         }
         None
+    }
+
+    /// One tick of the calibration sweep: the fast faults as in a grasp, the sweep's
+    /// reference through the torque loop, the bridge off for good when it ends.
+    fn sweeping<H: Hardware + ?Sized>(
+        &mut self,
+        hw: &mut H,
+        link: &mut Link,
+        code: u16,
+        out: &mut LoopOutput,
+    ) {
+        let ua = self.cur.current_ua(code, &self.p);
+        if let Some(reason) = self.current_fault(code, ua) {
+            self.trip(hw, link, reason, out);
+            return;
+        }
+        let dtheta_urad =
+            sat_i32((i64::from(self.enc.counts()) * i64::from(self.p.urad_per_count_q16)) >> 16);
+        let Some(st) = self.sweep.as_mut().map(|sw| sw.tick(dtheta_urad, false)) else {
+            return;
+        };
+        out.record = st.record;
+        if matches!(st.phase, SweepPhase::Done | SweepPhase::Aborted(_)) {
+            self.stop(hw);
+            self.phase = Phase::SweepOver;
+            out.went_off = true;
+            return;
+        }
+        let duty = self.tl.update(st.torque_ref_unm, out.torque_unm, &self.p);
+        // A stall is the duty at its limit with the motor not turning. The free finger
+        // springing back open saturates the duty through its back-EMF while it moves: not a
+        // stall (a grasp never sees that speed with the bridge on).
+        let moved = (self.enc.counts().wrapping_sub(self.stall_from_counts)).unsigned_abs()
+            > SWEEP_STALL_COUNTS;
+        if self.tl.saturated() && !moved {
+            if self.stall_count == 0 {
+                self.stall_from_counts = self.enc.counts();
+            }
+            self.stall_count = self.stall_count.saturating_add(1);
+            if self.stall_count >= self.p.stall_ticks {
+                self.trip(hw, link, FaultReason::Stall, out);
+                return;
+            }
+        } else {
+            self.stall_count = 0;
+            self.stall_from_counts = self.enc.counts();
+        }
+        let duty = duty.clamp(-DUTY_MAX, DUTY_MAX);
+        hw.set_duty(duty);
+        self.driving = true;
+        self.last_duty = duty;
+        out.duty = duty;
+        out.torque_ref_unm = st.torque_ref_unm;
     }
 
     /// One tick of the rest check: its duty, the encoder re-zeroed at the stop, the bridge off

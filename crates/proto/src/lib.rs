@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 
 /// Protocol version: the first byte of every frame and the value of the hello exchange.
 /// Raised whenever a message's encoding changes.
-pub const VERSION: u8 = 2;
+pub const VERSION: u8 = 3;
 
 /// A scene name of the simulated build (the plant's scene catalogue), at most 24 bytes.
 pub type SceneName = heapless::String<24>;
@@ -55,7 +55,10 @@ pub enum Command {
     /// Sets one parameter (idle only, [`Error::Busy`] during a grasp; the telemetry rate any
     /// time).
     Set(Param),
-    /// Calibrate the finger (rest pose, current offset).
+    /// Run the calibration sweep with no object: current offset with the bridge off, then a
+    /// slow close and open of the free finger within the safe torque, bounded in time. Its
+    /// rows come as [`Sample`]s in [`DeviceState::Sweeping`] (one per millisecond, whatever
+    /// the telemetry rate), then [`EventKind::SweepEnded`]. Idle only.
     Calibrate,
     /// Close on the object: approach, contact, ΔT_a step, estimate, hold.
     Grasp,
@@ -258,6 +261,8 @@ pub enum DeviceState {
     Idle,
     /// Measuring the current offset (bridge off).
     Calibrating,
+    /// The calibration sweep: closing and opening the free finger.
+    Sweeping,
     /// Closing, watching for contact.
     Approach,
     /// Contact found, the impact dying out and the loading points taken.
@@ -286,6 +291,7 @@ impl DeviceState {
         match self {
             DeviceState::Idle => "idle",
             DeviceState::Calibrating => "calibrating",
+            DeviceState::Sweeping => "sweeping",
             DeviceState::Approach => "approach",
             DeviceState::Seating => "seating",
             DeviceState::Step => "step",
@@ -563,6 +569,43 @@ pub enum EventKind {
     },
     /// Safe state after a fault.
     Fault(Fault),
+    /// The calibration sweep started (current offset first, then the sweep).
+    SweepStarted,
+    /// The calibration sweep ended, bridge off, idle (or in the fault it reported).
+    SweepEnded {
+        /// How it ended.
+        end: SweepEnd,
+        /// Rows it recorded.
+        rows: u32,
+    },
+}
+
+/// How a calibration sweep ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum SweepEnd {
+    /// Closed and opened through its range: the record is complete.
+    Done,
+    /// A fault tripped it (reported in its own event).
+    Fault,
+    /// The finger ran past the angle limit.
+    AngleLimit,
+    /// The time limit passed before the finger was back.
+    Timeout,
+    /// Stopped by the host (a stop command, or the link lost).
+    Stopped,
+}
+
+impl SweepEnd {
+    /// A stable snake_case name.
+    pub const fn name(&self) -> &'static str {
+        match self {
+            SweepEnd::Done => "done",
+            SweepEnd::Fault => "fault",
+            SweepEnd::AngleLimit => "angle_limit",
+            SweepEnd::Timeout => "timeout",
+            SweepEnd::Stopped => "stopped",
+        }
+    }
 }
 
 /// Where the contact is.

@@ -71,6 +71,7 @@ fn all_states() -> Vec<DeviceState> {
     vec![
         DeviceState::Idle,
         DeviceState::Calibrating,
+        DeviceState::Sweeping,
         DeviceState::Approach,
         DeviceState::Seating,
         DeviceState::Step,
@@ -196,6 +197,15 @@ fn all_device_msgs() -> Vec<DeviceMsg> {
         EventKind::Releasing,
         EventKind::Idle,
         EventKind::Stopped { requested_tick: 41 },
+        EventKind::SweepStarted,
+        EventKind::SweepEnded {
+            end: proto::SweepEnd::Done,
+            rows: 16_000,
+        },
+        EventKind::SweepEnded {
+            end: proto::SweepEnd::Timeout,
+            rows: 0,
+        },
         EventKind::Fault(fault),
     ];
     v.extend(

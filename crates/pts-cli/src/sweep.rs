@@ -351,11 +351,33 @@ pub fn drive_truth(scene: &Scene, nominal: &FingerFile) -> [f64; 6] {
     ]
 }
 
-/// Runs the firmware's calibration sweep ([`grasp::calibrate::Sweep`]) against the plant of
-/// `scene` with the firmware's encoder, current sensing (its offset calibrated with the bridge
-/// off first, as at boot) and torque loop, all configured from `nominal`; the rows it records
-/// (its decimation) as [`record`] writes them. `object` is a fixed object, or none. Ends with
-/// the sweep's final phase.
+/// One recorded tick of the firmware's calibration sweep as a trace row: θa from the
+/// firmware's conversion (µrad), T_a from the raw ADC code with the *nominal* file's zero and
+/// scale (so the identification sees the current sensor's offset), the reference and duty it
+/// applied, and the raw readings. The same for a sweep simulated here and one recorded from
+/// the device (`pts board calibrate`).
+pub fn firmware_row(nominal: &FingerFile, t_s: f64, s: &proto::Sample) -> TraceRow {
+    let zero = f64::from(nominal.current_sense.zero_count);
+    let apc = nominal.current_sense.amps_per_count;
+    TraceRow {
+        t_s,
+        theta_a_rad: f64::from(s.theta_a_urad) * 1e-6,
+        torque_nm: nominal.torque_from_current((f64::from(s.current_code) - zero) * apc),
+        torque_ref_nm: Some(f64::from(s.torque_ref_unm) * 1e-6),
+        duty: Some(f64::from(s.duty) / f64::from(grasp::DUTY_MAX)),
+        state: Some(s.state.name().into()),
+        encoder_count: Some(s.encoder_count),
+        current_code: Some(s.current_code),
+        ..TraceRow::default()
+    }
+}
+
+/// Runs the firmware's calibration sweep against the plant of `scene`: the loop the device
+/// runs on `calibrate` ([`grasp::ControlLoop::for_sweep`], with its current calibration, fast
+/// faults and torque loop), configured from `nominal`, ticking [`sim_board::PlantBoard`].
+/// The rows it records (one in the sweep's decimation) as [`firmware_row`] writes them, with
+/// the plant's truth beside them. `object` is a fixed object, or none. Ends with the sweep's
+/// final phase (a loop fault reads as aborted).
 pub fn record_firmware(
     scene: &Scene,
     nominal: &FingerFile,
@@ -363,7 +385,6 @@ pub fn record_firmware(
     object: Option<Object>,
 ) -> Result<(Vec<TraceRow>, grasp::calibrate::Phase), String> {
     use grasp::calibrate::{Phase, Sweep};
-    use grasp::sensors::{CurrentSense, Encoder};
     let mut scene = *scene;
     scene.object = match object {
         Some(o) => ObjectSpec::At(o),
@@ -373,59 +394,52 @@ pub fn record_firmware(
     let p = ctl
         .params()
         .map_err(|e| format!("controller parameters: {e:?}"))?;
-    let rest_nominal = ctl.drive.theta_a_rest_rad;
-    let mut plant = Plant::new(&scene).map_err(|e| format!("sweep plant: {e}"))?;
-    let mut sweep = Sweep::new(cfg).map_err(|e| format!("calibration sweep: {e:?}"))?;
-    let mut current = CurrentSense::new(&p);
-    for _ in 0..256 {
-        plant.step_off();
-        current.calib_add(plant.current_adc());
-    }
-    current
-        .calib_finish(&p)
-        .map_err(|o| format!("current offset {o}/256 codes out of range"))?;
-    let mut enc = Encoder::new(plant.encoder_count());
-    let mut tl = grasp::torque_loop::TorqueLoop::new();
-    let rad_per_count = nominal.rad_per_count();
-    let zero = f64::from(nominal.current_sense.zero_count);
-    let apc = nominal.current_sense.amps_per_count;
-    let t_start = plant.truth().t_s;
-    sweep
-        .start(false)
-        .map_err(|e| format!("calibration sweep: {e:?}"))?;
+    let sweep = Sweep::new(cfg).map_err(|e| format!("calibration sweep: {e:?}"))?;
+    let mut lp = grasp::ControlLoop::for_sweep(&p, sweep);
+    let mut link = grasp::Link::new();
+    let mut hw =
+        sim_board::PlantBoard::new(Plant::new(&scene).map_err(|e| format!("sweep plant: {e}"))?);
     let mut rows = vec![];
-    let mut fault = false;
-    loop {
-        let code = plant.current_adc();
-        if enc.update(plant.encoder_count(), 2000).is_err() {
-            fault = true;
+    let mut t_start = None;
+    // The sweep's own time limit ends it; this bound only guards against a loop that never
+    // starts it (current calibration and rest check take far less).
+    let limit = u64::from(cfg.timeout_ticks) + 1_000_000;
+    for _ in 0..limit {
+        let raw = (hw.plant.encoder_count(), hw.plant.current_adc());
+        let out = grasp::loop_tick_dyn(&mut lp, &mut link, &mut hw);
+        if let Some(phase @ (Phase::Done | Phase::Aborted(_))) = lp.sweep_phase() {
+            hw.advance();
+            if let Some(grasp::Input::LoopFault { tick, reason }) = link.next_input() {
+                return Err(format!(
+                    "the calibration sweep tripped at tick {tick}: {reason:?} (bridge off)"
+                ));
+            }
+            return Ok((rows, phase));
         }
-        let meas = current.torque_unm(code, &p);
-        let dth = grasp::sensors::counts_to_urad(enc.counts(), &p)
-            .saturating_sub(grasp::sensors::counts_to_urad(0, &p));
-        let st = sweep.tick(dth, fault || plant.solver_failed());
-        if matches!(st.phase, Phase::Done | Phase::Aborted(_)) {
-            plant.step_off();
-            return Ok((rows, st.phase));
-        }
-        let duty = tl.update(st.torque_ref_unm, meas, &p);
-        plant.step(f64::from(duty) / f64::from(grasp::DUTY_MAX));
-        if st.record {
-            let truth = plant.truth();
+        if out.record {
+            let truth = hw.plant.truth();
+            let t0 = *t_start.get_or_insert(truth.t_s);
+            let sample = proto::Sample {
+                tick: out.tick,
+                theta_a_urad: out.theta_a_urad,
+                torque_unm: out.torque_unm,
+                torque_ref_unm: out.torque_ref_unm,
+                duty: out.duty,
+                state: proto::DeviceState::Sweeping,
+                encoder_count: raw.0,
+                current_code: raw.1,
+            };
             rows.push(TraceRow {
-                t_s: truth.t_s - t_start,
-                theta_a_rad: rest_nominal + f64::from(enc.counts()) * rad_per_count,
-                torque_nm: nominal.torque_from_current((f64::from(code) - zero) * apc),
-                torque_ref_nm: Some(f64::from(st.torque_ref_unm) / 1e6),
-                duty: Some(f64::from(duty) / f64::from(grasp::DUTY_MAX)),
-                state: Some("calibrate".into()),
-                encoder_count: Some(plant.encoder_count()),
-                current_code: Some(code),
                 true_theta_a_rad: Some(truth.theta_a_rad),
                 true_torque_nm: Some(truth.torque_a_nm),
                 true_contact: Some(truth.contact.name().to_string()),
                 true_k_m: Some(truth.k_m),
+                ..firmware_row(nominal, truth.t_s - t0, &sample)
             });
         }
+        hw.advance();
     }
+    Err(format!(
+        "the calibration sweep did not end within {limit} ticks"
+    ))
 }

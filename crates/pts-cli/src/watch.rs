@@ -171,6 +171,10 @@ pub fn event_words(k: &EventKind) -> String {
         EventKind::Idle => "idle".into(),
         EventKind::Stopped { .. } => "stopped: bridge off".into(),
         EventKind::Fault(f) => format!("fault {:?} (value {}): bridge off", f.kind, f.value),
+        EventKind::SweepStarted => "calibration sweep started".into(),
+        EventKind::SweepEnded { end, rows } => {
+            format!("calibration sweep ended: {} ({rows} rows)", end.name())
+        }
     }
 }
 
