@@ -44,7 +44,9 @@ mod app {
     use settings::LoadStatus;
 
     use crate::ctl;
-    use crate::device::{self, Device, Transport, ACTIVE, HALT, HOST_LOST, LAST_RX_TICK};
+    use crate::device::{
+        self, Device, Transport, ACTIVE, HALT, HOST_LOST, LAST_RX_TICK, SWEEPING, SWEEP_ROWS,
+    };
     use crate::fault::supervision;
     use crate::platform::{self, Board};
     use crate::telemetry::{self as tm, Msg, QUEUE};
@@ -176,6 +178,10 @@ mod app {
                 let out = lp.tick(board, l);
                 let state = l.state;
                 let input = l.has_input();
+                let sweep = lp.sweep_phase();
+                if let Some(phase) = sweep {
+                    sweep_tick(tel, tick, &out, phase, board.raw());
+                }
                 tm::record_work(tick, platform::stamp().wrapping_sub(t0));
                 // Each grasp's rest check, once it is over (a new grasp has no report yet).
                 match (lp.rest_report(), *cx.local.rest_sent) {
@@ -191,7 +197,8 @@ mod app {
                 }
                 // A silent host in the middle of a grasp: bridge off, reported.
                 let silent = tick.wrapping_sub(LAST_RX_TICK.load(Ordering::Relaxed));
-                if device::in_motion(state) && silent > device::HOST_TIMEOUT_TICKS {
+                let moving = device::in_motion(state) || SWEEPING.load(Ordering::Relaxed);
+                if moving && silent > device::HOST_TIMEOUT_TICKS {
                     HALT.store(true, Ordering::SeqCst);
                     ACTIVE.store(false, Ordering::SeqCst);
                     HOST_LOST.store(true, Ordering::SeqCst);
@@ -211,7 +218,7 @@ mod app {
                 }
                 *cx.local.last_state = state;
                 let dec = device::DECIMATION.load(Ordering::Relaxed);
-                if dec > 0 && tick % dec == 0 && !tel.is_full() {
+                if sweep.is_none() && dec > 0 && tick % dec == 0 && !tel.is_full() {
                     let _ = tel.try_send(Msg::Sample {
                         tick,
                         theta_a_urad: out.theta_a_urad,
@@ -238,6 +245,41 @@ mod app {
         }
         platform::rearm_sampling();
         tm::PREEMPT.fetch_add(platform::stamp().wrapping_sub(t0), Ordering::Relaxed);
+    }
+
+    /// A sweep's tick: its row to the host when it records one, and its end (bridge already
+    /// off) once, unless the host ended it first.
+    fn sweep_tick(
+        tel: &mut Sender<'static, Msg, QUEUE>,
+        tick: u32,
+        out: &grasp::LoopOutput,
+        phase: grasp::calibrate::Phase,
+        (encoder_count, current_code): (u16, u16),
+    ) {
+        if out.record && SWEEPING.load(Ordering::Relaxed) {
+            SWEEP_ROWS.fetch_add(1, Ordering::Relaxed);
+            send(
+                tel,
+                Msg::SweepRow(proto::Sample {
+                    tick,
+                    theta_a_urad: out.theta_a_urad,
+                    torque_unm: out.torque_unm,
+                    torque_ref_unm: out.torque_ref_unm,
+                    duty: out.duty,
+                    state: DeviceState::Sweeping,
+                    encoder_count,
+                    current_code,
+                }),
+            );
+        }
+        if let Some(end) = device::sweep_end(phase) {
+            if SWEEPING.swap(false, Ordering::SeqCst) {
+                HALT.store(true, Ordering::SeqCst);
+                ACTIVE.store(false, Ordering::SeqCst);
+                let rows = SWEEP_ROWS.load(Ordering::Relaxed);
+                send(tel, Msg::SweepEnd { tick, end, rows });
+            }
+        }
     }
 
     fn send(tel: &mut Sender<'static, Msg, QUEUE>, msg: Msg) {
@@ -291,7 +333,7 @@ mod app {
     #[task(priority = 1, shared = [dev])]
     async fn host(mut cx: host::Context, mut rx: Receiver<'static, Msg, QUEUE>) {
         while let Ok(msg) = rx.recv().await {
-            if !matches!(msg, Msg::Sample { .. }) {
+            if !matches!(msg, Msg::Sample { .. } | Msg::SweepRow(_)) {
                 tm::log(&msg);
             }
             cx.shared.dev.lock(|d| match msg {
@@ -314,7 +356,10 @@ mod app {
                     current_code,
                 }),
                 Msg::Event(ev) => d.event(&ev),
+                Msg::SweepRow(s) => d.sample(s),
+                Msg::SweepEnd { tick, end, rows } => d.sweep_ended(tick, end, rows),
                 Msg::HostLost { tick, silent_ticks } => {
+                    d.sweep_stopped(tick);
                     let f = device::host_lost(silent_ticks);
                     d.send(&DeviceMsg::Event(Event {
                         tick,
@@ -373,7 +418,8 @@ mod app {
     /// holding keeps holding.
     fn link_closed(sh: &mut Rx<'_>) {
         let state = sh.link.lock(|l| l.state);
-        if !(ACTIVE.load(Ordering::Relaxed) && device::in_motion(state)) {
+        let moving = device::in_motion(state) || SWEEPING.load(Ordering::Relaxed);
+        if !(ACTIVE.load(Ordering::Relaxed) && moving) {
             return;
         }
         HALT.store(true, Ordering::SeqCst);
@@ -387,6 +433,7 @@ mod app {
             tick
         );
         sh.dev.lock(|d| {
+            d.sweep_stopped(tick);
             d.send(&DeviceMsg::Event(Event {
                 tick,
                 kind: EventKind::Fault(device::host_lost(silent)),
@@ -474,6 +521,7 @@ mod app {
                             requested_tick: rx_tick,
                         },
                     }));
+                    d.sweep_stopped(off_tick);
                 });
                 Ok(Reply::Ack)
             }
@@ -553,6 +601,7 @@ mod app {
                 (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
                 let tick = tm::TICKS.load(Ordering::Relaxed);
                 sh.dev.lock(|d| {
+                    d.sweep_stopped(tick);
                     d.rest = Some(DeviceState::Idle);
                     d.send(&DeviceMsg::Event(Event {
                         tick,
@@ -565,9 +614,10 @@ mod app {
                 });
                 Ok(Reply::Ack)
             }
-            Command::Calibrate => Err(Error::NotSupported {
-                what: Unsupported::Calibrate,
-            }),
+            Command::Calibrate => {
+                idle_or_busy(sh)?;
+                start_sweep(sh)
+            }
             Command::Store => {
                 idle_or_busy(sh)?;
                 // Erasing flash stalls the CPU on the board: never with the bridge on.
@@ -696,51 +746,107 @@ mod app {
         }
     }
 
+    /// The simulated finger a run starts on (QEMU); the board has none to replace.
+    #[cfg(feature = "qemu")]
+    type FreshPlant = plant::Plant;
+    #[cfg(not(feature = "qemu"))]
+    type FreshPlant = core::convert::Infallible;
+
+    /// What the next grasp or sweep runs with: the controller configuration from the settings
+    /// and the drive, and on QEMU a fresh finger at rest in the selected scene (its object
+    /// taken away for a sweep: it must be free). On the board: the real finger where it is.
+    fn next_run(
+        sh: &mut Rx<'_>,
+        free: bool,
+    ) -> Result<(grasp::ControllerConfig, Option<FreshPlant>), Error> {
+        let (settings, scene_name) = sh.dev.lock(|d| (d.settings, d.scene.clone()));
+        #[cfg(feature = "qemu")]
+        {
+            let unknown = || Error::UnknownChoice {
+                param: ParamId::Scene,
+            };
+            let mut scene = plant::scenes::by_name(scene_name.as_str())
+                .map(ctl::finger_scene)
+                .ok_or_else(unknown)?;
+            let cfg = if free {
+                scene.object = plant::scene::ObjectSpec::None;
+                ctl::config_with(ctl::scene_drive(&scene), &settings)
+            } else {
+                ctl::with_scene_rest_check(
+                    ctl::config_with(ctl::scene_drive(&scene), &settings),
+                    &scene,
+                )
+            };
+            let plant = plant::Plant::new(&scene).map_err(|_| unknown())?;
+            Ok((cfg, Some(plant)))
+        }
+        #[cfg(not(feature = "qemu"))]
+        {
+            let _ = (&scene_name, free);
+            Ok((ctl::config_with(ctl::board_drive(), &settings), None))
+        }
+    }
+
+    /// Puts a new loop, link and supervisor in place (and on QEMU the fresh finger) with the
+    /// bridge enabled from the next tick; returns the tick before it. Read inside the lock
+    /// (the sampling task cannot run meanwhile): a recording of the run starts at `tick + 1`.
+    fn install(
+        sh: &mut Rx<'_>,
+        (lp_new, link_new, sup_new): (ControlLoop, Link, Supervisor),
+        plant: Option<FreshPlant>,
+        sweeping: bool,
+    ) -> u32 {
+        (&mut sh.lp, &mut sh.board, &mut sh.link, &mut sh.sup).lock(|lp, board, link, sup| {
+            let tick = tm::TICKS.load(Ordering::Relaxed);
+            LAST_RX_TICK.store(tick, Ordering::Relaxed);
+            *lp = lp_new;
+            *link = link_new;
+            *sup = sup_new;
+            #[cfg(feature = "qemu")]
+            if let Some(p) = plant {
+                board.reset_plant(p);
+            }
+            #[cfg(not(feature = "qemu"))]
+            let _ = (board, plant);
+            HOST_LOST.store(false, Ordering::SeqCst);
+            SWEEP_ROWS.store(0, Ordering::Relaxed);
+            SWEEPING.store(sweeping, Ordering::SeqCst);
+            ACTIVE.store(true, Ordering::SeqCst);
+            HALT.store(false, Ordering::SeqCst);
+            tick
+        })
+    }
+
+    /// The calibration sweep: a sweep loop with the settings' drive on the free finger, and a
+    /// fresh supervisor that only hears the loop's faults.
+    fn start_sweep(sh: &mut Rx<'_>) -> Result<Reply, Error> {
+        let (cfg, plant) = next_run(sh, true)?;
+        let params = cfg.params().map_err(|_| Error::ConfigRejected)?;
+        let sweep = grasp::calibrate::Sweep::new(grasp::calibrate::SweepConfig::DEFAULT)
+            .map_err(|_| Error::ConfigRejected)?;
+        let (_, link, sup) = Controller::new(cfg)
+            .map_err(|_| Error::ConfigRejected)?
+            .into_parts();
+        let lp = ControlLoop::for_sweep(&params, sweep);
+        let tick = install(sh, (lp, link, sup), plant, true);
+        defmt::info!("SWEEP started at tick {=u32}", tick);
+        sh.dev.lock(|d| {
+            d.rest = Some(DeviceState::Sweeping);
+            d.send(&DeviceMsg::Event(Event {
+                tick,
+                kind: EventKind::SweepStarted,
+            }));
+        });
+        Ok(Reply::Ack)
+    }
+
     /// A fresh controller with the settings (QEMU: and a fresh finger at rest in the selected
     /// scene; board: the real finger where it is, the build's drive constants).
     fn start_grasp(sh: &mut Rx<'_>) -> Result<Reply, Error> {
-        let (settings, scene_name) = sh.dev.lock(|d| (d.settings, d.scene.clone()));
-        #[cfg(feature = "qemu")]
-        let (cfg, plant) = {
-            let scene = plant::scenes::by_name(scene_name.as_str())
-                .map(ctl::finger_scene)
-                .ok_or(Error::UnknownChoice {
-                    param: ParamId::Scene,
-                })?;
-            let plant = plant::Plant::new(&scene).map_err(|_| Error::UnknownChoice {
-                param: ParamId::Scene,
-            })?;
-            let cfg = ctl::with_scene_rest_check(
-                ctl::config_with(ctl::scene_drive(&scene), &settings),
-                &scene,
-            );
-            (cfg, plant)
-        };
-        #[cfg(not(feature = "qemu"))]
-        let cfg = {
-            let _ = &scene_name;
-            ctl::config_with(ctl::board_drive(), &settings)
-        };
+        let settings = sh.dev.lock(|d| d.settings);
+        let (cfg, plant) = next_run(sh, false)?;
         let ctrl = Controller::new(cfg).map_err(|_| Error::ConfigRejected)?;
-        let (lp_new, link_new, sup_new) = ctrl.into_parts();
-        // Read inside the lock (the sampling task cannot run meanwhile): the new controller's
-        // first tick is `tick + 1`, which a recording of this grasp starts from.
-        let tick =
-            (&mut sh.lp, &mut sh.board, &mut sh.link, &mut sh.sup).lock(|lp, board, link, sup| {
-                let tick = tm::TICKS.load(Ordering::Relaxed);
-                LAST_RX_TICK.store(tick, Ordering::Relaxed);
-                *lp = lp_new;
-                *link = link_new;
-                *sup = sup_new;
-                #[cfg(feature = "qemu")]
-                board.reset_plant(plant);
-                #[cfg(not(feature = "qemu"))]
-                let _ = board;
-                HOST_LOST.store(false, Ordering::SeqCst);
-                ACTIVE.store(true, Ordering::SeqCst);
-                HALT.store(false, Ordering::SeqCst);
-                tick
-            });
+        let tick = install(sh, ctrl.into_parts(), plant, false);
         sh.dev.lock(|d| {
             d.grasps = d.grasps.wrapping_add(1);
             d.estimator = settings.estimator;

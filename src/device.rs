@@ -25,6 +25,12 @@ pub static ACTIVE: AtomicBool = AtomicBool::new(false);
 pub static LAST_RX_TICK: AtomicU32 = AtomicU32::new(0);
 /// Set by the sampling task when it halted for a silent host.
 pub static HOST_LOST: AtomicBool = AtomicBool::new(false);
+/// A calibration sweep runs (the loop is a [`grasp::ControlLoop::for_sweep`]); cleared by
+/// whoever ends it first: the sampling task when the sweep finishes, or a stop, a release
+/// or a lost host.
+pub static SWEEPING: AtomicBool = AtomicBool::new(false);
+/// Rows the current (or last) calibration sweep recorded.
+pub static SWEEP_ROWS: AtomicU32 = AtomicU32::new(0);
 /// Telemetry decimation (ticks per sample; 0 = no samples).
 pub static DECIMATION: AtomicU32 = AtomicU32::new(200);
 
@@ -305,6 +311,32 @@ impl Device {
     pub fn sample(&mut self, out: Sample) {
         self.send(&DeviceMsg::Sample(out));
     }
+
+    /// The calibration sweep is over (`end`): reported, and the device idle when it ended on
+    /// its own (a fault's own event sets the fault; a stop or release sets its state).
+    pub fn sweep_ended(&mut self, tick: u32, end: proto::SweepEnd, rows: u32) {
+        use proto::SweepEnd as E;
+        if matches!(end, E::Done | E::AngleLimit | E::Timeout)
+            && self.rest == Some(DeviceState::Sweeping)
+        {
+            self.rest = Some(DeviceState::Idle);
+        }
+        self.send(&DeviceMsg::Event(Event {
+            tick,
+            kind: EventKind::SweepEnded { end, rows },
+        }));
+    }
+
+    /// Ends a sweep the host stopped (stop, release, link lost), if one runs.
+    pub fn sweep_stopped(&mut self, tick: u32) {
+        if SWEEPING.swap(false, Ordering::SeqCst) {
+            self.sweep_ended(
+                tick,
+                proto::SweepEnd::Stopped,
+                SWEEP_ROWS.load(Ordering::Relaxed),
+            );
+        }
+    }
 }
 
 /// The protocol's view of the controller's drive constants.
@@ -331,6 +363,18 @@ pub fn set_decimation(hz: u16) {
         (10_000 / u32::from(hz)).max(1)
     };
     DECIMATION.store(n, Ordering::Relaxed);
+}
+
+/// The protocol's view of how a sweep ended.
+pub fn sweep_end(p: grasp::calibrate::Phase) -> Option<proto::SweepEnd> {
+    use grasp::calibrate::{AbortReason, Phase};
+    match p {
+        Phase::Done => Some(proto::SweepEnd::Done),
+        Phase::Aborted(AbortReason::Fault) => Some(proto::SweepEnd::Fault),
+        Phase::Aborted(AbortReason::AngleLimit) => Some(proto::SweepEnd::AngleLimit),
+        Phase::Aborted(AbortReason::Timeout) => Some(proto::SweepEnd::Timeout),
+        _ => None,
+    }
 }
 
 /// The protocol's view of the controller's state.

@@ -78,6 +78,19 @@ pub enum Msg {
     Rest(grasp::RestReport),
     /// The run is over.
     Done(Done),
+    /// Device mode: one recorded tick of the calibration sweep (for the host only).
+    #[cfg_attr(not(feature = "device"), allow(dead_code))]
+    SweepRow(proto::Sample),
+    /// Device mode: the calibration sweep is over (bridge off).
+    #[cfg_attr(not(feature = "device"), allow(dead_code))]
+    SweepEnd {
+        /// Tick at which it ended.
+        tick: u32,
+        /// How.
+        end: proto::SweepEnd,
+        /// Rows recorded.
+        rows: u32,
+    },
     /// Device mode: the host went silent during a grasp; the bridge is off.
     #[cfg_attr(not(feature = "device"), allow(dead_code))]
     HostLost {
@@ -196,6 +209,13 @@ pub fn log(msg: &Msg) {
             r.power_up_urad,
             r.stop_ticks,
             r.done_ticks
+        ),
+        Msg::SweepRow(_) => {}
+        Msg::SweepEnd { tick, end, rows } => defmt::info!(
+            "SWEEP ended at tick {=u32}: {=str} rows={=u32}",
+            tick,
+            end.name(),
+            rows
         ),
         Msg::HostLost { tick, silent_ticks } => defmt::error!(
             "HOST lost at tick {=u32} (silent for {=u32} ticks): bridge off",

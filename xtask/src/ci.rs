@@ -1047,7 +1047,7 @@ pub fn main(args: &[String]) -> Res<i32> {
         settings_corrupt_check,
     );
     st.run(
-        "QEMU device mode over pts board: typed errors, stop, disconnect, three grasps = host within 1e-4·l2",
+        "QEMU device mode over pts board: typed errors, stop, disconnect, three grasps = host within 1e-4·l2, calibration sweep = host within σ",
         crate::device::check,
     );
 

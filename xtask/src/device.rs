@@ -433,6 +433,7 @@ fn session(s: &Session) -> Res {
         }
     }
     errs.extend(record_and_replay(s)?);
+    errs.extend(calibrate_on_device(s)?);
     // The live view, non-interactive: summary lines, then the telemetry rate it found.
     let before = s.state()?.2["reply"]["Status"]["settings"]["telemetry_hz"].clone();
     let (code, _, lines) = s.board(&["watch", "--seconds", "1.5", "--rate", "1000"])?;
@@ -511,6 +512,101 @@ fn record_and_replay(s: &Session) -> Res<Vec<String>> {
     if est["exact_replay"] != Value::Bool(true) || est["method"] != "two-point" {
         errs.push(format!(
             "recorded grasp not replayed exactly with its estimator: {est}"
+        ));
+    }
+    Ok(errs)
+}
+
+/// The calibration sweep on the device: stopped in mid-sweep (bridge off, state stopped),
+/// then run whole with `pts board calibrate`, whose identification must agree within each
+/// parameter's σ with `pts calibrate` on the host's simulation of the firmware's sweep
+/// (`--simulate --firmware`: the same loop on the same plant, no QEMU).
+fn calibrate_on_device(s: &Session) -> Res<Vec<String>> {
+    let mut errs = vec![];
+    s.ok(&["set", "scene", "table2"])?;
+    s.ok(&["calibrate", "--no-wait"])?;
+    let t = Instant::now();
+    let mut sweeping = false;
+    while t.elapsed() < Duration::from_secs(60) {
+        let (state, bridge_on, _) = s.state()?;
+        if state == "Sweeping" && bridge_on {
+            sweeping = true;
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    if !sweeping {
+        errs.push("calibrate: the device never showed Sweeping with the bridge on".into());
+    }
+    s.ok(&["stop"])?;
+    let (state, bridge_on, _) = s.state()?;
+    if state != "Stopped" || bridge_on {
+        errs.push(format!(
+            "stop mid-sweep: state {state}, bridge_on {bridge_on}"
+        ));
+    }
+
+    let target = util::root().join("target");
+    let dev_csv = target.join("device-sweep.csv").display().to_string();
+    let host_csv = target.join("host-sweep.csv").display().to_string();
+    let t = Instant::now();
+    let dev = s.ok(&["calibrate", "--trace", &dev_csv, "--sweep-timeout", "900"])?;
+    println!("calibrate: device sweep {:.1} s", t.elapsed().as_secs_f64());
+    let (state, bridge_on, _) = s.state()?;
+    if state != "Idle" || bridge_on {
+        errs.push(format!(
+            "after the sweep: state {state}, bridge_on {bridge_on}"
+        ));
+    }
+    let pts = |args: &[&str]| -> Res<String> {
+        let out = Command::new(&s.pts)
+            .args(args)
+            .output()
+            .map_err(|e| format!("cannot run pts: {e}"))?;
+        if !out.status.success() {
+            return Err(format!(
+                "pts {}: {}",
+                args.join(" "),
+                String::from_utf8_lossy(&out.stderr)
+            ));
+        }
+        Ok(String::from_utf8_lossy(&out.stdout).to_string())
+    };
+    pts(&[
+        "calibrate",
+        "--simulate",
+        "--firmware",
+        "--trace",
+        &host_csv,
+    ])?;
+    let text = pts(&["calibrate", "--trace", &host_csv, "--json"])?;
+    let host: Value = serde_json::from_str(text.lines().last().unwrap_or("null"))
+        .map_err(|e| format!("pts calibrate --json: {e}: {text}"))?;
+    let (Some(dev_p), Some(host_p)) = (dev["params"].as_array(), host["params"].as_array()) else {
+        return Err(format!("calibrate: no parameters in {dev} / {host}"));
+    };
+    let mut compared = 0;
+    for h in host_p {
+        let name = h["name"].as_str().unwrap_or("?");
+        let (Some(hv), Some(sigma)) = (h["value"].as_f64(), h["sigma"].as_f64()) else {
+            continue;
+        };
+        let dv = dev_p
+            .iter()
+            .find(|d| d["name"] == h["name"])
+            .and_then(|d| d["value"].as_f64());
+        println!("  {name}: device {dv:?}, host {hv} ± {sigma}");
+        compared += 1;
+        match dv {
+            Some(dv) if (dv - hv).abs() <= sigma => {}
+            _ => errs.push(format!(
+                "calibrate {name}: device {dv:?} vs host {hv} (σ {sigma})"
+            )),
+        }
+    }
+    if compared < 5 {
+        errs.push(format!(
+            "calibrate: only {compared} parameters identified: {host}"
         ));
     }
     Ok(errs)

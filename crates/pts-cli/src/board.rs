@@ -58,6 +58,12 @@ pub struct Board {
     pub log: Vec<DeviceMsg>,
     /// Decoded messages not yet handled (a read can bring a reply and what followed it).
     pending: std::collections::VecDeque<Result<DeviceMsg, FrameError>>,
+    /// A whole frame has been read: before it, the link may have been joined in the middle
+    /// of a frame the device was sending (telemetry, a sweep's rows), and what precedes the
+    /// first delimiter is dropped rather than reported.
+    synced: bool,
+    /// Partial frames dropped before the first whole one.
+    pub joined_mid_frame: u32,
 }
 
 /// Why a command failed.
@@ -73,6 +79,8 @@ pub enum BoardError {
     Frame(FrameError),
     /// A recording is incomplete.
     Record(RecordError),
+    /// The calibration sweep did not finish, or its record is incomplete.
+    Sweep(SweepError),
 }
 
 impl std::fmt::Display for BoardError {
@@ -83,6 +91,7 @@ impl std::fmt::Display for BoardError {
             BoardError::Device(e) => write!(f, "{}", describe(e)),
             BoardError::Frame(e) => write!(f, "bad frame from the device: {e:?}"),
             BoardError::Record(e) => write!(f, "recording: {e}"),
+            BoardError::Sweep(e) => write!(f, "calibration sweep: {e}"),
         }
     }
 }
@@ -155,6 +164,8 @@ impl Board {
             timeout,
             log: Vec::new(),
             pending: Default::default(),
+            synced: false,
+            joined_mid_frame: 0,
         };
         // A delimiter first: the device drops whatever partial frame it held.
         b.write(&[0])?;
@@ -181,8 +192,18 @@ impl Board {
         match self.stream.read(&mut buf) {
             Ok(0) => return Err(BoardError::Io("the device closed the link".into())),
             Ok(n) => {
-                let pending = &mut self.pending;
-                self.dec.feed(&buf[..n], |r| pending.push_back(r));
+                let (pending, synced, dropped) = (
+                    &mut self.pending,
+                    &mut self.synced,
+                    &mut self.joined_mid_frame,
+                );
+                self.dec.feed(&buf[..n], |r| match r {
+                    Err(_) if !*synced => *dropped += 1,
+                    r => {
+                        *synced = true;
+                        pending.push_back(r)
+                    }
+                });
             }
             Err(e)
                 if matches!(
@@ -287,6 +308,82 @@ impl Board {
         })
     }
 
+    /// Runs the device's calibration sweep (the finger must be free) and collects its rows
+    /// until it ends. Polls the status meanwhile; `give_up` bounds the wait. Fails with
+    /// [`SweepError`] (as a [`BoardError::Sweep`]) when it ended early or rows are missing.
+    pub fn sweep(&mut self, give_up: Duration) -> Result<SweepRecording, BoardError> {
+        let Reply::Drive(drive) = self.request(Command::Drive)? else {
+            return Err(BoardError::Io(
+                "the device answered `drive` with another reply".into(),
+            ));
+        };
+        self.log.clear();
+        self.request(Command::Calibrate)?;
+        let t0 = Instant::now();
+        let mut last_poll = Instant::now();
+        let mut pending: Option<u16> = None;
+        let mut samples = vec![];
+        let mut fault = None;
+        while t0.elapsed() < give_up {
+            if last_poll.elapsed() >= POLL && pending.is_none() {
+                pending = Some(self.send(Command::Status)?);
+                last_poll = Instant::now();
+            }
+            let Some(m) = self.next()? else { continue };
+            match m {
+                Ok(DeviceMsg::Reply { id, result }) => {
+                    if Some(id) == pending {
+                        pending = None;
+                    }
+                    if let Err(e) = result {
+                        return Err(BoardError::Device(e));
+                    }
+                }
+                Ok(DeviceMsg::Sample(x)) if x.state == proto::DeviceState::Sweeping => {
+                    samples.push(x)
+                }
+                Ok(DeviceMsg::Event(ev)) => {
+                    self.log.push(DeviceMsg::Event(ev));
+                    match ev.kind {
+                        EventKind::Fault(f) => fault = Some(f),
+                        EventKind::SweepEnded { end, rows } => {
+                            // The device sends every row before the end.
+                            if end != proto::SweepEnd::Done {
+                                // A fault's event follows the loop's trip: wait for it briefly.
+                                if end == proto::SweepEnd::Fault && fault.is_none() {
+                                    fault = self.fault_within(Duration::from_millis(500))?;
+                                }
+                                return Err(BoardError::Sweep(SweepError::Ended { end, fault }));
+                            }
+                            return check_sweep(drive, samples, rows);
+                        }
+                        _ => {}
+                    }
+                }
+                Ok(other) => self.log.push(other),
+                Err(e) => return Err(BoardError::Frame(e)),
+            }
+        }
+        // Do not leave the finger sweeping unattended.
+        let _ = self.request(Command::Stop);
+        Err(BoardError::Timeout(give_up))
+    }
+
+    /// The next fault event within `wait`, if any.
+    fn fault_within(&mut self, wait: Duration) -> Result<Option<proto::Fault>, BoardError> {
+        let t0 = Instant::now();
+        while t0.elapsed() < wait {
+            if let Some(Ok(DeviceMsg::Event(proto::Event {
+                kind: EventKind::Fault(f),
+                ..
+            }))) = self.next()?
+            {
+                return Ok(Some(f));
+            }
+        }
+        Ok(None)
+    }
+
     /// Starts a grasp and waits for its end: the contact estimate, a fault or a stop. Polls
     /// the status meanwhile; `give_up` bounds the wait.
     pub fn grasp(&mut self, give_up: Duration) -> Result<Outcome, BoardError> {
@@ -333,6 +430,77 @@ impl Board {
             }
         }
         Err(BoardError::Timeout(give_up))
+    }
+}
+
+/// Why a calibration sweep gives no record to identify from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SweepError {
+    /// The sweep ended early (bridge off); `fault` is the fault the device reported with it.
+    Ended {
+        /// How it ended.
+        end: proto::SweepEnd,
+        /// The fault, when one tripped it.
+        fault: Option<proto::Fault>,
+    },
+    /// Rows are missing (the telemetry queue or the link could not keep up).
+    Lost {
+        /// Rows received.
+        got: usize,
+        /// Rows the device recorded.
+        of: u32,
+    },
+}
+
+impl std::fmt::Display for SweepError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SweepError::Ended { end, fault: None } => write!(
+                f,
+                "it ended early ({}): the bridge is off, nothing to identify from",
+                end.name()
+            ),
+            SweepError::Ended {
+                end,
+                fault: Some(x),
+            } => write!(
+                f,
+                "it ended early ({}, fault {:?} value {}): the bridge is off; send `stop` to \
+                 acknowledge",
+                end.name(),
+                x.kind,
+                x.value
+            ),
+            SweepError::Lost { got, of } => write!(
+                f,
+                "{got} of the {of} rows the device recorded arrived (the link could not keep \
+                 up): not identified from a gapped record"
+            ),
+        }
+    }
+}
+
+/// One calibration sweep as the device recorded it.
+#[derive(Clone, Debug)]
+pub struct SweepRecording {
+    /// The device's drive constants and control period.
+    pub drive: proto::Drive,
+    /// Its rows, in tick order, evenly spaced.
+    pub samples: Vec<proto::Sample>,
+}
+
+impl SweepRecording {
+    /// The rows as trace rows ([`crate::sweep::firmware_row`] with the nominal file), time
+    /// from the first row.
+    pub fn rows(&self, nominal: &pts::config::FingerFile) -> Vec<crate::trace::TraceRow> {
+        let t0 = self.samples.first().map_or(0, |x| x.tick);
+        self.samples
+            .iter()
+            .map(|x| {
+                let t = f64::from(x.tick.wrapping_sub(t0)) * self.drive.dt_s;
+                crate::sweep::firmware_row(nominal, t, x)
+            })
+            .collect()
     }
 }
 
@@ -392,6 +560,26 @@ impl std::fmt::Display for RecordError {
             ),
         }
     }
+}
+
+/// A finished sweep's rows, checked complete: as many as the device recorded, evenly spaced.
+pub fn check_sweep(
+    drive: proto::Drive,
+    mut samples: Vec<proto::Sample>,
+    rows: u32,
+) -> Result<SweepRecording, BoardError> {
+    samples.sort_by_key(|x| x.tick);
+    samples.dedup_by_key(|x| x.tick);
+    let spaced = samples
+        .windows(3)
+        .all(|w| w[1].tick - w[0].tick == w[2].tick - w[1].tick);
+    if samples.len() != rows as usize || !spaced || samples.len() < 2 {
+        return Err(BoardError::Sweep(SweepError::Lost {
+            got: samples.len(),
+            of: rows,
+        }));
+    }
+    Ok(SweepRecording { drive, samples })
 }
 
 /// True for the states a grasp ends in: its last recorded tick is the first in one of them.
@@ -554,6 +742,38 @@ pub fn parse_param(name: &str, value: &str) -> Result<Param, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A host that connects while the device streams (a sweep's rows) reads the tail of a
+    /// frame first: dropped, the reply after it read; corruption after that is reported.
+    #[test]
+    fn a_link_joined_mid_frame_drops_the_partial_frame_only() {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = l.local_addr().unwrap().to_string();
+        let server = std::thread::spawn(move || {
+            let (mut c, _) = l.accept().unwrap();
+            let frame = |id| {
+                let mut buf = [0u8; proto::MAX_FRAME];
+                let n = DeviceMsg::Reply {
+                    id,
+                    result: Ok(Reply::Ack),
+                }
+                .encode(&mut buf)
+                .unwrap();
+                buf[..n].to_vec()
+            };
+            let (one, mut two) = (frame(1), frame(2));
+            c.write_all(&one[3..]).unwrap();
+            c.write_all(&one).unwrap();
+            two[2] ^= 0x40;
+            c.write_all(&two).unwrap();
+            std::thread::sleep(Duration::from_millis(500));
+        });
+        let mut b = Board::connect(&addr, Duration::from_secs(2)).unwrap();
+        assert!(matches!(b.wait_reply(1), Ok(Reply::Ack)));
+        assert_eq!(b.joined_mid_frame, 1);
+        assert!(matches!(b.wait_reply(2), Err(BoardError::Frame(_))));
+        server.join().unwrap();
+    }
 
     /// A missing serial device or an unreachable socket is an error naming it, not a hang.
     #[test]

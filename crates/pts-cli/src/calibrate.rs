@@ -1209,7 +1209,8 @@ fn post_from_text(text: &str) -> (Option<f64>, Option<f64>) {
     (get("post_theta1_rad"), get("post_k1_m"))
 }
 
-fn write_rows(path: &Path, head: Option<String>, rows: &[TraceRow]) -> Result<(), String> {
+/// Writes recorded rows as a trace CSV (`head`: a comment line first).
+pub fn write_rows(path: &Path, head: Option<String>, rows: &[TraceRow]) -> Result<(), String> {
     let file = std::fs::File::create(path)
         .map_err(|e| format!("cannot create {}: {e}", path.display()))?;
     let mut w = std::io::BufWriter::new(file);
@@ -1333,17 +1334,29 @@ pub fn run(a: &Args) -> Result<(), String> {
         &nominal,
     )
     .map_err(|e| format!("{}: {e}", a.trace.display()))?;
-    if let Some(path) = &a.out {
+    report(&cal, &a.trace, a.out.as_deref(), a.json)
+}
+
+/// Prints an identification (each parameter with its σ, the residual, what the recordings
+/// could not separate) and writes the calibrated finger file to `out` when given; `source`
+/// names the recording in the file's comment.
+pub fn report(
+    cal: &Calibration,
+    source: &Path,
+    out: Option<&Path>,
+    json: bool,
+) -> Result<(), String> {
+    if let Some(path) = out {
         let mut text = format!(
             "# Calibrated by `pts calibrate` from {} (residual RMS {:.5} N·m).\n",
-            a.trace.display(),
+            source.display(),
             cal.residual_rms_nm
         );
         text += &cal.file.to_toml_string();
         std::fs::write(path, text).map_err(|e| format!("cannot write {}: {e}", path.display()))?;
         eprintln!("wrote {}", path.display());
     }
-    if a.json {
+    if json {
         crate::outln!("{}", cal.to_json());
     } else {
         crate::outln!("{}", cal.to_string().trim_end());

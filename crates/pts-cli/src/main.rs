@@ -196,8 +196,26 @@ enum BoardCmd {
     Release,
     /// Torque off now, from any state; acknowledges a latched fault.
     Stop,
-    /// Calibrate the finger.
-    Calibrate,
+    /// Run the device's calibration sweep (the finger must be free: no object), record it and
+    /// identify the finger from it, as `pts calibrate --trace` does from the same file.
+    Calibrate {
+        /// Where to write the recorded sweep (CSV, `pts calibrate --trace` reads it).
+        #[arg(long, required_unless_present = "no_wait")]
+        trace: Option<PathBuf>,
+        /// Return once the device accepted the command (no recording, no identification).
+        #[arg(long)]
+        no_wait: bool,
+        /// The finger file the firmware was built with (the nominal); default: the paper's
+        /// prototype.
+        #[arg(long)]
+        finger: Option<PathBuf>,
+        /// Write the calibrated finger file here.
+        #[arg(long, short)]
+        out: Option<PathBuf>,
+        /// Seconds to wait for the sweep's end.
+        #[arg(long, default_value = "300")]
+        sweep_timeout: f64,
+    },
     /// Store the settings in flash.
     Store,
     /// Load the stored settings.
@@ -516,7 +534,26 @@ fn run_board(a: BoardArgs) -> ExitCode {
         }
         BoardCmd::Release => proto::Command::Release,
         BoardCmd::Stop => proto::Command::Stop,
-        BoardCmd::Calibrate => proto::Command::Calibrate,
+        BoardCmd::Calibrate {
+            trace,
+            no_wait,
+            finger,
+            out,
+            sweep_timeout,
+        } => match trace.filter(|_| !no_wait) {
+            None => proto::Command::Calibrate,
+            Some(trace) => {
+                return board_calibrate(
+                    &mut b,
+                    &a.connect,
+                    a.json,
+                    &trace,
+                    finger,
+                    out,
+                    sweep_timeout,
+                )
+            }
+        },
         BoardCmd::Store => proto::Command::Store,
         BoardCmd::Load => proto::Command::Load,
         BoardCmd::Reboot => proto::Command::Reboot,
@@ -558,6 +595,61 @@ fn run_board(a: BoardArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => fail(e),
+    }
+}
+
+/// `pts board calibrate --trace`: the device's sweep recorded, written and identified.
+fn board_calibrate(
+    b: &mut pts_cli::board::Board,
+    connect: &str,
+    json: bool,
+    trace: &std::path::Path,
+    finger: Option<PathBuf>,
+    out: Option<PathBuf>,
+    sweep_timeout: f64,
+) -> ExitCode {
+    use std::time::Duration;
+    let nominal = match pts_cli::load_finger(finger.as_deref()) {
+        Ok(f) => f,
+        Err(e) => {
+            eprintln!("pts board calibrate: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let give_up = Duration::from_secs_f64(sweep_timeout.clamp(0.01, 86_400.0));
+    eprintln!("calibration sweep: closing and opening the free finger…");
+    let rec = match b.sweep(give_up) {
+        Ok(r) => r,
+        Err(e) => {
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"ok": false, "error": e.to_string()})
+                );
+            }
+            eprintln!("pts board: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let rows = rec.rows(&nominal);
+    let head = format!(
+        "# pts-board-calibrate connect={} finger={}",
+        connect, nominal.name
+    );
+    if let Err(e) = pts_cli::calibrate::write_rows(trace, Some(head), &rows) {
+        eprintln!("pts board calibrate: {e}");
+        return ExitCode::FAILURE;
+    }
+    eprintln!("wrote {} ({} rows)", trace.display(), rows.len());
+    let reported = pts_cli::calibrate::identify(&rows, None, &nominal)
+        .map_err(|e| format!("{}: {e}", trace.display()))
+        .and_then(|cal| pts_cli::calibrate::report(&cal, trace, out.as_deref(), json));
+    match reported {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("pts board calibrate: {e}");
+            ExitCode::FAILURE
+        }
     }
 }
 
