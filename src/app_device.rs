@@ -180,7 +180,8 @@ mod app {
                 let input = l.has_input();
                 let sweep = lp.sweep_phase();
                 if let Some(phase) = sweep {
-                    sweep_tick(tel, tick, &out, phase, board.raw());
+                    let record = lp.sweep_record();
+                    sweep_tick(tel, tick, &out, record, phase, board.raw());
                 }
                 tm::record_work(tick, platform::stamp().wrapping_sub(t0));
                 // Each grasp's rest check, once it is over (a new grasp has no report yet).
@@ -253,10 +254,11 @@ mod app {
         tel: &mut Sender<'static, Msg, QUEUE>,
         tick: u32,
         out: &grasp::LoopOutput,
+        record: bool,
         phase: grasp::calibrate::Phase,
         (encoder_count, current_code): (u16, u16),
     ) {
-        if out.record && SWEEPING.load(Ordering::Relaxed) {
+        if record && SWEEPING.load(Ordering::Relaxed) {
             SWEEP_ROWS.fetch_add(1, Ordering::Relaxed);
             send(
                 tel,
@@ -595,7 +597,16 @@ mod app {
                 if !ACTIVE.load(Ordering::Relaxed) {
                     return Err(Error::Busy { state });
                 }
-                // Torque off, and the simulated finger opens back to its rest pose.
+                // Holding: the controller lets go and opens the finger (its events follow).
+                let released = (&mut sh.sup, &mut sh.link).lock(|s, l| {
+                    let started = s.release();
+                    s.publish(l);
+                    started
+                });
+                if released {
+                    return Ok(Reply::Ack);
+                }
+                // In any other state the release is an abort: torque off now.
                 HALT.store(true, Ordering::SeqCst);
                 ACTIVE.store(false, Ordering::SeqCst);
                 (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));

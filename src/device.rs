@@ -42,7 +42,7 @@ pub const HOST_TIMEOUT_TICKS: u32 = 20_000;
 pub const TX_QUEUE: usize = 4096;
 
 /// True in the states where the finger moves under the controller's command and a silent
-/// host stops the grasp.
+/// host stops the grasp (or the release).
 pub fn in_motion(state: State) -> bool {
     matches!(
         state,
@@ -52,6 +52,8 @@ pub fn in_motion(state: State) -> bool {
             | State::Step
             | State::Settling
             | State::Estimating
+            | State::Releasing
+            | State::Opening
     )
 }
 
@@ -298,7 +300,13 @@ impl Device {
             }
             GEvent::Holding { tick } => (tick, EventKind::Holding),
             GEvent::Releasing { tick } => (tick, EventKind::Releasing),
-            GEvent::Released { tick } => (tick, EventKind::Idle),
+            GEvent::Released { tick } => {
+                // Open and the bridge off: the device is idle until the next command.
+                HALT.store(true, Ordering::SeqCst);
+                ACTIVE.store(false, Ordering::SeqCst);
+                self.rest = Some(DeviceState::Idle);
+                (tick, EventKind::Idle)
+            }
             GEvent::Fault { tick, reason } => (tick, EventKind::Fault(fault(reason))),
         };
         if let EventKind::Fault(f) = kind {
@@ -388,6 +396,7 @@ pub fn state(s: State) -> DeviceState {
         State::Estimating => DeviceState::Estimating,
         State::Holding => DeviceState::Holding,
         State::Releasing => DeviceState::Releasing,
+        State::Opening => DeviceState::Opening,
         State::Done => DeviceState::Idle,
         State::Fault(r) => DeviceState::Fault(fault(r)),
     }

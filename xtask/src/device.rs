@@ -426,10 +426,21 @@ fn session(s: &Session) -> Res {
         if dev_est != want {
             errs.push(format!("{scene}: the device ran {dev_est}, asked {want}"));
         }
-        s.ok(&["release"])?;
+        let r = s.ok(&["release"])?;
         let (state, bridge_on, _) = s.state()?;
         if state != "Idle" || bridge_on {
             errs.push(format!("after release: {state}, bridge_on {bridge_on}"));
+        }
+        // Opened back to rest (the gear does not let the springs do it alone).
+        let theta = r["released"]["theta_a_urad"].as_f64().map(|t| t * 1e-6);
+        let rest = s.ok(&["drive"])?["reply"]["Drive"]["theta_a_rest_rad"].as_f64();
+        match (theta, rest) {
+            (Some(t), Some(rest)) if (t - rest).abs() <= RELEASE_REST_TOL_RAD => {
+                println!("  released at θa {t:.4} rad, rest {rest:.4} rad")
+            }
+            _ => errs.push(format!(
+                "{scene}: released at θa {theta:?} rad, rest {rest:?} rad (tolerance {RELEASE_REST_TOL_RAD})"
+            )),
         }
     }
     errs.extend(record_and_replay(s)?);
@@ -516,6 +527,10 @@ fn record_and_replay(s: &Session) -> Res<Vec<String>> {
     }
     Ok(errs)
 }
+
+/// How far from the rest angle a release may leave the finger (rad): the controller's end
+/// band (0.03) and the coasting after the bridge goes off.
+const RELEASE_REST_TOL_RAD: f64 = 0.05;
 
 /// The calibration sweep on the device: stopped in mid-sweep (bridge off, state stopped),
 /// then run whole with `pts board calibrate`, whose identification must agree within each

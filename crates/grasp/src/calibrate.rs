@@ -148,7 +148,8 @@ pub struct SweepStep {
     pub phase: Phase,
 }
 
-/// The sweep's state machine.
+/// The sweep's state machine. Its tick runs in the sampling task: no division (the rates
+/// and limits are worked out once in [`Sweep::new`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Sweep {
     cfg: SweepConfig,
@@ -157,12 +158,19 @@ pub struct Sweep {
     in_phase: u32,
     reference: i32,
     top: i32,
+    /// Reference change per tick (µN·m ×2¹⁶).
+    rate_q16: i64,
+    /// θa beyond which the finger ran away (µrad): the angle limit and a tenth of it.
+    runaway_urad: i64,
+    /// Ticks until the next recorded one.
+    until_record: u16,
 }
 
 impl Sweep {
     /// A sweep with a validated configuration.
     pub fn new(cfg: SweepConfig) -> Result<Sweep, SweepError> {
         cfg.validate()?;
+        let max = i64::from(cfg.max_dtheta_urad);
         Ok(Sweep {
             cfg,
             phase: Phase::Idle,
@@ -170,6 +178,9 @@ impl Sweep {
             in_phase: 0,
             reference: 0,
             top: 0,
+            rate_q16: (i64::from(cfg.safe_torque_unm) << 16) / i64::from(cfg.ramp_ticks),
+            runaway_urad: max + max / 10,
+            until_record: cfg.decimate,
         })
     }
 
@@ -191,16 +202,14 @@ impl Sweep {
         self.ticks = 0;
         self.in_phase = 0;
         self.reference = 0;
+        self.until_record = self.cfg.decimate;
         Ok(())
     }
 
+    /// The reference `n` ticks into a ramp (µN·m), limited to ±safe.
     fn ramp(&self, n: u32) -> i32 {
-        // safe · n / ramp in i64, limited to ±safe.
-        let v = i64::from(self.cfg.safe_torque_unm) * i64::from(n) / i64::from(self.cfg.ramp_ticks);
-        v.clamp(
-            -i64::from(self.cfg.safe_torque_unm),
-            i64::from(self.cfg.safe_torque_unm),
-        ) as i32
+        let safe = i64::from(self.cfg.safe_torque_unm);
+        ((self.rate_q16 * i64::from(n)) >> 16).min(safe).max(-safe) as i32
     }
 
     fn go(&mut self, phase: Phase) {
@@ -216,8 +225,7 @@ impl Sweep {
             self.ticks = self.ticks.saturating_add(1);
             self.in_phase = self.in_phase.saturating_add(1);
             let c = &self.cfg;
-            let runaway = i64::from(dtheta_urad)
-                > i64::from(c.max_dtheta_urad) + i64::from(c.max_dtheta_urad) / 10;
+            let runaway = i64::from(dtheta_urad) > self.runaway_urad;
             if fault_latched {
                 self.go(Phase::Aborted(AbortReason::Fault));
             } else if runaway {
@@ -237,8 +245,7 @@ impl Sweep {
                     Phase::Opening => {
                         // Down from the top at the ramp's rate, never below −safe; held there
                         // until the finger is back (or the time limit).
-                        let down = i64::from(c.safe_torque_unm) * i64::from(self.in_phase)
-                            / i64::from(c.ramp_ticks);
+                        let down = (self.rate_q16 * i64::from(self.in_phase)) >> 16;
                         self.reference =
                             (i64::from(self.top) - down).max(-i64::from(c.safe_torque_unm)) as i32;
                         if dtheta_urad <= c.end_dtheta_urad {
@@ -254,9 +261,17 @@ impl Sweep {
             self.reference = 0;
         }
         let running = !matches!(self.phase, Phase::Idle | Phase::Done | Phase::Aborted(_));
+        let mut record = false;
+        if running {
+            self.until_record = self.until_record.saturating_sub(1);
+            if self.until_record == 0 {
+                record = true;
+                self.until_record = self.cfg.decimate;
+            }
+        }
         SweepStep {
             torque_ref_unm: self.reference,
-            record: running && self.ticks % u32::from(self.cfg.decimate) == 0,
+            record,
             phase: self.phase,
         }
     }

@@ -205,8 +205,18 @@ pub struct ControllerConfig {
     pub estimator: Estimator,
     /// After the estimate: hold or release.
     pub after_estimate: AfterEstimate,
-    /// Release: ramp-down rate (N·m/s).
+    /// Release: ramp-down rate (N·m/s); also the rate the opening torque builds up at.
     pub release_rate_nm_per_s: f64,
+    /// Release: once the torque is down, the opening torque (N·m, in [0, approach_max_nm];
+    /// 0: none, the finger is left to its springs) that takes the finger back to rest
+    /// through a gear its springs cannot back-drive.
+    pub open_torque_nm: f64,
+    /// Release: the opening ends, bridge off, once θa is within this of the rest angle
+    /// (rad, ≥ 0).
+    pub open_end_rad: f64,
+    /// Release: the opening ends, bridge off, after this long whether or not the finger is
+    /// back (s, > 0).
+    pub open_timeout_s: f64,
     /// Before the first approach, find the rest pose against the open stop and zero the
     /// encoder there ([`crate::rest`]); `None`: the encoder is zeroed wherever the finger is
     /// at power-up (the host tests that start the plant at rest).
@@ -257,7 +267,10 @@ impl ControllerConfig {
         ki_rel: 0.3,
         estimator: Estimator::PathFit,
         after_estimate: AfterEstimate::Hold,
-        release_rate_nm_per_s: 1.0,
+        release_rate_nm_per_s: 3.0,
+        open_torque_nm: 0.3,
+        open_end_rad: 0.03,
+        open_timeout_s: 5.0,
         rest_check: None,
     };
 
@@ -363,6 +376,9 @@ impl ControllerConfig {
             || self.loss_margin_rad < 0.0
             || self.emf_mismatch_v <= 0.0
             || self.emf_mismatch_s < 0.0
+            || !(0.0..=self.approach_max_nm).contains(&self.open_torque_nm)
+            || !(self.open_end_rad >= 0.0 && self.open_end_rad.is_finite())
+            || !(self.open_timeout_s > 0.0 && self.open_timeout_s <= 600.0)
         {
             return Err(ConfigError::OutOfRange);
         }
@@ -461,6 +477,9 @@ impl ControllerConfig {
             estimator: self.estimator,
             dt_ns: to_u32(d.dt_s * 1e9),
             release_ramp_q16: ramp(self.release_rate_nm_per_s),
+            open_unm: unm(self.open_torque_nm),
+            open_end_urad: to_i32(self.open_end_rad * 1e6),
+            open_timeout_ticks: secs(self.open_timeout_s),
             rest: match &self.rest_check {
                 Some(r) => Some(r.params(d)?),
                 None => None,
@@ -718,6 +737,12 @@ pub struct Params {
     pub dt_ns: u32,
     /// Release ramp, µN·m per tick, Q16.
     pub release_ramp_q16: i64,
+    /// Opening torque after a release (µN·m, ≥ 0).
+    pub open_unm: i32,
+    /// The opening ends within this of θa,rest (µrad).
+    pub open_end_urad: i32,
+    /// The opening ends after this long (ticks).
+    pub open_timeout_ticks: u32,
     /// The rest check before the first approach (`None`: zeroed at power-up).
     pub rest: Option<crate::rest::RestParams>,
 }

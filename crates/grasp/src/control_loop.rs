@@ -284,8 +284,6 @@ pub struct LoopOutput {
     /// The loop switched the bridge off this tick (its own fault, the setpoint, or the end
     /// of a calibration sweep).
     pub went_off: bool,
-    /// A calibration sweep's row: record this tick ([`ControlLoop::for_sweep`]).
-    pub record: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -363,6 +361,9 @@ pub struct ControlLoop {
     sweep: Option<Sweep>,
     /// Encoder count where the sweep's duty last started saturating.
     stall_from_counts: i32,
+    /// The sweep's last tick is one to record (kept out of [`LoopOutput`]: a larger
+    /// output costs the grasp's every tick).
+    sweep_record: bool,
 }
 
 impl ControlLoop {
@@ -393,6 +394,7 @@ impl ControlLoop {
             calib_from: 0,
             sweep: None,
             stall_from_counts: 0,
+            sweep_record: false,
         }
     }
 
@@ -404,6 +406,12 @@ impl ControlLoop {
         let mut lp = Self::new(p);
         lp.sweep = Some(sweep);
         lp
+    }
+
+    /// Whether the sweep's last tick is a row to record (one in the sweep's decimation; its
+    /// values are that tick's [`LoopOutput`] and raw readings).
+    pub fn sweep_record(&self) -> bool {
+        self.sweep_record
     }
 
     /// Where the sweep of a [`ControlLoop::for_sweep`] loop is (`None` for a grasp loop); a
@@ -586,6 +594,8 @@ impl ControlLoop {
     }
 
     /// The current faults of a driving tick: an ADC pinned at a rail, or over-current.
+    /// Inlined: the sampling task's path must not pay a call for it.
+    #[inline(always)]
     fn current_fault(&mut self, code: u16, ua: i32) -> Option<FaultReason> {
         // An ADC pinned at a rail reads nothing: the current may be anywhere beyond it.
         // Over the over-current time it is a fault of its own (the configuration keeps the
@@ -623,6 +633,7 @@ impl ControlLoop {
         code: u16,
         out: &mut LoopOutput,
     ) {
+        self.sweep_record = false;
         let ua = self.cur.current_ua(code, &self.p);
         if let Some(reason) = self.current_fault(code, ua) {
             self.trip(hw, link, reason, out);
@@ -633,7 +644,7 @@ impl ControlLoop {
         let Some(st) = self.sweep.as_mut().map(|sw| sw.tick(dtheta_urad, false)) else {
             return;
         };
-        out.record = st.record;
+        self.sweep_record = st.record;
         if matches!(st.phase, SweepPhase::Done | SweepPhase::Aborted(_)) {
             self.stop(hw);
             self.phase = Phase::SweepOver;

@@ -175,6 +175,13 @@ impl Controller {
         self.lp.stop(hw);
     }
 
+    /// Lets go of a held object ([`Supervisor::release`]); returns whether it started.
+    pub fn release(&mut self) -> bool {
+        let started = self.sup.release();
+        self.sup.publish(&mut self.link);
+        started
+    }
+
     /// Moves the estimate request out, once, after a tick reported `estimate_ready`.
     /// Hand it to [`run_estimate`](crate::run_estimate) in a low-priority task.
     pub fn take_request(&mut self) -> Option<EstimateRequest> {
@@ -312,6 +319,10 @@ enum Phase {
         loaded: Loaded,
     },
     Releasing,
+    Opening {
+        /// Tick the opening started.
+        since: u32,
+    },
     Done,
     Fault(FaultReason),
 }
@@ -328,6 +339,7 @@ impl Phase {
             Phase::Estimating { .. } => State::Estimating,
             Phase::Holding { .. } => State::Holding,
             Phase::Releasing => State::Releasing,
+            Phase::Opening { .. } => State::Opening,
             Phase::Done => State::Done,
             Phase::Fault(r) => State::Fault(*r),
         }
@@ -344,6 +356,7 @@ impl Phase {
                 | Phase::Estimating { .. }
                 | Phase::Holding { .. }
                 | Phase::Releasing
+                | Phase::Opening { .. }
         )
     }
 }
@@ -750,6 +763,10 @@ impl Supervisor {
                 target: TorqueQ16::new(0),
                 rate: TorqueQ16::new(p.release_ramp_q16),
             },
+            Phase::Opening { .. } => Reference::Ramp {
+                target: TorqueQ16::from_unm(-p.open_unm),
+                rate: TorqueQ16::new(p.release_ramp_q16),
+            },
             _ => Reference::Hold,
         };
         if !self.phase.drives() {
@@ -933,13 +950,40 @@ impl Supervisor {
             {
                 self.fault(FaultReason::EstimateTimeout);
             }
-            Phase::Releasing if t_ref <= 0 => {
-                self.phase = Phase::Done;
-                let tick = self.tick;
-                self.emit(Event::Released { tick });
+            Phase::Releasing if t_ref <= 0 && p.open_unm > 0 => {
+                self.phase = Phase::Opening { since: self.tick };
+            }
+            Phase::Releasing if t_ref <= 0 => self.released(),
+            Phase::Opening { since }
+                if i64::from(theta)
+                    <= i64::from(p.theta_a_rest_urad) + i64::from(p.open_end_urad)
+                    || self.tick.wrapping_sub(since) > p.open_timeout_ticks =>
+            {
+                self.released()
             }
             _ => {}
         }
+    }
+
+    /// Released: bridge off.
+    fn released(&mut self) {
+        self.phase = Phase::Done;
+        let tick = self.tick;
+        self.emit(Event::Released { tick });
+    }
+
+    /// Lets go of a held object: the torque ramps down, then the opening torque takes the
+    /// finger back toward rest, then the bridge goes off ([`State::Done`]). Only from
+    /// [`State::Holding`]; returns whether the release started. Publish the setpoint
+    /// afterwards ([`Supervisor::publish`]).
+    pub fn release(&mut self) -> bool {
+        if !matches!(self.phase, Phase::Holding { .. }) {
+            return false;
+        }
+        self.phase = Phase::Releasing;
+        let tick = self.tick;
+        self.emit(Event::Releasing { tick });
+        true
     }
 
     /// Moves the estimate request out, once, after the step reported it ready.

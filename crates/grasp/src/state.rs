@@ -159,6 +159,8 @@ pub enum State {
     Holding,
     /// Estimate delivered; ramping the torque down.
     Releasing,
+    /// Torque down; a small opening torque takes the finger back toward rest.
+    Opening,
     /// Released; bridge off.
     Done,
     /// Safe state: bridge off, with the reason.

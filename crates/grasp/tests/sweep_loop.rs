@@ -109,7 +109,7 @@ fn run(hw: &mut Spring, cfg: SweepConfig) -> (ControlLoop, Run) {
         r.ticks += 1;
         r.max_ref = r.max_ref.max(out.torque_ref_unm);
         r.min_ref = r.min_ref.min(out.torque_ref_unm);
-        if out.record {
+        if lp.sweep_record() {
             r.records.push(out);
         }
         while let Some(i) = link.next_input() {
@@ -163,7 +163,7 @@ fn a_free_finger_is_swept_within_the_safe_torque_and_left_with_the_bridge_off() 
     let mut lp = lp;
     for _ in 0..10 {
         let out = lp.tick(&mut hw, &mut link);
-        assert_eq!((out.duty, out.record), (0, false));
+        assert_eq!((out.duty, lp.sweep_record()), (0, false));
     }
     assert!(hw.off);
 }

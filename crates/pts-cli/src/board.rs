@@ -308,6 +308,36 @@ impl Board {
         })
     }
 
+    /// Lets go: the device ramps the torque down and opens the finger back to rest (from
+    /// holding; in any other state it switches the torque off). Polls the status until the
+    /// device is idle, stopped or in a fault, and returns that state; `give_up` bounds the
+    /// wait.
+    pub fn release(&mut self, give_up: Duration) -> Result<Released, BoardError> {
+        use proto::DeviceState as D;
+        self.log.clear();
+        self.request(Command::Release)?;
+        let t0 = Instant::now();
+        while t0.elapsed() < give_up {
+            let Reply::Status(st) = self.request(Command::Status)? else {
+                return Err(BoardError::Io(
+                    "the device answered `status` with another reply".into(),
+                ));
+            };
+            if matches!(st.state, D::Idle | D::Stopped | D::Fault(_)) {
+                let theta_a_urad = self.log.iter().rev().find_map(|m| match m {
+                    DeviceMsg::Sample(x) => Some(x.theta_a_urad),
+                    _ => None,
+                });
+                return Ok(Released {
+                    state: st.state,
+                    theta_a_urad,
+                });
+            }
+            std::thread::sleep(POLL);
+        }
+        Err(BoardError::Timeout(give_up))
+    }
+
     /// Runs the device's calibration sweep (the finger must be free) and collects its rows
     /// until it ends. Polls the status meanwhile; `give_up` bounds the wait. Fails with
     /// [`SweepError`] (as a [`BoardError::Sweep`]) when it ended early or rows are missing.
@@ -431,6 +461,15 @@ impl Board {
         }
         Err(BoardError::Timeout(give_up))
     }
+}
+
+/// Where a release left the finger.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Released {
+    /// The device's state (idle, or stopped or a fault when it could not open).
+    pub state: proto::DeviceState,
+    /// θa of the last telemetry sample (µrad), when the telemetry is on.
+    pub theta_a_urad: Option<i32>,
 }
 
 /// Why a calibration sweep gives no record to identify from.

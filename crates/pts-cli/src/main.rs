@@ -192,8 +192,16 @@ enum BoardCmd {
         #[arg(long, default_value = "10")]
         window: f64,
     },
-    /// Let go (torque off, the finger opens to rest), back to idle.
-    Release,
+    /// Let go: the torque ramps down and the finger opens back to rest, then idle (waits for
+    /// it unless --no-wait). Outside holding it switches the torque off.
+    Release {
+        /// Return once the device accepted the command.
+        #[arg(long)]
+        no_wait: bool,
+        /// Seconds to wait for the finger to be back and idle.
+        #[arg(long, default_value = "60")]
+        release_timeout: f64,
+    },
     /// Torque off now, from any state; acknowledges a latched fault.
     Stop,
     /// Run the device's calibration sweep (the finger must be free: no object), record it and
@@ -532,7 +540,39 @@ fn run_board(a: BoardArgs) -> ExitCode {
                 Err(e) => fail(e),
             };
         }
-        BoardCmd::Release => proto::Command::Release,
+        BoardCmd::Release {
+            no_wait,
+            release_timeout,
+        } => {
+            if no_wait {
+                proto::Command::Release
+            } else {
+                let give_up = Duration::from_secs_f64(release_timeout.clamp(0.01, 86_400.0));
+                return match b.release(give_up) {
+                    Ok(r) => {
+                        if a.json {
+                            println!(
+                                "{}",
+                                serde_json::json!({"ok": true, "released": {
+                                    "state": r.state,
+                                    "theta_a_urad": r.theta_a_urad,
+                                }})
+                            );
+                        } else {
+                            let theta = r.theta_a_urad.map_or(String::new(), |t| {
+                                format!(", θa {:.4} rad", f64::from(t) * 1e-6)
+                            });
+                            println!("released: {}{theta}", r.state.name());
+                        }
+                        match r.state {
+                            proto::DeviceState::Fault(_) => ExitCode::from(2),
+                            _ => ExitCode::SUCCESS,
+                        }
+                    }
+                    Err(e) => fail(e),
+                };
+            }
+        }
         BoardCmd::Stop => proto::Command::Stop,
         BoardCmd::Calibrate {
             trace,

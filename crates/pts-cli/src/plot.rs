@@ -299,7 +299,7 @@ fn state_color(name: &str) -> RGBColor {
         "settling" => RGBColor(253, 208, 162),
         "estimating" => RGBColor(229, 245, 224),
         "holding" => RGBColor(199, 233, 192),
-        "releasing" | "done" => RGBColor(240, 240, 240),
+        "releasing" | "opening" | "done" => RGBColor(240, 240, 240),
         s if s.starts_with("fault") => RGBColor(252, 187, 161),
         _ => RGBColor(250, 250, 250),
     }

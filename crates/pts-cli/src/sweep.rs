@@ -416,7 +416,7 @@ pub fn record_firmware(
             }
             return Ok((rows, phase));
         }
-        if out.record {
+        if lp.sweep_record() {
             let truth = hw.plant.truth();
             let t0 = *t_start.get_or_insert(truth.t_s);
             let sample = proto::Sample {

@@ -332,6 +332,7 @@ fn state_code(st: grasp::State) -> i32 {
         S::Holding => 7,
         S::Releasing => 8,
         S::Done => 9,
+        S::Opening => 18,
         S::Fault(r) => {
             use grasp::FaultReason as F;
             10 + match r {
