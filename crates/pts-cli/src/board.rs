@@ -341,7 +341,12 @@ impl Board {
     /// Runs the device's calibration sweep (the finger must be free) and collects its rows
     /// until it ends. Polls the status meanwhile; `give_up` bounds the wait. Fails with
     /// [`SweepError`] (as a [`BoardError::Sweep`]) when it ended early or rows are missing.
-    pub fn sweep(&mut self, give_up: Duration) -> Result<SweepRecording, BoardError> {
+    /// `progress` sees each row as it arrives, with the count so far.
+    pub fn sweep(
+        &mut self,
+        give_up: Duration,
+        progress: &mut dyn FnMut(&proto::Sample, usize),
+    ) -> Result<SweepRecording, BoardError> {
         let Reply::Drive(drive) = self.request(Command::Drive)? else {
             return Err(BoardError::Io(
                 "the device answered `drive` with another reply".into(),
@@ -370,7 +375,8 @@ impl Board {
                     }
                 }
                 Ok(DeviceMsg::Sample(x)) if x.state == proto::DeviceState::Sweeping => {
-                    samples.push(x)
+                    samples.push(x);
+                    progress(&x, samples.len());
                 }
                 Ok(DeviceMsg::Event(ev)) => {
                     self.log.push(DeviceMsg::Event(ev));

@@ -658,7 +658,19 @@ fn board_calibrate(
     };
     let give_up = Duration::from_secs_f64(sweep_timeout.clamp(0.01, 86_400.0));
     eprintln!("calibration sweep: closing and opening the free finger…");
-    let rec = match b.sweep(give_up) {
+    // A line every 2 s: the sweep takes tens of seconds.
+    let mut last = std::time::Instant::now();
+    let mut progress = |x: &proto::Sample, n: usize| {
+        if last.elapsed() >= Duration::from_secs(2) {
+            last = std::time::Instant::now();
+            eprintln!(
+                "  {n} rows, θa {:.3} rad, torque reference {:.3} N·m",
+                f64::from(x.theta_a_urad) * 1e-6,
+                f64::from(x.torque_ref_unm) * 1e-6
+            );
+        }
+    };
+    let rec = match b.sweep(give_up, &mut progress) {
         Ok(r) => r,
         Err(e) => {
             if json {
