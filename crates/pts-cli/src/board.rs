@@ -355,30 +355,19 @@ impl Board {
         self.log.clear();
         self.request(Command::Calibrate)?;
         let t0 = Instant::now();
-        let mut last_poll = Instant::now();
-        let mut pending: Option<u16> = None;
+        let mut poll = StatusPoll::new();
         let mut samples = vec![];
         let mut fault = None;
         while t0.elapsed() < give_up {
-            if last_poll.elapsed() >= POLL && pending.is_none() {
-                pending = Some(self.send(Command::Status)?);
-                last_poll = Instant::now();
-            }
-            let Some(m) = self.next()? else { continue };
+            let Some(m) = self.next_polling(&mut poll)? else {
+                continue;
+            };
             match m {
-                Ok(DeviceMsg::Reply { id, result }) => {
-                    if Some(id) == pending {
-                        pending = None;
-                    }
-                    if let Err(e) = result {
-                        return Err(BoardError::Device(e));
-                    }
-                }
-                Ok(DeviceMsg::Sample(x)) if x.state == proto::DeviceState::Sweeping => {
+                DeviceMsg::Sample(x) if x.state == proto::DeviceState::Sweeping => {
                     samples.push(x);
                     progress(&x, samples.len());
                 }
-                Ok(DeviceMsg::Event(ev)) => {
+                DeviceMsg::Event(ev) => {
                     self.log.push(DeviceMsg::Event(ev));
                     match ev.kind {
                         EventKind::Fault(f) => fault = Some(f),
@@ -396,8 +385,7 @@ impl Board {
                         _ => {}
                     }
                 }
-                Ok(other) => self.log.push(other),
-                Err(e) => return Err(BoardError::Frame(e)),
+                other => self.log.push(other),
             }
         }
         // Do not leave the finger sweeping unattended.
@@ -425,29 +413,16 @@ impl Board {
     pub fn grasp(&mut self, give_up: Duration) -> Result<Outcome, BoardError> {
         self.request(Command::Grasp)?;
         let t0 = Instant::now();
-        let mut last_poll = Instant::now();
-        let mut pending: Option<u16> = None;
+        let mut poll = StatusPoll::new();
         let mut contact = None;
         while t0.elapsed() < give_up {
-            if last_poll.elapsed() >= POLL && pending.is_none() {
-                pending = Some(self.send(Command::Status)?);
-                last_poll = Instant::now();
-            }
-            if let Some(m) = self.next()? {
+            if let Some(m) = self.next_polling(&mut poll)? {
                 match m {
-                    Ok(DeviceMsg::Reply { id, result }) => {
-                        if Some(id) == pending {
-                            pending = None;
-                        }
-                        if let Err(e) = result {
-                            return Err(BoardError::Device(e));
-                        }
-                    }
-                    Ok(DeviceMsg::Contact(c)) => {
+                    DeviceMsg::Contact(c) => {
                         contact = Some(c);
                         self.log.push(DeviceMsg::Contact(c));
                     }
-                    Ok(DeviceMsg::Event(ev)) => {
+                    DeviceMsg::Event(ev) => {
                         self.log.push(DeviceMsg::Event(ev));
                         match ev.kind {
                             EventKind::Holding | EventKind::Releasing => {
@@ -460,12 +435,49 @@ impl Board {
                             _ => {}
                         }
                     }
-                    Ok(other) => self.log.push(other),
-                    Err(e) => return Err(BoardError::Frame(e)),
+                    other => self.log.push(other),
                 }
             }
         }
         Err(BoardError::Timeout(give_up))
+    }
+
+    /// The next unasked message while a command runs on the device, with the status polled
+    /// every [`POLL`] meanwhile (the device's proof that the host is there): the polls'
+    /// replies are consumed, a refused one is an error, as is a bad frame. `None` when
+    /// nothing arrived within the link's short timeout.
+    fn next_polling(&mut self, poll: &mut StatusPoll) -> Result<Option<DeviceMsg>, BoardError> {
+        if poll.last.elapsed() >= POLL && poll.pending.is_none() {
+            poll.pending = Some(self.send(Command::Status)?);
+            poll.last = Instant::now();
+        }
+        match self.next()? {
+            None => Ok(None),
+            Some(Err(e)) => Err(BoardError::Frame(e)),
+            Some(Ok(DeviceMsg::Reply { id, result })) => {
+                if Some(id) == poll.pending {
+                    poll.pending = None;
+                }
+                result.map(|_| None).map_err(BoardError::Device)
+            }
+            Some(Ok(m)) => Ok(Some(m)),
+        }
+    }
+}
+
+/// The status polls of a command that runs on the device ([`Board::next_polling`]).
+struct StatusPoll {
+    last: Instant,
+    /// The poll whose reply has not come yet.
+    pending: Option<u16>,
+}
+
+impl StatusPoll {
+    fn new() -> Self {
+        Self {
+            last: Instant::now(),
+            pending: None,
+        }
     }
 }
 
