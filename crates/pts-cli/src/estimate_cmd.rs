@@ -298,6 +298,9 @@ fn run_segmented(
                 if let Some(s) = c.sigma_k2_m {
                     v["sigma_k2"] = n(s);
                 }
+                if let Some((a, total)) = c.phases {
+                    v["phases"] = json!({ "answered": a, "total": total });
+                }
                 if let Some(d) = &c.drive {
                     v["drive"] = json!({
                         "inertia_kgm2": n(d.inertia_kgm2),
@@ -378,6 +381,9 @@ fn run_segmented(
         }
         if let Some(s) = c.sigma_k2_m {
             println!("  σ(k2,c) = {:.2} mm", s * 1e3);
+        }
+        if let Some((a, n)) = c.phases {
+            println!("  block phases answering on the distal phalanx: {a} of {n}");
         }
         match &c.two_point {
             Some(Ok(r)) => println!("  two-point (reference): {}", crate::sim::describe(r)),

@@ -61,47 +61,74 @@ pub fn make_blocks<R: pts::Real>(
         return Err(OfflineError::TooShort);
     }
     let mut n = 0usize;
-    let mut cur: Option<(u32, f64, f64, f64, u32, u32)> = None; // idx, Σt, Σθ, ΣT, count, first
-    let mut flush = |c: (u32, f64, f64, f64, u32, u32), n: &mut usize| {
-        let k = f64::from(c.4);
-        let th = c.2 / k;
+    let mut cur: Option<Acc> = None;
+    let mut flush = |c: Acc, n: &mut usize| {
+        let k = f64::from(c.count);
+        let th = c.theta / k;
         let resid = model
             .free_from_theta_a(R::from_f64(th))
-            .map(|f| c.3 / k - f.ta.to_f64())
+            .map(|f| c.torque / k - f.ta.to_f64())
             .unwrap_or(f64::NAN);
+        let km = f64::from(c.moving);
+        let moving_mean = |s: f64| if c.moving > 0 { s / km } else { f64::NAN };
         if let Some(slot) = scratch.get_mut(*n) {
             *slot = Block {
-                index: c.0,
-                t_s: c.1 / k,
+                index: c.index,
+                t_s: c.t / k,
                 theta_a_rad: th,
-                torque_nm: c.3 / k,
+                torque_nm: c.torque / k,
                 resid_nm: resid,
-                first_row: c.5,
+                first_row: c.first_row,
+                moving_rows: c.moving,
+                moving_theta_a_rad: moving_mean(c.moving_theta),
+                moving_torque_nm: moving_mean(c.moving_torque),
             };
             *n += 1;
         }
     };
+    let mut prev_theta = first.theta_a_rad;
     for (i, r) in rows.iter().enumerate() {
         let idx = ((r.t_s - first.t_s) / block) as u32;
-        match cur {
-            Some(ref mut c) if c.0 == idx => {
-                c.1 += r.t_s;
-                c.2 += r.theta_a_rad;
-                c.3 += r.torque_nm;
-                c.4 = c.4.saturating_add(1);
-            }
-            _ => {
-                if let Some(c) = cur {
-                    flush(c, &mut n);
-                }
-                cur = Some((idx, r.t_s, r.theta_a_rad, r.torque_nm, 1, i as u32));
+        if cur.is_some_and(|c| c.index != idx) {
+            if let Some(c) = cur.take() {
+                flush(c, &mut n);
             }
         }
+        let c = cur.get_or_insert(Acc {
+            index: idx,
+            first_row: i as u32,
+            ..Acc::default()
+        });
+        c.t += r.t_s;
+        c.theta += r.theta_a_rad;
+        c.torque += r.torque_nm;
+        c.count = c.count.saturating_add(1);
+        if i > 0 && r.theta_a_rad != prev_theta {
+            c.moving = c.moving.saturating_add(1);
+            c.moving_theta += r.theta_a_rad;
+            c.moving_torque += r.torque_nm;
+        }
+        prev_theta = r.theta_a_rad;
     }
     if let Some(c) = cur {
         flush(c, &mut n);
     }
     Ok((n, block))
+}
+
+/// Sums over the rows of one block.
+#[derive(Clone, Copy, Default)]
+struct Acc {
+    index: u32,
+    first_row: u32,
+    count: u32,
+    t: f64,
+    theta: f64,
+    torque: f64,
+    /// Rows in which θa changed, and their sums.
+    moving: u32,
+    moving_theta: f64,
+    moving_torque: f64,
 }
 
 /// Median of up to 64 values (NaN ignored); `None` when empty.
@@ -168,6 +195,43 @@ pub(super) fn mean(w: &[Block], f: impl Fn(&Block) -> f64) -> f64 {
     w.iter().map(f).sum::<f64>() / w.len() as f64
 }
 
+/// The mean over the moving rows of consecutive blocks, weighted by their counts: one path
+/// sample stamped at the last block added.
+#[derive(Clone, Copy, Default)]
+pub(super) struct MovingMean {
+    rows: f64,
+    theta: f64,
+    torque: f64,
+    tick: u32,
+}
+
+impl MovingMean {
+    /// Adds a block's moving rows (a block without any adds nothing).
+    pub(super) fn add(&mut self, b: &Block) {
+        if b.moving_rows > 0 {
+            let k = f64::from(b.moving_rows);
+            self.rows += k;
+            self.theta += k * b.moving_theta_a_rad;
+            self.torque += k * b.moving_torque_nm;
+            self.tick = tick(b);
+        }
+    }
+
+    /// The sample so far (`None` when no row moved), and starts a new one.
+    pub(super) fn take(&mut self) -> Option<Sample> {
+        let m = core::mem::take(self);
+        (m.rows > 0.0).then(|| {
+            let t = micro(m.torque / m.rows);
+            Sample {
+                tick: m.tick,
+                theta_a_urad: micro(m.theta / m.rows),
+                torque_unm: t,
+                torque_ref_unm: t,
+            }
+        })
+    }
+}
+
 /// A block's tick: its index + 1.
 pub(super) fn tick(b: &Block) -> u32 {
     b.index.saturating_add(1)
@@ -194,4 +258,70 @@ pub(super) fn window_sample(w: &[Block]) -> Option<Sample> {
         torque_unm: micro(t),
         torque_ref_unm: micro(t),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 1 kHz rows: θa stuck for 10 ms while the torque climbs through the stiction band, a
+    /// slip of 2 mrad, stuck again; then crawling one row in two.
+    fn stick_slip() -> std::vec::Vec<TraceSample> {
+        (0..40)
+            .map(|i| {
+                let theta = match i {
+                    0..10 => -0.3,
+                    10..20 => -0.298,
+                    _ => -0.298 + 1e-4 * ((i - 19) / 2) as f64,
+                };
+                TraceSample {
+                    t_s: 0.001 * i as f64,
+                    theta_a_rad: theta,
+                    torque_nm: 0.4 + 0.001 * i as f64,
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn moving_means_keep_only_the_rows_in_which_the_crank_moved() {
+        let model = Model::<f64>::paper().unwrap();
+        let cfg = OfflineConfig::DEFAULT;
+        let mut scratch = [Block::default(); 16];
+        let rows = stick_slip();
+        let (n, block_s) = make_blocks(&model, &cfg, &rows, &mut scratch).unwrap();
+        assert!((block_s - cfg.block_s).abs() < 1e-12);
+        let b = &scratch[..n];
+        // Blocks of 4 rows: 0..4 and 4..8 stuck, 8..12 holds the slip at row 10.
+        assert_eq!((b[0].moving_rows, b[1].moving_rows), (0, 0));
+        assert!(b[0].moving_torque_nm.is_nan() && b[1].moving_theta_a_rad.is_nan());
+        assert_eq!(b[2].moving_rows, 1);
+        assert_eq!(b[2].moving_theta_a_rad, -0.298);
+        assert!((b[2].moving_torque_nm - 0.41).abs() < 1e-12);
+        // The plain means still average every row.
+        assert!((b[2].torque_nm - 0.4095).abs() < 1e-12);
+        // Crawling (rows 21, 23, … move): two of each block's four rows.
+        assert!(b[6..9].iter().all(|k| k.moving_rows == 2), "{:?}", &b[6..9]);
+    }
+
+    #[test]
+    fn a_moving_mean_weights_blocks_by_their_moving_rows() {
+        let block = |index: u32, rows: u32, th: f64, t: f64| Block {
+            index,
+            moving_rows: rows,
+            moving_theta_a_rad: th,
+            moving_torque_nm: t,
+            ..Block::default()
+        };
+        let mut m = MovingMean::default();
+        m.add(&block(3, 3, -0.2, 0.5));
+        m.add(&block(4, 0, f64::NAN, f64::NAN));
+        m.add(&block(5, 1, -0.1, 0.9));
+        let s = m.take().unwrap();
+        assert_eq!(s.tick, 6);
+        assert_eq!(s.theta_a_urad, -175_000);
+        assert_eq!(s.torque_unm, 600_000);
+        // Taken: the next sample starts empty.
+        assert_eq!(m.take(), None);
+    }
 }

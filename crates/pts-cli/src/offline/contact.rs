@@ -418,6 +418,7 @@ mod tests {
                     torque_nm: 0.3 + 0.05 + rise + noise,
                     resid_nm: 0.05 + rise + noise,
                     first_row: k as u32,
+                    ..Block::default()
                 }
             })
             .collect()

@@ -36,7 +36,9 @@
 //!    at contact) the midpoint of the chord to the end point.
 //!
 //! The request then carries the free-motion history before the detection (`pre`), the blocks
-//! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`), the knee
+//! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`: each the mean over
+//! the rows in which θa changed, since while the crank stands still the transmission's
+//! friction is anywhere in its stiction band; blocks in which it never moved are left out), the knee
 //! (`contact`), the static points and the measured ΔT_a; block ticks are block indices + 1
 //! and `dt_ns` the block length.
 //!
@@ -91,6 +93,12 @@ pub struct Block {
     pub resid_nm: f64,
     /// Index of the first trace row in the block.
     pub first_row: u32,
+    /// The block's rows in which the crank moved: θa differs from the row before (rows).
+    pub moving_rows: u32,
+    /// Mean θa over the moving rows (rad); NaN when none moved.
+    pub moving_theta_a_rad: f64,
+    /// Mean T_a over the moving rows (N·m); NaN when none moved.
+    pub moving_torque_nm: f64,
 }
 
 /// Tuning of the segmenter. SI units.

@@ -7,7 +7,9 @@ use grasp::estimate::{to_micro as micro, EstimateRequest, Sample, PATH_CAPACITY}
 use heapless::Vec;
 use pts::Model;
 
-use super::blocks::{line_in_time, mean, median, range, sample_of, tick, window_sample};
+use super::blocks::{
+    line_in_time, mean, median, range, sample_of, tick, window_sample, MovingMean,
+};
 use super::contact::{back_date, detect_rise, knee_point, knee_theta};
 use super::{Block, OfflineConfig, OfflineError, Segment};
 
@@ -330,15 +332,25 @@ fn build_request(
     for b in blocks.get(pre_lo..=det).unwrap_or(&[]) {
         let _ = pre.push(sample_of(b));
     }
+    // The path: only the rows in which the crank moved. While it stands still (a stiction
+    // plateau, the hold) the transmission's friction is anywhere in its stiction band, not
+    // the sliding friction of the approach that the fit's offset carries; a block that
+    // straddles a plateau and a slip would average the two.
     let path_blocks = blocks.get(det + 1..hi).unwrap_or(&[]);
+    let moving = || path_blocks.iter().filter(|b| b.moving_rows > 0);
+    let n_moving = moving().count();
     let mut stride = 1usize;
-    while path_blocks.len().div_ceil(stride) > PATH_CAPACITY {
+    while n_moving.div_ceil(stride) > PATH_CAPACITY {
         stride *= 2;
     }
     let mut path: Vec<Sample, PATH_CAPACITY> = Vec::new();
-    for chunk in path_blocks.chunks(stride) {
-        if let Some(s) = window_sample(chunk) {
-            let _ = path.push(s);
+    let mut group = MovingMean::default();
+    for (i, b) in moving().enumerate() {
+        group.add(b);
+        if (i + 1) % stride == 0 || i + 1 == n_moving {
+            if let Some(s) = group.take() {
+                let _ = path.push(s);
+            }
         }
     }
     let dt_ns = (block_s * 1e9 + 0.5) as u32;
@@ -435,8 +447,32 @@ mod tests {
                 torque_nm: t(k),
                 resid_nm: 0.0,
                 first_row: k as u32,
+                ..Block::default()
             })
             .collect()
+    }
+
+    #[test]
+    fn the_path_carries_the_moving_rows_only() {
+        // Blocks 0..20; from the detection (block 4) on, every third block stuck (no moving
+        // row), the others moving with a torque 0.05 N·m below their all-row mean.
+        let mut b = blocks(|k| -0.2 + 1e-4 * k as f64, |k| 0.4 + 0.01 * k as f64, 20);
+        for (k, x) in b.iter_mut().enumerate() {
+            if k % 3 != 0 {
+                x.moving_rows = 2;
+                x.moving_theta_a_rad = x.theta_a_rad;
+                x.moving_torque_nm = x.torque_nm - 0.05;
+            }
+        }
+        let pts = [Sample::ZERO; 4];
+        let req = build_request(&CFG, &b, (0, 4, 20), 0.004, pts, 0.3);
+        let want: std::vec::Vec<(u32, i32)> = (5..20)
+            .filter(|k| k % 3 != 0)
+            .map(|k| (k as u32 + 1, micro(0.4 + 0.01 * k as f64 - 0.05)))
+            .collect();
+        let got: std::vec::Vec<(u32, i32)> =
+            req.path.iter().map(|s| (s.tick, s.torque_unm)).collect();
+        assert_eq!(got, want);
     }
 
     #[test]
