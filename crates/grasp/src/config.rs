@@ -151,6 +151,11 @@ pub struct ControllerConfig {
     /// Torque the reference keeps rising after the slide is seen, before it is held for the
     /// first loading point (N·m): the drive leaves the stick-slip lurch and slides steadily.
     pub slide_extra_nm: f64,
+    /// Seat the contact in static stages before the step (the impact's rest, then two loading
+    /// points after a forward slide: the two-point estimate's static points). `false`: the
+    /// step starts from T_a,c at the detection, the path fit reading the whole loading path,
+    /// and the estimate is known about a second sooner.
+    pub seating: bool,
     /// The torque increase ΔT_a after contact (N·m).
     pub delta_ta_nm: f64,
     /// Shape of the increase.
@@ -244,6 +249,7 @@ impl ControllerConfig {
         seat_ramp_nm_per_s: 0.25,
         slide_min_rad: 1e-4,
         slide_extra_nm: 0.005,
+        seating: true,
         delta_ta_nm: 0.2,
         step_shape: StepShape::Ramp(1.0),
         settle_window: 25,
@@ -444,6 +450,7 @@ impl ControllerConfig {
             seat_ramp_q16: ramp(self.seat_ramp_nm_per_s),
             slide_min_urad: to_i32(self.slide_min_rad * 1e6),
             slide_extra_unm: unm(self.slide_extra_nm),
+            seating: self.seating,
             delta_ta_unm: unm(self.delta_ta_nm),
             step_ramp_q16,
             settle_window: self.settle_window as usize,
@@ -679,6 +686,8 @@ pub struct Params {
     pub slide_min_urad: i32,
     /// Seating: torque added after the slide is seen (µN·m).
     pub slide_extra_unm: i32,
+    /// Seat in static stages before the step (else the step starts at the detection).
+    pub seating: bool,
     /// ΔT_a (µN·m).
     pub delta_ta_unm: i32,
     /// Step ramp, µN·m per tick, Q16; 0 = a step.

@@ -1186,7 +1186,8 @@ impl Supervisor {
     }
 
     /// Contact: keeps the history before it for the estimator, starts the path, and presses
-    /// gently (T_a,c + δ_seat) while the impact dies out, for the first static point.
+    /// gently (T_a,c + δ_seat) while the impact dies out, for the first static point; without
+    /// seating, the step from T_a,c at once.
     fn enter_seating(&mut self, knee: Sample, at: Sample) {
         self.pre.clear();
         let mut i = self.hist.len;
@@ -1196,18 +1197,32 @@ impl Supervisor {
                 let _ = self.pre.push(h);
             }
         }
-        let seat = knee.torque_unm.saturating_add(self.p.seat_above_unm);
-        self.jump_q16 = Some(i64::from(seat) << 16);
         self.path.clear();
-        self.phase = Phase::Seating {
-            contact: Contact {
-                knee,
-                tick: self.tick,
-            },
-            seat: Seat::Impact,
-            target_unm: seat,
-            since: self.tick,
+        let contact = Contact {
+            knee,
+            tick: self.tick,
         };
+        if self.p.seating {
+            let seat = knee.torque_unm.saturating_add(self.p.seat_above_unm);
+            self.jump_q16 = Some(i64::from(seat) << 16);
+            self.phase = Phase::Seating {
+                contact,
+                seat: Seat::Impact,
+                target_unm: seat,
+                since: self.tick,
+            };
+        } else {
+            // No static points yet: both stand at the knee until the step has settled.
+            self.jump_q16 = Some(i64::from(knee.torque_unm) << 16);
+            self.phase = Phase::Step {
+                loaded: Loaded {
+                    contact,
+                    seat: knee,
+                    seat2: knee,
+                },
+                target_unm: knee.torque_unm.saturating_add(self.p.delta_ta_unm),
+            };
+        }
         let tick = self.tick;
         self.emit(Event::ContactDetected {
             tick,
@@ -1326,6 +1341,28 @@ impl Supervisor {
         }
     }
 
+    /// Without seating, the static points the checks and the two-point reference read: the
+    /// path sample where θa first passed halfway from the knee to the end (`seat2`; halfway in
+    /// θa, not in torque: at the step's start the current leads the motion while it
+    /// accelerates the drive), the knee before it (`seat`). The early stiffness is then knee →
+    /// halfway, the late one halfway → end, as with seating.
+    fn unseated_points(&self, loaded: Loaded, end: &Sample) -> Loaded {
+        let knee = loaded.contact.knee;
+        let half = (i64::from(knee.theta_a_urad) + i64::from(end.theta_a_urad)) / 2;
+        let seat2 = self
+            .path
+            .samples
+            .iter()
+            .find(|p| i64::from(p.theta_a_urad) >= half)
+            .copied()
+            .unwrap_or(knee);
+        Loaded {
+            contact: loaded.contact,
+            seat: knee,
+            seat2,
+        }
+    }
+
     /// Mean (θa, T_a) over the settle window when θa stayed within the settle band and every
     /// sample of the window is newer than `since`.
     fn settled(&self, since: u32) -> Option<Sample> {
@@ -1348,6 +1385,11 @@ impl Supervisor {
     fn check_settled(&mut self, loaded: Loaded, since: u32) {
         let Some(end) = self.settled(since) else {
             return;
+        };
+        let loaded = if self.p.seating {
+            loaded
+        } else {
+            self.unseated_points(loaded, &end)
         };
         // The finger did not move over the late half: held by transmission stiction (ΔT_a
         // below the friction band) or locked; the step cannot measure a stiffness.

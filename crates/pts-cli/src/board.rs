@@ -722,6 +722,8 @@ impl Recording {
                 }),
                 approach_speed_rad_s: Some(s.approach_speed_rad_s),
                 approach_max_nm: Some(s.approach_max_nm),
+                // The device seats as its build does: the controller's default.
+                seating: None,
             },
         };
         writeln!(out, "{} source=pts-board-record", meta.line())?;

@@ -287,6 +287,11 @@ struct SimArgs {
     /// (1 N·m/s). A sweep runs each and ends with the time to know against the error.
     #[arg(long, value_delimiter = ',')]
     step_ramp: Vec<f64>,
+    /// Step at once from the contact's detection, without the seating stages (the two-point
+    /// method's static points): the path fit reads the whole loading path, and the estimate
+    /// is known sooner.
+    #[arg(long)]
+    no_seating: bool,
 }
 
 #[derive(clap::Args)]
@@ -950,6 +955,7 @@ impl From<SimArgs> for pts_cli::sim_cmd::Args {
             method: a.method,
             finger: a.finger,
             step_ramp: a.step_ramp,
+            no_seating: a.no_seating,
         }
     }
 }

@@ -41,6 +41,8 @@ pub struct MetaController {
     pub approach_speed_rad_s: Option<f64>,
     /// Approach torque ceiling (N·m).
     pub approach_max_nm: Option<f64>,
+    /// Whether the contact was seated before the step.
+    pub seating: Option<bool>,
 }
 
 impl MetaController {
@@ -61,6 +63,9 @@ impl MetaController {
         }
         if let Some(v) = self.approach_max_nm {
             c.approach_max_nm = v;
+        }
+        if let Some(v) = self.seating {
+            c.seating = v;
         }
         c
     }
@@ -152,6 +157,9 @@ impl TraceMeta {
                 s += &format!(" {k}={v}");
             }
         }
+        if let Some(v) = c.seating {
+            s += &format!(" seating={}", u8::from(v));
+        }
         s
     }
 
@@ -189,6 +197,7 @@ impl TraceMeta {
                 step_ramp_nm_per_s: get("step_ramp_nm_per_s"),
                 approach_speed_rad_s: get("approach_speed_rad_s").filter(|v| *v > 0.0),
                 approach_max_nm: get("approach_max_nm").filter(|v| *v > 0.0),
+                seating: get("seating").map(|v| v != 0.0),
             },
         })
     }

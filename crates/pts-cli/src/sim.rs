@@ -73,6 +73,9 @@ pub struct SimOptions {
     pub overcurrent_a: Option<f64>,
     /// How ΔT_a is applied; `None`: the controller's default.
     pub step_shape: Option<grasp::StepShape>,
+    /// Seat the contact in static stages before the step
+    /// ([`ControllerConfig::seating`]); `None`: the controller's default.
+    pub seating: Option<bool>,
 }
 
 /// A scene as the finger of a finger file: its geometry, springs and drive constants in the
@@ -297,6 +300,7 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
         overcurrent_a: opts
             .overcurrent_a
             .unwrap_or(ControllerConfig::DEFAULT.overcurrent_a),
+        seating: opts.seating.unwrap_or(ControllerConfig::DEFAULT.seating),
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(opts.delta_ta_nm);

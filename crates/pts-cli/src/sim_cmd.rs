@@ -41,6 +41,8 @@ pub struct Args {
     pub finger: Option<PathBuf>,
     /// Step ramp rates (N·m/s, 0 = one step); empty: the controller's default.
     pub step_ramp: Vec<f64>,
+    /// Step at once from the detection, without the seating stages.
+    pub no_seating: bool,
 }
 
 /// Largest step ramp rate accepted (N·m/s): above it a ramp is a step for any ΔT_a.
@@ -206,6 +208,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         method: a.method,
         overcurrent_a,
         step_shape: step,
+        seating: a.no_seating.then_some(false),
     })?;
     let wall = t0.elapsed().as_secs_f64();
     if let Some(path) = &a.csv {
@@ -223,6 +226,7 @@ pub fn run(a: &Args) -> Result<(), String> {
                     grasp::StepShape::Step => 0.0,
                     grasp::StepShape::Ramp(r) => r,
                 }),
+                seating: a.no_seating.then_some(false),
                 ..Default::default()
             },
         };
@@ -453,6 +457,7 @@ fn sweep(a: &Args) -> Result<(), String> {
             method: a.method,
             overcurrent_a,
             step_shape: st,
+            seating: a.no_seating.then_some(false),
         });
         let time_to_know_s = rep.as_ref().ok().and_then(SimReport::time_to_know_s);
         let (err, outcome) = match rep {

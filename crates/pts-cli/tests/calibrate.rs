@@ -123,6 +123,7 @@ fn grasp_errors(
         method,
         overcurrent_a: None,
         step_shape: None,
+        seating: None,
     })
     .expect("grasp");
     let Some((_, "distal", k_true)) = rep.first_contact else {
@@ -379,6 +380,7 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
         method: Method::TwoPoint,
         overcurrent_a: Some(imax),
         step_shape: None,
+        seating: None,
     })
     .expect("pts sim --finger");
     assert!(rep.k2_hat_m().is_some(), "{:?}", rep.state);

@@ -104,3 +104,55 @@ fn a_bad_step_ramp_is_refused_with_its_range() {
         "{err}"
     );
 }
+
+/// Without seating the controller steps from T_a,c at the detection: no `seated` event, the
+/// estimate known sooner, still close to the plant's contact, and a trace recorded that way
+/// replays (`pts estimate`, from its `# pts-sim` line) to the same answer.
+#[test]
+fn without_seating_the_step_starts_at_the_detection() {
+    let events = |v: &serde_json::Value| -> Vec<String> {
+        v["events"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|e| e["event"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let seated = json(&["sim", "--scene", "table2", "--json"]);
+    let direct = json(&["sim", "--scene", "table2", "--no-seating", "--json"]);
+    assert!(events(&seated).iter().any(|e| e == "seated"), "{seated}");
+    assert!(!events(&direct).iter().any(|e| e == "seated"), "{direct}");
+    let know = |v: &serde_json::Value| v["time_to_know_s"].as_f64().expect("time to know");
+    // The seating stages take over a second on this scene.
+    assert!(
+        know(&direct) + 0.8 < know(&seated),
+        "{} vs {}",
+        know(&direct),
+        know(&seated)
+    );
+    // Against the plant's own first contact.
+    let err = direct["error_pct_l2"]
+        .as_f64()
+        .expect("an error against the truth");
+    assert!(err.abs() < 2.0, "{err} % of l2");
+
+    let dir = std::env::temp_dir().join(format!("pts-no-seating-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let csv = dir.join("direct.csv");
+    let out = pts(&[
+        "sim",
+        "--scene",
+        "table2",
+        "--no-seating",
+        "--csv",
+        csv.to_str().unwrap(),
+    ]);
+    assert!(out.status.success());
+    let replay = json(&["estimate", "--trace", csv.to_str().unwrap(), "--json"]);
+    assert_eq!(replay["exact_replay"], true, "{replay}");
+    assert_eq!(
+        replay["contacts"][0]["k2"], direct["estimate"]["k2"],
+        "{replay}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
