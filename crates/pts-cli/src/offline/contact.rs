@@ -7,7 +7,7 @@ use heapless::Vec;
 use pts::{Model, PtsError};
 
 use super::blocks::{mean, median};
-use super::drive::DriveId;
+use super::drive::{kinematics, DriveId, KIN_SPAN};
 use super::{Block, OfflineConfig, OfflineError, Segment};
 
 /// A free-motion window: θa advanced by ≥ arm, residual flat. Returns (offset, σ).
@@ -294,7 +294,6 @@ pub fn refine_contact<R: pts::Real>(
     id: &DriveId,
     quantum_rad: f64,
 ) -> Option<(f64, f64, f64)> {
-    const S: usize = 2;
     let t_free = |th: f64| -> Option<f64> {
         model
             .free_from_theta_a(R::try_from_f64(th)?)
@@ -302,15 +301,14 @@ pub fn refine_contact<R: pts::Real>(
             .map(|c| c.ta.to_f64())
     };
     let wf = cfg.free_window.clamp(4, 64);
-    let lo = seg.knee.saturating_sub(2 * wf).max(S);
+    let lo = seg.knee.saturating_sub(2 * wf).max(KIN_SPAN);
     let th_det = blocks.get(seg.detect)?.theta_a_rad;
     let th_top = th_det.max(seg.theta_a_c_rad) + 8e-3;
-    let still = 0.5 * quantum_rad.max(1e-9);
     // (θ, e) per usable block.
     let mut pts: Vec<(f64, f64), 512> = Vec::new();
     let mut k = lo;
-    while k + S < blocks.len() && pts.len() < 512 {
-        let (a, b, c) = (blocks.get(k - S)?, blocks.get(k)?, blocks.get(k + S)?);
+    while k + KIN_SPAN < blocks.len() && pts.len() < 512 {
+        let b = blocks.get(k)?;
         k += 1;
         if k > seg.detect + 200 || b.theta_a_rad > th_top {
             if k > seg.detect {
@@ -318,72 +316,27 @@ pub fn refine_contact<R: pts::Real>(
             }
             continue;
         }
-        if (c.theta_a_rad - a.theta_a_rad).abs() <= still {
+        let Some(m) = kinematics(blocks, k - 1, quantum_rad) else {
             continue;
-        }
-        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
-        if !(d1 > 0.0 && d2 > 0.0) {
-            continue;
-        }
-        let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
-        let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
-        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
-        let acc = 2.0 * (v2 - v1) / (d1 + d2);
-        let e = b.torque_nm
-            - t_free(b.theta_a_rad)?
+        };
+        let e = m.torque_nm
+            - t_free(m.theta_a_rad)?
             - id.offset_nm
-            - id.viscous_nm_s_per_rad * w
-            - id.inertia_kgm2 * acc;
+            - id.viscous_nm_s_per_rad * m.speed_rad_s
+            - id.inertia_kgm2 * m.accel_rad_s2;
         if e.is_finite() {
-            let _ = pts.push((b.theta_a_rad, e));
+            let _ = pts.push((m.theta_a_rad, e));
         }
     }
     if pts.len() < 8 {
         return None;
     }
     let scale = id.noise_nm.max(1e-4);
-    // Hinge plus a step: past θa,c the residual is (K_c − K_free)(θa − θa,c) plus what the
-    // transmission's stiction holds once the crank stops on the object (≥ 0); without the
-    // step that excess right after the contact drags the hinge early.
-    let sse_at = |thc: f64| -> f64 {
-        let (mut seh, mut shh, mut seu, mut shu, mut suu) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for &(th, e) in pts.iter() {
-            let h = (th - thc).max(0.0);
-            let u = if th > thc { 1.0 } else { 0.0 };
-            seh += e * h;
-            shh += h * h;
-            seu += e * u;
-            shu += h * u;
-            suu += u * u;
-        }
-        let det = shh * suu - shu * shu;
-        let (mut sl, mut d) = if det > 1e-30 {
-            ((seh * suu - seu * shu) / det, (seu * shh - seh * shu) / det)
-        } else {
-            (0.0, 0.0)
-        };
-        if d < 0.0 || sl < 0.0 {
-            d = 0.0;
-            sl = if shh > 0.0 { (seh / shh).max(0.0) } else { 0.0 };
-        }
-        // Huber loss at 3 σ: a lone spike must not move the hinge.
-        pts.iter()
-            .map(|&(th, e)| {
-                let u = if th > thc { d } else { 0.0 };
-                let r = (e - sl * (th - thc).max(0.0) - u).abs();
-                if r <= 3.0 * scale {
-                    r * r
-                } else {
-                    3.0 * scale * (2.0 * r - 3.0 * scale)
-                }
-            })
-            .sum()
-    };
-    let hi = th_det;
-    let mut best = (f64::INFINITY, hi);
-    let mut thc = hi - 15e-3;
-    while thc <= hi {
-        let v = sse_at(thc);
+    // θa,c on a 0.1 mrad grid over the 15 mrad before the detection; the first of equals.
+    let mut best = (f64::INFINITY, th_det);
+    let mut thc = th_det - 15e-3;
+    while thc <= th_det {
+        let v = hinge_loss(&pts, thc, scale);
         if v < best.0 {
             best = (v, thc);
         }
@@ -397,6 +350,45 @@ pub fn refine_contact<R: pts::Real>(
         .find(|b| b.theta_a_rad >= thc)
         .map_or(seg.contact_t_s, |b| b.t_s);
     Some((thc, ta_c, t_c))
+}
+
+/// The loss of a hinge at `thc` through the (θa, residual) points: past θa,c the residual is
+/// (K_c − K_free)(θa − θa,c) plus what the transmission's stiction holds once the crank
+/// stops on the object (a step ≥ 0; without it that excess right after the contact drags the
+/// hinge early). Slope and step by least squares (both ≥ 0), then a Huber loss at 3 `scale`:
+/// a lone spike must not move the hinge.
+fn hinge_loss(pts: &[(f64, f64)], thc: f64, scale: f64) -> f64 {
+    let (mut seh, mut shh, mut seu, mut shu, mut suu) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for &(th, e) in pts.iter() {
+        let h = (th - thc).max(0.0);
+        let u = if th > thc { 1.0 } else { 0.0 };
+        seh += e * h;
+        shh += h * h;
+        seu += e * u;
+        shu += h * u;
+        suu += u * u;
+    }
+    let det = shh * suu - shu * shu;
+    let (mut sl, mut d) = if det > 1e-30 {
+        ((seh * suu - seu * shu) / det, (seu * shh - seh * shu) / det)
+    } else {
+        (0.0, 0.0)
+    };
+    if d < 0.0 || sl < 0.0 {
+        d = 0.0;
+        sl = if shh > 0.0 { (seh / shh).max(0.0) } else { 0.0 };
+    }
+    pts.iter()
+        .map(|&(th, e)| {
+            let u = if th > thc { d } else { 0.0 };
+            let r = (e - sl * (th - thc).max(0.0) - u).abs();
+            if r <= 3.0 * scale {
+                r * r
+            } else {
+                3.0 * scale * (2.0 * r - 3.0 * scale)
+            }
+        })
+        .sum()
 }
 
 #[cfg(test)]

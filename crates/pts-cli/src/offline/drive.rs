@@ -49,7 +49,6 @@ pub fn identify_drive<R: pts::Real>(
     quantum_rad: f64,
     prior: &DrivePrior,
 ) -> Option<DriveId> {
-    const S: usize = 2;
     let t_free = |th: f64| -> Option<f64> {
         model
             .free_from_theta_a(R::try_from_f64(th)?)
@@ -58,34 +57,19 @@ pub fn identify_drive<R: pts::Real>(
     };
     // (residual, ω, α) per usable block; at most 1024 of the latest.
     let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
-    let lo = lo.max(S);
-    let hi = hi.min(blocks.len().saturating_sub(S));
+    let lo = lo.max(KIN_SPAN);
+    let hi = hi.min(blocks.len().saturating_sub(KIN_SPAN));
     let start = hi.saturating_sub(1024).max(lo);
-    let still = 0.5 * quantum_rad.max(1e-9);
     for k in start..hi {
-        let (Some(a), Some(b), Some(c)) = (blocks.get(k - S), blocks.get(k), blocks.get(k + S))
-        else {
+        let Some(m) = kinematics(blocks, k, quantum_rad) else {
             continue;
         };
-        if (c.theta_a_rad - a.theta_a_rad).abs() <= still {
-            continue;
-        }
-        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
-        if !(d1 > 0.0 && d2 > 0.0) {
-            continue;
-        }
-        let (v1, v2) = (
-            (b.theta_a_rad - a.theta_a_rad) / d1,
-            (c.theta_a_rad - b.theta_a_rad) / d2,
-        );
-        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
-        let acc = 2.0 * (v2 - v1) / (d1 + d2);
-        let Some(tf) = t_free(b.theta_a_rad) else {
+        let Some(tf) = t_free(m.theta_a_rad) else {
             continue;
         };
-        let r = b.torque_nm - tf;
-        if r.is_finite() && w.is_finite() && acc.is_finite() {
-            let _ = pts.push((r, w, acc));
+        let r = m.torque_nm - tf;
+        if r.is_finite() {
+            let _ = pts.push((r, m.speed_rad_s, m.accel_rad_s2));
         }
     }
     if pts.len() < 8 {
@@ -96,11 +80,76 @@ pub fn identify_drive<R: pts::Real>(
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
             (l.min(p.2), h.max(p.2))
         });
+    let fit = huber_fit(&pts, prior)?;
+    Some(DriveId {
+        inertia_kgm2: fit.x[2],
+        sigma_inertia_kgm2: <f64 as pts::Real>::sqrt(fit.var_inertia.max(0.0)),
+        viscous_nm_s_per_rad: fit.x[1],
+        offset_nm: fit.x[0],
+        noise_nm: fit.scale,
+        blocks: pts.len() as u32,
+        accel_span_rad_s2: amax - amin,
+    })
+}
+
+/// Blocks on each side of the one whose speed and acceleration are taken: across ±2 blocks
+/// the encoder's quantisation noise on θ̈a stays small.
+pub(super) const KIN_SPAN: usize = 2;
+
+/// One moving block with its crank speed and acceleration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Kinematics {
+    /// θa of the block (rad).
+    pub theta_a_rad: f64,
+    /// T_a of the block (N·m).
+    pub torque_nm: f64,
+    /// θ̇a across ±[`KIN_SPAN`] blocks (rad/s).
+    pub speed_rad_s: f64,
+    /// θ̈a from the two half-span speeds (rad/s²).
+    pub accel_rad_s2: f64,
+}
+
+/// Block `k`'s [`Kinematics`]; `None` at the ends, where the crank stood still across the span
+/// (less than half an encoder step `quantum_rad`: a stuck transmission's torque is anywhere
+/// in its stiction band), or on a time that does not advance.
+pub(super) fn kinematics(blocks: &[Block], k: usize, quantum_rad: f64) -> Option<Kinematics> {
+    let a = blocks.get(k.checked_sub(KIN_SPAN)?)?;
+    let b = blocks.get(k)?;
+    let c = blocks.get(k + KIN_SPAN)?;
+    if (c.theta_a_rad - a.theta_a_rad).abs() <= 0.5 * quantum_rad.max(1e-9) {
+        return None;
+    }
+    let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+    if !(d1 > 0.0 && d2 > 0.0) {
+        return None;
+    }
+    let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
+    let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
+    let speed = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+    let accel = 2.0 * (v2 - v1) / (d1 + d2);
+    (speed.is_finite() && accel.is_finite()).then_some(Kinematics {
+        theta_a_rad: b.theta_a_rad,
+        torque_nm: b.torque_nm,
+        speed_rad_s: speed,
+        accel_rad_s2: accel,
+    })
+}
+
+/// The fit of r = offset + viscous·ω + inertia·α: parameters, noise scale, var(inertia).
+struct HuberFit {
+    x: [f64; 3],
+    scale: f64,
+    var_inertia: f64,
+}
+
+/// Iteratively reweighted least squares of `(r, ω, α)` rows: Huber weights at 2 σ, σ from
+/// the MAD of the residuals; the inertia with its prior and kept ≥ 0; a tiny ridge on the
+/// viscous term (a constant-speed approach cannot separate it from the offset).
+fn huber_fit(pts: &[(f64, f64, f64)], prior: &DrivePrior) -> Option<HuberFit> {
     let prior_on = prior.sigma_inertia_kgm2.is_finite() && prior.sigma_inertia_kgm2 > 0.0;
-    // IRLS: Huber weights at 2 σ, σ from the MAD of the residuals.
     let mut x = [0.0f64; 3];
     let mut scale = f64::INFINITY;
-    let mut cov_jj = f64::INFINITY;
+    let mut var_inertia = f64::INFINITY;
     for _ in 0..6 {
         let mut a = [[0.0f64; 3]; 3];
         let mut g = [0.0f64; 3];
@@ -130,8 +179,6 @@ pub fn identify_drive<R: pts::Real>(
             a[2][2] += wp;
             g[2] += wp * prior.inertia_kgm2;
         }
-        // Tiny ridge on the viscous term: a constant-speed approach cannot separate it from
-        // the offset.
         a[1][1] += 1e-9 * (a[0][0] + 1.0);
         let inv = inv3(&a)?;
         for i in 0..3 {
@@ -151,16 +198,12 @@ pub fn identify_drive<R: pts::Real>(
             .iter()
             .map(|&(r, w, acc)| r - x[0] - x[1] * w - x[2] * acc);
         scale = mad_sigma(res).max(1e-5);
-        cov_jj = inv[2][2] * scale * scale;
+        var_inertia = inv[2][2] * scale * scale;
     }
-    Some(DriveId {
-        inertia_kgm2: x[2],
-        sigma_inertia_kgm2: <f64 as pts::Real>::sqrt(cov_jj.max(0.0)),
-        viscous_nm_s_per_rad: x[1],
-        offset_nm: x[0],
-        noise_nm: scale,
-        blocks: pts.len() as u32,
-        accel_span_rad_s2: amax - amin,
+    Some(HuberFit {
+        x,
+        scale,
+        var_inertia,
     })
 }
 
