@@ -245,3 +245,44 @@ fn inv3(a: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
     }
     Some(m)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn blocks(theta: impl Fn(f64) -> f64) -> std::vec::Vec<Block> {
+        (0..10)
+            .map(|k| {
+                let t = 0.004 * k as f64;
+                Block {
+                    index: k as u32,
+                    t_s: t,
+                    theta_a_rad: theta(t),
+                    torque_nm: 0.3,
+                    ..Block::default()
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn kinematics_is_exact_on_a_uniform_acceleration() {
+        // θ = 0.1 + 0.5 t + ½·3 t²: θ̇ = 0.5 + 3 t, θ̈ = 3 (central differences are exact).
+        let b = blocks(|t| 0.1 + 0.5 * t + 1.5 * t * t);
+        let m = kinematics(&b, 4, 1e-6).unwrap();
+        assert!((m.speed_rad_s - (0.5 + 3.0 * 0.016)).abs() < 1e-9, "{m:?}");
+        assert!((m.accel_rad_s2 - 3.0).abs() < 1e-6, "{m:?}");
+        assert_eq!(m.theta_a_rad, b[4].theta_a_rad);
+        // The ends lack a neighbour two blocks away.
+        assert_eq!(kinematics(&b, 1, 1e-6), None);
+        assert_eq!(kinematics(&b, 8, 1e-6), None);
+    }
+
+    #[test]
+    fn a_crank_still_within_half_an_encoder_step_has_no_kinematics() {
+        let b = blocks(|t| -0.2 + 1e-3 * t);
+        // It moves 16 µrad across the span: still for a 1 mrad encoder step, moving for 1 µrad.
+        assert_eq!(kinematics(&b, 4, 1e-3), None);
+        assert!(kinematics(&b, 4, 1e-6).is_some());
+    }
+}
