@@ -1212,13 +1212,15 @@ impl Supervisor {
                 since: self.tick,
             };
         } else {
-            // No static points yet: both stand at the knee until the step has settled.
+            // No static point will locate the contact again: the first stays at the impact's
+            // signature (the contact instant, which the detection's knee trails), the second
+            // is taken once the step has settled.
             self.jump_q16 = Some(i64::from(knee.torque_unm) << 16);
             self.phase = Phase::Step {
                 loaded: Loaded {
                     contact,
-                    seat: knee,
-                    seat2: knee,
+                    seat: at,
+                    seat2: at,
                 },
                 target_unm: knee.torque_unm.saturating_add(self.p.delta_ta_unm),
             };
@@ -1341,24 +1343,25 @@ impl Supervisor {
         }
     }
 
-    /// Without seating, the static points the checks and the two-point reference read: the
-    /// path sample where θa first passed halfway from the knee to the end (`seat2`; halfway in
-    /// θa, not in torque: at the step's start the current leads the motion while it
-    /// accelerates the drive), the knee before it (`seat`). The early stiffness is then knee →
-    /// halfway, the late one halfway → end, as with seating.
+    /// Without seating, the static points the checks and the contact's back-dating read: the
+    /// contact instant (`seat`, on the free-motion curve: the back-dating returns it) and the
+    /// path sample where θa first passed halfway from there to the end (`seat2`; halfway in θa,
+    /// not in torque: at a fast step's start the current leads the motion while it
+    /// accelerates the drive). The early stiffness is then contact → halfway, the late one
+    /// halfway → end, as with seating.
     fn unseated_points(&self, loaded: Loaded, end: &Sample) -> Loaded {
-        let knee = loaded.contact.knee;
-        let half = (i64::from(knee.theta_a_urad) + i64::from(end.theta_a_urad)) / 2;
+        let at = loaded.seat;
+        let half = (i64::from(at.theta_a_urad) + i64::from(end.theta_a_urad)) / 2;
         let seat2 = self
             .path
             .samples
             .iter()
             .find(|p| i64::from(p.theta_a_urad) >= half)
             .copied()
-            .unwrap_or(knee);
+            .unwrap_or(at);
         Loaded {
             contact: loaded.contact,
-            seat: knee,
+            seat: at,
             seat2,
         }
     }
