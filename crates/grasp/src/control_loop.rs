@@ -312,9 +312,9 @@ struct Acc {
     ua: i32,
 }
 
-/// Encoder counts the motor must turn while the sweep's duty is saturated for it not to be a
-/// stall (a few counts of quantisation and gear play).
-const SWEEP_STALL_COUNTS: u32 = 8;
+/// Encoder counts the motor must turn while the duty is saturated for it not to be a stall
+/// (a few counts of quantisation and gear play).
+const STALL_COUNTS: u32 = 8;
 
 /// Limits a per-tick value to ±2²⁴ before it is summed (one instruction on Cortex-M4).
 #[inline(always)]
@@ -470,6 +470,24 @@ impl ControlLoop {
         self.acc = Acc::default();
         self.acc_n = 0;
         self.driving = false;
+    }
+
+    /// One saturated tick of the stall count: true once the duty has been at its limit for
+    /// the stall time with the motor not turning (counted from where the saturation began).
+    /// Out of line: only saturated ticks pay for it.
+    #[inline(never)]
+    fn stalled(&mut self) -> bool {
+        let counts = self.enc.counts();
+        if self.stall_count == 0 {
+            self.stall_from_counts = counts;
+        }
+        let moved = counts.wrapping_sub(self.stall_from_counts).unsigned_abs() > STALL_COUNTS;
+        self.stall_count = if moved {
+            0
+        } else {
+            self.stall_count.saturating_add(1)
+        };
+        self.stall_count >= self.p.stall_ticks
     }
 
     fn trip<H: Hardware + ?Sized>(
@@ -654,9 +672,9 @@ impl ControlLoop {
         let duty = self.tl.update(st.torque_ref_unm, out.torque_unm, &self.p);
         // A stall is the duty at its limit with the motor not turning. The free finger
         // springing back open saturates the duty through its back-EMF while it moves: not a
-        // stall (a grasp never sees that speed with the bridge on).
-        let moved = (self.enc.counts().wrapping_sub(self.stall_from_counts)).unsigned_abs()
-            > SWEEP_STALL_COUNTS;
+        // stall.
+        let moved =
+            (self.enc.counts().wrapping_sub(self.stall_from_counts)).unsigned_abs() > STALL_COUNTS;
         if self.tl.saturated() && !moved {
             if self.stall_count == 0 {
                 self.stall_from_counts = self.enc.counts();
@@ -798,9 +816,11 @@ impl ControlLoop {
         // Torque loop on T_cmd = T_ref − B·ω̂a.
         let t_cmd = t_ref.saturating_sub(sp.damp_unm);
         let duty = self.tl.update(t_cmd, torque, &self.p);
+        // A stall is the duty at its limit with the motor not turning (counted from where the
+        // saturation began): a fast step on a soft contact holds the duty at its limit
+        // through the back-EMF while the finger travels, and that is not a stall.
         if self.tl.saturated() {
-            self.stall_count = self.stall_count.saturating_add(1);
-            if self.stall_count >= self.p.stall_ticks {
+            if self.stalled() {
                 self.trip(hw, link, FaultReason::Stall, &mut out);
                 return out;
             }

@@ -173,3 +173,28 @@ fn without_seating_the_step_starts_at_the_detection() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A fast step on a soft contact (10 % of l2) holds the duty at its limit through the motor's
+/// back-EMF while the finger travels: the motor turns, so it is not a stall (the grasp's stall
+/// check counted saturated ticks alone and ended this grasp in `stall`).
+#[test]
+fn a_saturated_duty_while_the_motor_turns_is_not_a_stall() {
+    let v = json(&[
+        "sim",
+        "--sweep",
+        "--radii-cm",
+        "0",
+        "--k2-pct",
+        "10",
+        "--dta",
+        "0.8",
+        "--step-ramp",
+        "8",
+        "--no-seating",
+        "--json",
+    ]);
+    let cell = &v["cells"][0];
+    assert_eq!(cell["outcome"], "ok", "{v}");
+    let err = cell["error_pct_l2"].as_f64().expect("an error against the truth");
+    assert!(err.abs() < 1.0, "{err} % of l2");
+}
