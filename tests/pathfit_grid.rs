@@ -9,7 +9,9 @@
 //! 0.5, 0.8, 1.0 N·m, ideal plant (noise and friction off) and realistic plant. Runs that end
 //! in a second contact or past the tip (plant events) are expected to be refused and counted.
 //!
-//! `cargo test --release --test pathfit_grid -- --nocapture` prints the tables.
+//! `cargo test --release --test pathfit_grid -- --nocapture` prints the tables;
+//! `PATHFIT_NO_SEATING=RATE` (N·m/s) runs the grid without the seating stages, the step a ramp
+//! of RATE (printed only: the guards below are the seated controller's).
 //! (Owned by the pathfit helper; the harness in `tests/common` is the grasp owner's.)
 mod common;
 
@@ -26,6 +28,27 @@ use pts::Model;
 const RADII: [f64; 6] = [0.0, 0.005, 0.01, 0.025, 0.05, 0.0975];
 const DTAS: [f64; 5] = [0.05, 0.2, 0.5, 0.8, 1.0];
 const K2S: [f64; 9] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
+
+/// `PATHFIT_NO_SEATING=RATE`: the step ramp (N·m/s) of a grid run without seating.
+fn no_seating() -> Option<f64> {
+    std::env::var("PATHFIT_NO_SEATING")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|r| r.is_finite() && *r > 0.0)
+}
+
+/// The controller of a grid run: the default, or without seating (`PATHFIT_NO_SEATING`).
+fn grid_config(scene: &Scene, dta: f64) -> grasp::ControllerConfig {
+    let c = config(scene, dta);
+    match no_seating() {
+        Some(rate) => grasp::ControllerConfig {
+            seating: false,
+            step_shape: grasp::StepShape::Ramp(rate),
+            ..c
+        },
+        None => c,
+    }
+}
 
 /// What the summaries read of a fit, from either back end.
 #[derive(Clone, Debug)]
@@ -143,7 +166,7 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         return case;
     };
     let mut hw = PlantHw::new(plant);
-    let mut c = Controller::new(config(&scene, dta)).expect("config valid");
+    let mut c = Controller::new(grid_config(&scene, dta)).expect("config valid");
     let m = Model::<f64>::paper().unwrap();
     // The estimator's measurement model of this scene's drive (ideal: η = 1, no backlash).
     let d = &scene.drive;
@@ -686,6 +709,9 @@ fn pathfit_grid_on_the_plant() {
         );
         results.push((label, si, sr, big_steps(&ideal)));
     }
+    if no_seating().is_some() {
+        return;
+    }
     for (label, si, sr, big_ideal) in &results {
         let label = *label;
         // Regression guards at what this estimator measures today (it must not get worse).
@@ -734,6 +760,10 @@ fn _uses(_: &dyn Hardware) {}
 /// The paper's Table 2 contact (R = 5 cm, k2,c = 0.02927 m, ΔT_a = 0.8 N·m) on both plants.
 #[test]
 fn pathfit_table2_case() {
+    if no_seating().is_some() {
+        // Its checks are the seated controller's.
+        return;
+    }
     // PATHFIT_CASE="R,k2c/l2,ΔT" runs another case (for diagnosis).
     let (r, k, d) = std::env::var("PATHFIT_CASE")
         .ok()

@@ -195,6 +195,8 @@ fn a_saturated_duty_while_the_motor_turns_is_not_a_stall() {
     ]);
     let cell = &v["cells"][0];
     assert_eq!(cell["outcome"], "ok", "{v}");
-    let err = cell["error_pct_l2"].as_f64().expect("an error against the truth");
+    let err = cell["error_pct_l2"]
+        .as_f64()
+        .expect("an error against the truth");
     assert!(err.abs() < 1.0, "{err} % of l2");
 }
