@@ -670,23 +670,15 @@ impl ControlLoop {
             return;
         }
         let duty = self.tl.update(st.torque_ref_unm, out.torque_unm, &self.p);
-        // A stall is the duty at its limit with the motor not turning. The free finger
-        // springing back open saturates the duty through its back-EMF while it moves: not a
-        // stall.
-        let moved =
-            (self.enc.counts().wrapping_sub(self.stall_from_counts)).unsigned_abs() > STALL_COUNTS;
-        if self.tl.saturated() && !moved {
-            if self.stall_count == 0 {
-                self.stall_from_counts = self.enc.counts();
-            }
-            self.stall_count = self.stall_count.saturating_add(1);
-            if self.stall_count >= self.p.stall_ticks {
+        // The free finger springing back open saturates the duty through its back-EMF while
+        // it moves: not a stall ([`ControlLoop::stalled`]).
+        if self.tl.saturated() {
+            if self.stalled() {
                 self.trip(hw, link, FaultReason::Stall, out);
                 return;
             }
         } else {
             self.stall_count = 0;
-            self.stall_from_counts = self.enc.counts();
         }
         let duty = duty.clamp(-DUTY_MAX, DUTY_MAX);
         hw.set_duty(duty);

@@ -412,8 +412,7 @@ enum PlotCmd {
 
 fn run_board(a: BoardArgs) -> ExitCode {
     use pts_cli::board::{Board, BoardError, Outcome};
-    use std::time::Duration;
-    let timeout = Duration::from_secs_f64(a.timeout.clamp(0.01, 86_400.0));
+    let timeout = wait_limit(a.timeout);
     let fail = |e: BoardError| {
         if a.json {
             println!(
@@ -458,7 +457,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
             if no_wait {
                 proto::Command::Grasp
             } else {
-                let give_up = Duration::from_secs_f64(grasp_timeout.clamp(0.01, 86_400.0));
+                let give_up = wait_limit(grasp_timeout);
                 return match b.grasp(give_up) {
                     Ok(o) => {
                         show(&o);
@@ -476,7 +475,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
             output,
             grasp_timeout,
         } => {
-            let give_up = Duration::from_secs_f64(grasp_timeout.clamp(0.01, 86_400.0));
+            let give_up = wait_limit(grasp_timeout);
             let rec = match b.record(give_up) {
                 Ok(r) => r,
                 Err(e) => return fail(e),
@@ -552,7 +551,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
             if no_wait {
                 proto::Command::Release
             } else {
-                let give_up = Duration::from_secs_f64(release_timeout.clamp(0.01, 86_400.0));
+                let give_up = wait_limit(release_timeout);
                 return match b.release(give_up) {
                     Ok(r) => {
                         if a.json {
@@ -661,7 +660,7 @@ fn board_calibrate(
             return ExitCode::FAILURE;
         }
     };
-    let give_up = Duration::from_secs_f64(sweep_timeout.clamp(0.01, 86_400.0));
+    let give_up = wait_limit(sweep_timeout);
     eprintln!("calibration sweep: closing and opening the free finger…");
     // A line every 2 s: the sweep takes tens of seconds.
     let mut last = std::time::Instant::now();
@@ -807,6 +806,12 @@ mod erased {
             }
         }
     }
+}
+
+/// A wait given in seconds on the command line, as a `Duration` (clamped to 10 ms … 1 day:
+/// a negative, zero or absurd value is neither a panic nor a wait for ever).
+fn wait_limit(s: f64) -> std::time::Duration {
+    std::time::Duration::from_secs_f64(s.clamp(0.01, 86_400.0))
 }
 
 fn main() -> ExitCode {
