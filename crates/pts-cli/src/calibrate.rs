@@ -864,19 +864,83 @@ pub fn identify_with(
     nominal: &FingerFile,
 ) -> Result<Calibration, CalibError> {
     let base = nominal.finger;
-    let map0 = StaticMap::new(
-        &base,
+    let rest_nominal = statics_map(&base, &[base.k1, base.k2, base.theta01, base.theta02])?.rest;
+    let recs = prepare_recordings(sweep, touch, &base, rest_nominal)?;
+    let half_backlash = 0.5 * nominal.drive.backlash_rad;
+    let mut f = fit_statics(&recs, &base, nominal, half_backlash)?;
+    refuse_bad_fit(&recs, &base, &f)?;
+    let with_touch = recs.len() > 1;
+    let st = stiction(&recs, &base, &f.p, half_backlash);
+    let mut theta02_sigma = None;
+    if let Some((rows, post)) = tip {
+        if !with_touch {
+            return Err(CalibError::BadTrace(
+                "the tip touch needs the proximal touch too (K1, K2 and θ0,1 come from it)".into(),
+            ));
+        }
+        let (theta02, sigma) =
+            theta02_from_tip(rows, post, &base, &f, rest_nominal, half_backlash)?;
+        f.p[3] = theta02;
+        theta02_sigma = Some(sigma);
+    }
+    let sig = |i: usize| {
+        if i == 3 && theta02_sigma.is_some() {
+            return theta02_sigma;
+        }
+        f.free[i].then(|| f.cov[i][i].max(0.0).sqrt())
+    };
+    let notes = identifiability_notes(&f, with_touch, &sig);
+    let stiction_param = Param {
+        name: "stiction",
+        value: f64::NAN,
+        sigma: None,
+        nominal: None,
+        unit: "N·m",
+        file_key: None,
+    };
+    let stiction_param = match stiction_stats(&st, &f) {
+        Some((value, sigma)) => Param {
+            value,
+            sigma: Some(sigma),
+            ..stiction_param
+        },
+        None => stiction_param,
+    };
+    let file = calibrated_file(nominal, &f.p)?;
+    let params = calibrated_params(&base, nominal, &f.p, &sig, stiction_param);
+    Ok(Calibration {
+        params,
+        residual_rms_nm: f.rms,
+        correlation_factor: f.corr_factor,
+        samples: f.samples,
+        notes,
+        file,
+    })
+}
+
+/// The static map of `base` with the statics `p[0..4]` = (K1, K2, θ0,1, θ0,2).
+fn statics_map(base: &Finger, p: &[f64]) -> Result<StaticMap, CalibError> {
+    StaticMap::new(
+        base,
         Statics {
-            k1: base.k1,
-            k2: base.k2,
-            theta01: base.theta01,
-            theta02: base.theta02,
+            k1: p[0],
+            k2: p[1],
+            theta01: p[2],
+            theta02: p[3],
         },
     )
-    .map_err(CalibError::Finger)?;
-    let rest_nominal = map0.rest;
-    let free = prepare(sweep, rest_nominal, None)?;
-    let mut recs = vec![free];
+    .map_err(CalibError::Finger)
+}
+
+/// The free sweep and, when given, the proximal-post touch, prepared and thinned to at most
+/// 4000 samples each (the residual's correlation is accounted for in σ either way).
+fn prepare_recordings(
+    sweep: &[TraceRow],
+    touch: Option<(&[TraceRow], Post)>,
+    base: &Finger,
+    rest_nominal: f64,
+) -> Result<Vec<Prepared>, CalibError> {
+    let mut recs = vec![prepare(sweep, rest_nominal, None)?];
     if let Some((rows, post)) = touch {
         if !(post.theta1_rad.is_finite()
             && post.theta1_rad > base.theta01 + 0.1
@@ -891,14 +955,22 @@ pub fn identify_with(
         }
         recs.push(prepare(rows, rest_nominal, Some(post))?);
     }
-    let with_touch = recs.len() > 1;
-    // Thin the samples to at most 4000 per recording (the residual's correlation is
-    // accounted for in σ either way).
     for rec in &mut recs {
         let stride = rec.used.len().div_ceil(4000).max(1);
         rec.used = rec.used.iter().copied().step_by(stride).collect();
     }
-    let half_backlash = 0.5 * nominal.drive.backlash_rad;
+    Ok(recs)
+}
+
+/// The least-squares fit of the statics and the drive: the free sweep first (θ0,1 does not
+/// enter it); with the touch, from there over a few starting θ0,1 (the contact with the post
+/// makes the cost non-convex in θ0,1).
+fn fit_statics(
+    recs: &[Prepared],
+    base: &Finger,
+    nominal: &FingerFile,
+    half_backlash: f64,
+) -> Result<Fit, CalibError> {
     let p0 = [
         base.k1,
         base.k2,
@@ -910,117 +982,112 @@ pub fn identify_with(
         nominal.drive.inertia_kgm2,
         0.0,
     ];
-    // The free sweep first (θ0,1 does not enter it); with the touch, from there over a few
-    // starting θ0,1 (the contact with the post makes the cost non-convex in θ0,1).
     let mut free_mask = [true; 9];
     free_mask[2] = false;
     // θ0,2 enters the torque only through the slow change of x2 (and cancels to first order
     // after contact with the post too): the fit takes the file's value as a prior of σ
     // THETA02_PRIOR_RAD, the tolerance of a rest angle on a drawing, so that a sweep that
     // cannot see it does not move it far.
-    let pre = fit(&recs[..1], &base, p0, free_mask, half_backlash, None)?;
+    let pre = fit(&recs[..1], base, p0, free_mask, half_backlash, None)?;
     let prior: Prior = Some((
         3,
         base.theta02,
         pre.rms * pre.corr_factor / THETA02_PRIOR_RAD,
     ));
-    let mut f = fit(&recs[..1], &base, pre.p, free_mask, half_backlash, prior)?;
-    if with_touch {
-        free_mask[2] = true;
-        let mut best: Option<Fit> = None;
-        for d_deg in [0.0, -2.5, 2.5, -5.0, 5.0] {
-            let mut start = f.p;
-            start[2] = base.theta01 + f64::to_radians(d_deg);
-            if let Ok(g) = fit(&recs, &base, start, free_mask, half_backlash, prior) {
-                if best.as_ref().is_none_or(|b| g.rms < b.rms) {
-                    best = Some(g);
-                }
+    let f = fit(&recs[..1], base, pre.p, free_mask, half_backlash, prior)?;
+    if recs.len() == 1 {
+        return Ok(f);
+    }
+    free_mask[2] = true;
+    let mut best: Option<Fit> = None;
+    for d_deg in [0.0, -2.5, 2.5, -5.0, 5.0] {
+        let mut start = f.p;
+        start[2] = base.theta01 + f64::to_radians(d_deg);
+        if let Ok(g) = fit(recs, base, start, free_mask, half_backlash, prior) {
+            if best.as_ref().is_none_or(|b| g.rms < b.rms) {
+                best = Some(g);
             }
         }
-        f = best.ok_or_else(|| CalibError::NoFit("no start converged with the touch".into()))?;
     }
-    // Refusals that need the fit.
+    best.ok_or_else(|| CalibError::NoFit("no start converged with the touch".into()))
+}
+
+/// Refusals that need the fit: a free sweep the identified finger could not have made, and a
+/// residual above 5 % of the torque range (at least 0.01 N·m).
+fn refuse_bad_fit(recs: &[Prepared], base: &Finger, f: &Fit) -> Result<(), CalibError> {
     let range: f64 = recs
         .iter()
         .flat_map(|r| r.used.iter().map(|&j| r.t[j]))
         .fold(0.0, |m, x| m.max(x.abs()));
     let limit = (0.05 * range).max(0.01);
-    check_free(&recs[0], &base, &f.p)?;
+    check_free(&recs[0], base, &f.p)?;
     if f.rms > limit {
         return Err(CalibError::TooNoisy {
             rms_nm: f.rms,
             limit_nm: limit,
         });
     }
-    let st = stiction(&recs, &base, &f.p, half_backlash);
-    let mut theta02_sigma = None;
-    if let Some((rows, post)) = tip {
-        if !with_touch {
-            return Err(CalibError::BadTrace(
-                "the tip touch needs the proximal touch too (K1, K2 and θ0,1 come from it)".into(),
+    Ok(())
+}
+
+/// θ0,2 and its σ from the tip touch: Newton on the angle at which the model finger meets the
+/// distal post; σ from the measured angle's and the other statics' uncertainty.
+fn theta02_from_tip(
+    rows: &[TraceRow],
+    post: DistalPost,
+    base: &Finger,
+    f: &Fit,
+    rest_nominal: f64,
+    half_backlash: f64,
+) -> Result<(f64, f64), CalibError> {
+    let rec = prepare(rows, rest_nominal, None)?;
+    let dt = (rows[rows.len() - 1].t_s - rows[0].t_s) / (rows.len() - 1) as f64;
+    let map = statics_map(base, &f.p)?;
+    let (meas, meas_sigma) =
+        tip_contact_measured(&rec, &map, &f.p, half_backlash, f.rms * f.corr_factor, dt)?;
+    let pred = |p: &[f64; 9]| -> Result<f64, CalibError> {
+        tip_contact_predicted(&statics_map(base, p)?, post, half_backlash).ok_or_else(|| {
+            CalibError::NoFit("the model finger does not meet the distal post".into())
+        })
+    };
+    let h = 1e-4;
+    let slope = |p: &[f64; 9], i: usize, step: f64| -> Result<f64, CalibError> {
+        let (mut a, mut b) = (*p, *p);
+        a[i] += step;
+        b[i] -= step;
+        Ok((pred(&a)? - pred(&b)?) / (2.0 * step))
+    };
+    let mut p = f.p;
+    for _ in 0..20 {
+        let d = slope(&p, 3, h)?;
+        if d.abs() < 1e-6 {
+            return Err(CalibError::NoFit(
+                "the distal post does not see θ0,2".into(),
             ));
         }
-        let rec = prepare(rows, rest_nominal, None)?;
-        let dt = (rows[rows.len() - 1].t_s - rows[0].t_s) / (rows.len() - 1) as f64;
-        let statics = |p: &[f64; 9]| {
-            StaticMap::new(
-                &base,
-                Statics {
-                    k1: p[0],
-                    k2: p[1],
-                    theta01: p[2],
-                    theta02: p[3],
-                },
-            )
-            .map_err(CalibError::Finger)
-        };
-        let map = statics(&f.p)?;
-        let (meas, meas_sigma) =
-            tip_contact_measured(&rec, &map, &f.p, half_backlash, f.rms * f.corr_factor, dt)?;
-        let pred = |p: &[f64; 9]| -> Result<f64, CalibError> {
-            tip_contact_predicted(&statics(p)?, post, half_backlash).ok_or_else(|| {
-                CalibError::NoFit("the model finger does not meet the distal post".into())
-            })
-        };
-        // θ0,2 by Newton on the contact angle; σ from the angle's and the other statics'.
-        let h = 1e-4;
-        let slope = |p: &[f64; 9], i: usize, step: f64| -> Result<f64, CalibError> {
-            let (mut a, mut b) = (*p, *p);
-            a[i] += step;
-            b[i] -= step;
-            Ok((pred(&a)? - pred(&b)?) / (2.0 * step))
-        };
-        let mut p = f.p;
-        for _ in 0..20 {
-            let d = slope(&p, 3, h)?;
-            if d.abs() < 1e-6 {
-                return Err(CalibError::NoFit(
-                    "the distal post does not see θ0,2".into(),
-                ));
-            }
-            let step = (meas - pred(&p)?) / d;
-            p[3] += step.clamp(-0.1, 0.1);
-            if step.abs() < 1e-9 {
-                break;
-            }
+        let step = (meas - pred(&p)?) / d;
+        p[3] += step.clamp(-0.1, 0.1);
+        if step.abs() < 1e-9 {
+            break;
         }
-        let d = slope(&p, 3, h)?;
-        let mut var = (meas_sigma / d).powi(2);
-        for i in 0..3 {
-            let s = f.cov[i][i].max(0.0).sqrt();
-            if s > 0.0 {
-                var += (slope(&p, i, 0.5 * s)? * s / d).powi(2);
-            }
-        }
-        f.p[3] = p[3];
-        theta02_sigma = Some(var.sqrt());
     }
-    let sig = |i: usize| {
-        if i == 3 && theta02_sigma.is_some() {
-            return theta02_sigma;
+    let d = slope(&p, 3, h)?;
+    let mut var = (meas_sigma / d).powi(2);
+    for i in 0..3 {
+        let s = f.cov[i][i].max(0.0).sqrt();
+        if s > 0.0 {
+            var += (slope(&p, i, 0.5 * s)? * s / d).powi(2);
         }
-        f.free[i].then(|| f.cov[i][i].max(0.0).sqrt())
-    };
+    }
+    Ok((p[3], var.sqrt()))
+}
+
+/// What the recordings could not separate, in words for the report.
+fn identifiability_notes(
+    f: &Fit,
+    with_touch: bool,
+    sig: &dyn Fn(usize) -> Option<f64>,
+) -> Vec<String> {
     let mut notes = vec![];
     if !with_touch {
         notes.push(
@@ -1044,29 +1111,37 @@ pub fn identify_with(
          and friction are in the units of the measured torque, the backlash is the file's"
             .to_string(),
     );
-    let (st_mean, st_sigma) = if st.is_empty() {
-        (f64::NAN, None)
+    notes
+}
+
+/// The mean breakaway torque and its σ: the spread of the breakaways, or the residual over
+/// the ten samples averaged and the torque ramp over the smoothing window, whichever is
+/// larger. `None` when the recordings show no breakaway.
+fn stiction_stats(st: &[f64], f: &Fit) -> Option<(f64, f64)> {
+    if st.is_empty() {
+        return None;
+    }
+    let m = st.iter().sum::<f64>() / st.len() as f64;
+    let var = if st.len() > 1 {
+        st.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (st.len() - 1) as f64
     } else {
-        let m = st.iter().sum::<f64>() / st.len() as f64;
-        let var = if st.len() > 1 {
-            st.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (st.len() - 1) as f64
-        } else {
-            0.0
-        };
-        // The spread of the breakaways, or the residual over the ten samples averaged and
-        // the torque ramp over the smoothing window, whichever is larger.
-        let floor = f.rms * f.corr_factor / 10f64.sqrt();
-        (m, Some((var / st.len() as f64).sqrt().max(floor)))
+        0.0
     };
-    // The calibrated file.
+    let floor = f.rms * f.corr_factor / 10f64.sqrt();
+    Some((m, (var / st.len() as f64).sqrt().max(floor)))
+}
+
+/// The nominal file with the identified statics, inertia and current-sense zero, checked as
+/// every consumer checks a finger file.
+fn calibrated_file(nominal: &FingerFile, p: &[f64; 9]) -> Result<FingerFile, CalibError> {
     let mut file = nominal.clone();
     file.name = format!("{} (calibrated)", nominal.name);
-    file.finger.k1 = f.p[0];
-    file.finger.k2 = f.p[1];
-    file.finger.theta01 = f.p[2];
-    file.finger.theta02 = f.p[3];
-    file.drive.inertia_kgm2 = f.p[7].max(0.0);
-    let off_a = nominal.current_from_torque(f.p[8]);
+    file.finger.k1 = p[0];
+    file.finger.k2 = p[1];
+    file.finger.theta01 = p[2];
+    file.finger.theta02 = p[3];
+    file.drive.inertia_kgm2 = p[7].max(0.0);
+    let off_a = nominal.current_from_torque(p[8]);
     let zero =
         f64::from(nominal.current_sense.zero_count) + off_a / nominal.current_sense.amps_per_count;
     let max_code = (1u32 << nominal.current_sense.adc_bits) - 1;
@@ -1075,18 +1150,28 @@ pub fn identify_with(
         .map_err(|e| CalibError::Finger(format!("the calibrated finger is refused: {e}")))?;
     crate::replay::controller_config(&checked, grasp::DriveConfig::DEFAULT.dt_s)
         .map_err(|e| CalibError::Finger(format!("the calibrated finger is refused: {e}")))?;
-    let nm = |k, v, i: usize, nominal, unit, key| Param {
-        name: k,
-        value: v,
+    Ok(checked)
+}
+
+/// The identified parameters in report order, each with its σ, nominal and file key.
+fn calibrated_params(
+    base: &Finger,
+    nominal: &FingerFile,
+    p: &[f64; 9],
+    sig: &dyn Fn(usize) -> Option<f64>,
+    stiction: Param,
+) -> Vec<Param> {
+    let nm = |name, i: usize, nominal, unit, file_key| Param {
+        name,
+        value: p[i],
         sigma: sig(i),
         nominal,
         unit,
-        file_key: key,
+        file_key,
     };
-    let params = vec![
+    vec![
         nm(
             "k1",
-            f.p[0],
             0,
             Some(base.k1),
             "N·m/rad",
@@ -1094,7 +1179,6 @@ pub fn identify_with(
         ),
         nm(
             "k2",
-            f.p[1],
             1,
             Some(base.k2),
             "N·m/rad",
@@ -1102,7 +1186,6 @@ pub fn identify_with(
         ),
         nm(
             "theta01",
-            f.p[2],
             2,
             Some(base.theta01),
             "rad",
@@ -1110,26 +1193,17 @@ pub fn identify_with(
         ),
         nm(
             "theta02",
-            f.p[3],
             3,
             Some(base.theta02),
             "rad",
             Some("springs.theta02_rad"),
         ),
-        nm("backdrive_ratio", f.p[4], 4, None, "-", None),
-        nm("coulomb", f.p[5], 5, None, "N·m", None),
-        Param {
-            name: "stiction",
-            value: st_mean,
-            sigma: st_sigma,
-            nominal: None,
-            unit: "N·m",
-            file_key: None,
-        },
-        nm("viscous", f.p[6], 6, None, "N·m·s/rad", None),
+        nm("backdrive_ratio", 4, None, "-", None),
+        nm("coulomb", 5, None, "N·m", None),
+        stiction,
+        nm("viscous", 6, None, "N·m·s/rad", None),
         nm(
             "inertia",
-            f.p[7],
             7,
             Some(nominal.drive.inertia_kgm2),
             "kg·m²",
@@ -1137,21 +1211,12 @@ pub fn identify_with(
         ),
         nm(
             "torque_offset",
-            f.p[8],
             8,
             Some(0.0),
             "N·m",
             Some("current_sense.zero_count"),
         ),
-    ];
-    Ok(Calibration {
-        params,
-        residual_rms_nm: f.rms,
-        correlation_factor: f.corr_factor,
-        samples: f.samples,
-        notes,
-        file: checked,
-    })
+    ]
 }
 
 /// The options of `pts calibrate`.

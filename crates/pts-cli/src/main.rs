@@ -411,28 +411,12 @@ enum PlotCmd {
 }
 
 fn run_board(a: BoardArgs) -> ExitCode {
-    use pts_cli::board::{Board, BoardError, Outcome};
+    use pts_cli::board::{Board, BoardError};
     let timeout = wait_limit(a.timeout);
-    let fail = |e: BoardError| {
-        if a.json {
-            println!(
-                "{}",
-                serde_json::json!({"ok": false, "error": e.to_string()})
-            );
-        }
-        eprintln!("pts board: {e}");
-        ExitCode::FAILURE
-    };
+    let json = a.json;
     let mut b = match Board::connect(&a.connect, timeout) {
         Ok(b) => b,
-        Err(e) => return fail(e),
-    };
-    let show = |v: &dyn erased::Show| {
-        if a.json {
-            println!("{}", v.json());
-        } else {
-            println!("{}", v.text());
-        }
+        Err(e) => return board_fail(json, e),
     };
     let cmd = match a.cmd {
         BoardCmd::Hello => proto::Command::Hello {
@@ -441,7 +425,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
         BoardCmd::Status => proto::Command::Status,
         BoardCmd::Get { name } => match proto::ParamId::from_name(&name) {
             Some(id) => proto::Command::Get(id),
-            None => return fail(BoardError::Io(format!("no parameter {name}"))),
+            None => return board_fail(json, BoardError::Io(format!("no parameter {name}"))),
         },
         BoardCmd::Set { name, value } => match pts_cli::board::parse_param(&name, &value) {
             Ok(p) => proto::Command::Set(p),
@@ -450,133 +434,25 @@ fn run_board(a: BoardArgs) -> ExitCode {
                 return ExitCode::FAILURE;
             }
         },
-        BoardCmd::Grasp {
-            no_wait,
-            grasp_timeout,
-        } => {
-            if no_wait {
-                proto::Command::Grasp
-            } else {
-                let give_up = wait_limit(grasp_timeout);
-                return match b.grasp(give_up) {
-                    Ok(o) => {
-                        show(&o);
-                        match o {
-                            Outcome::Contact(_) => ExitCode::SUCCESS,
-                            Outcome::Fault(_) => ExitCode::from(2),
-                            Outcome::Stopped => ExitCode::from(3),
-                        }
-                    }
-                    Err(e) => fail(e),
-                };
-            }
+        BoardCmd::Grasp { no_wait: true, .. } => proto::Command::Grasp,
+        BoardCmd::Grasp { grasp_timeout, .. } => {
+            return board_grasp(&mut b, json, wait_limit(grasp_timeout))
         }
         BoardCmd::Record {
             output,
             grasp_timeout,
-        } => {
-            let give_up = wait_limit(grasp_timeout);
-            let rec = match b.record(give_up) {
-                Ok(r) => r,
-                Err(e) => return fail(e),
-            };
-            let written = std::fs::File::create(&output).and_then(|f| {
-                let mut w = std::io::BufWriter::new(f);
-                rec.write_csv(&mut w)?;
-                std::io::Write::flush(&mut w)
-            });
-            if let Err(e) = written {
-                eprintln!("pts board record: writing {}: {e}", output.display());
-                return ExitCode::FAILURE;
-            }
-            eprintln!(
-                "wrote {} ({} ticks at {} s)",
-                output.display(),
-                rec.samples.len(),
-                rec.drive.dt_s
-            );
-            show(&rec.outcome);
-            return match rec.outcome {
-                Outcome::Contact(_) => ExitCode::SUCCESS,
-                Outcome::Fault(_) => ExitCode::from(2),
-                Outcome::Stopped => ExitCode::from(3),
-            };
-        }
+        } => return board_record(&mut b, json, &output, wait_limit(grasp_timeout)),
         BoardCmd::Drive => proto::Command::Drive,
         BoardCmd::Watch {
             grasp,
             seconds,
             rate,
             window,
-        } => {
-            if !((1..=10_000).contains(&rate) && window > 0.0 && window <= 3600.0) {
-                eprintln!(
-                    "pts board watch: --rate {rate} must be in 1..=10000 Hz and --window {window} in (0, 3600] s"
-                );
-                return ExitCode::FAILURE;
-            }
-            let o = pts_cli::watch::WatchOptions {
-                grasp,
-                seconds: seconds.filter(|s| s.is_finite() && *s > 0.0),
-                rate_hz: rate,
-                window_s: window,
-                json: a.json,
-            };
-            use std::io::IsTerminal;
-            let tty = std::io::stdout().is_terminal() && !a.json;
-            return match pts_cli::watch::run(&mut b, &o, tty) {
-                Ok(w) => {
-                    match (&w.estimate, w.state) {
-                        (Some(c), _) if a.json => {
-                            println!("{}", serde_json::json!({"ok": true, "contact": c}))
-                        }
-                        (_, Some(proto::DeviceState::Fault(f))) if a.json => {
-                            println!("{}", serde_json::json!({"ok": false, "fault": f}))
-                        }
-                        _ if a.json => println!("{}", serde_json::json!({"ok": true})),
-                        _ => println!("{}", w.summary()),
-                    }
-                    match w.state {
-                        Some(proto::DeviceState::Fault(_)) => ExitCode::from(2),
-                        _ => ExitCode::SUCCESS,
-                    }
-                }
-                Err(e) => fail(e),
-            };
-        }
+        } => return board_watch(&mut b, json, grasp, seconds, rate, window),
+        BoardCmd::Release { no_wait: true, .. } => proto::Command::Release,
         BoardCmd::Release {
-            no_wait,
-            release_timeout,
-        } => {
-            if no_wait {
-                proto::Command::Release
-            } else {
-                let give_up = wait_limit(release_timeout);
-                return match b.release(give_up) {
-                    Ok(r) => {
-                        if a.json {
-                            println!(
-                                "{}",
-                                serde_json::json!({"ok": true, "released": {
-                                    "state": r.state,
-                                    "theta_a_urad": r.theta_a_urad,
-                                }})
-                            );
-                        } else {
-                            let theta = r.theta_a_urad.map_or(String::new(), |t| {
-                                format!(", θa {:.4} rad", f64::from(t) * 1e-6)
-                            });
-                            println!("released: {}{theta}", r.state.name());
-                        }
-                        match r.state {
-                            proto::DeviceState::Fault(_) => ExitCode::from(2),
-                            _ => ExitCode::SUCCESS,
-                        }
-                    }
-                    Err(e) => fail(e),
-                };
-            }
-        }
+            release_timeout, ..
+        } => return board_release(&mut b, json, wait_limit(release_timeout)),
         BoardCmd::Stop => proto::Command::Stop,
         BoardCmd::Calibrate {
             trace,
@@ -590,7 +466,7 @@ fn run_board(a: BoardArgs) -> ExitCode {
                 return board_calibrate(
                     &mut b,
                     &a.connect,
-                    a.json,
+                    json,
                     &trace,
                     finger,
                     out,
@@ -601,45 +477,205 @@ fn run_board(a: BoardArgs) -> ExitCode {
         BoardCmd::Store => proto::Command::Store,
         BoardCmd::Load => proto::Command::Load,
         BoardCmd::Reboot => proto::Command::Reboot,
-        BoardCmd::Raw { hex } => {
-            let bytes: Result<Vec<u8>, _> = (0..hex.len() / 2)
-                .map(|i| u8::from_str_radix(hex.get(2 * i..2 * i + 2).unwrap_or("zz"), 16))
-                .collect();
-            let Ok(bytes) = bytes else {
-                eprintln!("pts board raw: {hex}: not hex");
-                return ExitCode::FAILURE;
-            };
-            if let Err(e) = b.write(&bytes) {
-                return fail(e);
-            }
-            let t0 = std::time::Instant::now();
-            while t0.elapsed() < timeout {
-                match b.poll() {
-                    Ok(ms) => {
-                        for m in ms {
-                            match m {
-                                Ok(proto::DeviceMsg::Reply { id, result }) => {
-                                    show(&(id, result));
-                                    return ExitCode::SUCCESS;
-                                }
-                                Ok(_) => {}
-                                Err(e) => return fail(BoardError::Frame(e)),
-                            }
-                        }
-                    }
-                    Err(e) => return fail(e),
-                }
-            }
-            return fail(BoardError::Timeout(timeout));
-        }
+        BoardCmd::Raw { hex } => return board_raw(&mut b, json, &hex, timeout),
     };
     match b.request(cmd) {
         Ok(r) => {
-            show(&r);
+            board_show(json, &r);
             ExitCode::SUCCESS
         }
-        Err(e) => fail(e),
+        Err(e) => board_fail(json, e),
     }
+}
+
+/// A `pts board` failure: the error on stderr (and as JSON on stdout with `--json`), exit 1.
+fn board_fail(json: bool, e: pts_cli::board::BoardError) -> ExitCode {
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({"ok": false, "error": e.to_string()})
+        );
+    }
+    eprintln!("pts board: {e}");
+    ExitCode::FAILURE
+}
+
+/// One reply or result on stdout, as text or JSON.
+fn board_show(json: bool, v: &dyn erased::Show) {
+    if json {
+        println!("{}", v.json());
+    } else {
+        println!("{}", v.text());
+    }
+}
+
+/// The documented exit status of a grasp's outcome: 0 contact, 2 fault, 3 stopped.
+fn outcome_code(o: &pts_cli::board::Outcome) -> ExitCode {
+    use pts_cli::board::Outcome;
+    match o {
+        Outcome::Contact(_) => ExitCode::SUCCESS,
+        Outcome::Fault(_) => ExitCode::from(2),
+        Outcome::Stopped => ExitCode::from(3),
+    }
+}
+
+/// `pts board grasp`: starts a grasp and waits for its contact, fault or stop.
+fn board_grasp(
+    b: &mut pts_cli::board::Board,
+    json: bool,
+    give_up: std::time::Duration,
+) -> ExitCode {
+    match b.grasp(give_up) {
+        Ok(o) => {
+            board_show(json, &o);
+            outcome_code(&o)
+        }
+        Err(e) => board_fail(json, e),
+    }
+}
+
+/// `pts board record`: one grasp at every control tick, written as a trace CSV.
+fn board_record(
+    b: &mut pts_cli::board::Board,
+    json: bool,
+    output: &std::path::Path,
+    give_up: std::time::Duration,
+) -> ExitCode {
+    let rec = match b.record(give_up) {
+        Ok(r) => r,
+        Err(e) => return board_fail(json, e),
+    };
+    let written = std::fs::File::create(output).and_then(|f| {
+        let mut w = std::io::BufWriter::new(f);
+        rec.write_csv(&mut w)?;
+        std::io::Write::flush(&mut w)
+    });
+    if let Err(e) = written {
+        eprintln!("pts board record: writing {}: {e}", output.display());
+        return ExitCode::FAILURE;
+    }
+    eprintln!(
+        "wrote {} ({} ticks at {} s)",
+        output.display(),
+        rec.samples.len(),
+        rec.drive.dt_s
+    );
+    board_show(json, &rec.outcome);
+    outcome_code(&rec.outcome)
+}
+
+/// `pts board watch`: the live view (a terminal UI on a terminal, summary lines otherwise).
+fn board_watch(
+    b: &mut pts_cli::board::Board,
+    json: bool,
+    grasp: bool,
+    seconds: Option<f64>,
+    rate: u16,
+    window: f64,
+) -> ExitCode {
+    if !((1..=10_000).contains(&rate) && window > 0.0 && window <= 3600.0) {
+        eprintln!(
+            "pts board watch: --rate {rate} must be in 1..=10000 Hz and --window {window} in (0, 3600] s"
+        );
+        return ExitCode::FAILURE;
+    }
+    let o = pts_cli::watch::WatchOptions {
+        grasp,
+        seconds: seconds.filter(|s| s.is_finite() && *s > 0.0),
+        rate_hz: rate,
+        window_s: window,
+        json,
+    };
+    use std::io::IsTerminal;
+    let tty = std::io::stdout().is_terminal() && !json;
+    match pts_cli::watch::run(b, &o, tty) {
+        Ok(w) => {
+            match (&w.estimate, w.state) {
+                (Some(c), _) if json => {
+                    println!("{}", serde_json::json!({"ok": true, "contact": c}))
+                }
+                (_, Some(proto::DeviceState::Fault(f))) if json => {
+                    println!("{}", serde_json::json!({"ok": false, "fault": f}))
+                }
+                _ if json => println!("{}", serde_json::json!({"ok": true})),
+                _ => println!("{}", w.summary()),
+            }
+            match w.state {
+                Some(proto::DeviceState::Fault(_)) => ExitCode::from(2),
+                _ => ExitCode::SUCCESS,
+            }
+        }
+        Err(e) => board_fail(json, e),
+    }
+}
+
+/// `pts board release`: torque off and wait for the finger to open.
+fn board_release(
+    b: &mut pts_cli::board::Board,
+    json: bool,
+    give_up: std::time::Duration,
+) -> ExitCode {
+    match b.release(give_up) {
+        Ok(r) => {
+            if json {
+                println!(
+                    "{}",
+                    serde_json::json!({"ok": true, "released": {
+                        "state": r.state,
+                        "theta_a_urad": r.theta_a_urad,
+                    }})
+                );
+            } else {
+                let theta = r.theta_a_urad.map_or(String::new(), |t| {
+                    format!(", θa {:.4} rad", f64::from(t) * 1e-6)
+                });
+                println!("released: {}{theta}", r.state.name());
+            }
+            match r.state {
+                proto::DeviceState::Fault(_) => ExitCode::from(2),
+                _ => ExitCode::SUCCESS,
+            }
+        }
+        Err(e) => board_fail(json, e),
+    }
+}
+
+/// `pts board raw HEX`: the bytes sent as they are, the first reply shown.
+fn board_raw(
+    b: &mut pts_cli::board::Board,
+    json: bool,
+    hex: &str,
+    timeout: std::time::Duration,
+) -> ExitCode {
+    use pts_cli::board::BoardError;
+    let bytes: Result<Vec<u8>, _> = (0..hex.len() / 2)
+        .map(|i| u8::from_str_radix(hex.get(2 * i..2 * i + 2).unwrap_or("zz"), 16))
+        .collect();
+    let Ok(bytes) = bytes else {
+        eprintln!("pts board raw: {hex}: not hex");
+        return ExitCode::FAILURE;
+    };
+    if let Err(e) = b.write(&bytes) {
+        return board_fail(json, e);
+    }
+    let t0 = std::time::Instant::now();
+    while t0.elapsed() < timeout {
+        let ms = match b.poll() {
+            Ok(ms) => ms,
+            Err(e) => return board_fail(json, e),
+        };
+        for m in ms {
+            match m {
+                Ok(proto::DeviceMsg::Reply { id, result }) => {
+                    board_show(json, &(id, result));
+                    return ExitCode::SUCCESS;
+                }
+                Ok(_) => {}
+                Err(e) => return board_fail(json, BoardError::Frame(e)),
+            }
+        }
+    }
+    board_fail(json, BoardError::Timeout(timeout))
 }
 
 /// `pts board calibrate --trace`: the device's sweep recorded, written and identified.
