@@ -485,65 +485,12 @@ mod app {
 
     fn command(sh: &mut Rx<'_>, cmd: Command) -> Result<Reply, Error> {
         match cmd {
-            Command::Hello { version } => {
-                if version != VERSION {
-                    return Err(Error::VersionMismatch {
-                        host: version,
-                        device: VERSION,
-                    });
-                }
-                Ok(Reply::Hello {
-                    version: VERSION,
-                    firmware: proto::Name::try_from(concat!(
-                        "finger-fw ",
-                        env!("CARGO_PKG_VERSION")
-                    ))
-                    .unwrap_or_default(),
-                    board: proto::Name::try_from(platform::NAME).unwrap_or_default(),
-                })
-            }
+            Command::Hello { version } => hello(version),
             Command::Stop => {
-                let rx_tick = tm::TICKS.load(Ordering::Relaxed);
-                HALT.store(true, Ordering::SeqCst);
-                ACTIVE.store(false, Ordering::SeqCst);
-                (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
-                // Acknowledges a latched fault (the controller's or a lost host).
-                HOST_LOST.store(false, Ordering::SeqCst);
-                let off_tick = tm::TICKS.load(Ordering::Relaxed);
-                defmt::info!(
-                    "STOP requested_tick={=u32} off_tick={=u32}",
-                    rx_tick,
-                    off_tick
-                );
-                sh.dev.lock(|d| {
-                    d.rest = Some(DeviceState::Stopped);
-                    d.send(&DeviceMsg::Event(Event {
-                        tick: off_tick,
-                        kind: EventKind::Stopped {
-                            requested_tick: rx_tick,
-                        },
-                    }));
-                    d.sweep_stopped(off_tick);
-                });
+                stop(sh);
                 Ok(Reply::Ack)
             }
-            Command::Status => {
-                let state = current(sh);
-                let bridge_on = !sh.board.lock(|b| b.is_safe());
-                Ok(sh.dev.lock(|d| {
-                    Reply::Status(proto::Status {
-                        state,
-                        tick: tm::TICKS.load(Ordering::Relaxed),
-                        grasps: d.grasps,
-                        settings: d.settings,
-                        // A real finger has no scene to choose.
-                        scene: cfg!(feature = "qemu").then(|| d.scene.clone()),
-                        bridge_on,
-                        settings_source: d.source,
-                        settings_changed: d.changed,
-                    })
-                }))
-            }
+            Command::Status => Ok(status(sh)),
             Command::Get(ParamId::Scene) if !cfg!(feature = "qemu") => Err(Error::NotSupported {
                 what: Unsupported::Scene,
             }),
@@ -556,165 +503,240 @@ mod app {
                     .map(Reply::Param)
                     .ok_or(Error::UnknownChoice { param: id })
             }),
-            Command::Set(p) => {
-                // The telemetry rate changes nothing the controller does: settable any time
-                // (a recording raises it for one grasp and restores it while holding).
-                if !matches!(p, proto::Param::TelemetryHz(_)) {
-                    idle_or_busy(sh)?;
-                }
-                if let proto::Param::Scene(name) = &p {
-                    if !cfg!(feature = "qemu") {
-                        return Err(Error::NotSupported {
-                            what: Unsupported::Scene,
-                        });
-                    }
-                    if plant::scenes::by_name(name.as_str()).is_none() {
-                        return Err(Error::UnknownChoice {
-                            param: ParamId::Scene,
-                        });
-                    }
-                    sh.dev.lock(|d| d.scene = name.clone());
-                    return Ok(Reply::Ack);
-                }
-                sh.dev.lock(|d| {
-                    let avail: heapless::Vec<proto::Estimator, 2> = ctl::AVAILABLE
-                        .iter()
-                        .map(|e| ctl::proto_estimator(*e))
-                        .collect();
-                    let before = d.settings;
-                    d.settings.set(&p, &avail)?;
-                    d.changed |= d.settings != before;
-                    device::set_decimation(d.settings.telemetry_hz);
-                    Ok(Reply::Ack)
-                })
-            }
+            Command::Set(p) => set(sh, p),
             Command::Grasp => {
                 idle_or_busy(sh)?;
                 start_grasp(sh)
             }
-            Command::Release => {
-                let state = current(sh);
-                if !ACTIVE.load(Ordering::Relaxed) {
-                    return Err(Error::Busy { state });
-                }
-                // Holding: the controller lets go and opens the finger (its events follow).
-                let released = (&mut sh.sup, &mut sh.link).lock(|s, l| {
-                    let started = s.release();
-                    s.publish(l);
-                    started
-                });
-                if released {
-                    return Ok(Reply::Ack);
-                }
-                // In any other state the release is an abort: torque off now.
-                HALT.store(true, Ordering::SeqCst);
-                ACTIVE.store(false, Ordering::SeqCst);
-                (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
-                let tick = tm::TICKS.load(Ordering::Relaxed);
-                sh.dev.lock(|d| {
-                    d.sweep_stopped(tick);
-                    d.rest = Some(DeviceState::Idle);
-                    d.send(&DeviceMsg::Event(Event {
-                        tick,
-                        kind: EventKind::Releasing,
-                    }));
-                    d.send(&DeviceMsg::Event(Event {
-                        tick,
-                        kind: EventKind::Idle,
-                    }));
-                });
-                Ok(Reply::Ack)
-            }
+            Command::Release => release(sh),
             Command::Calibrate => {
                 idle_or_busy(sh)?;
                 start_sweep(sh)
             }
-            Command::Store => {
-                idle_or_busy(sh)?;
-                // Erasing flash stalls the CPU on the board: never with the bridge on.
-                if !sh.board.lock(|b| b.is_safe()) {
-                    return Err(Error::Busy { state: current(sh) });
-                }
-                let settings = sh.dev.lock(|d| d.settings);
-                let mut buf = [0u8; proto::Settings::MAX_BYTES];
-                let bytes = settings.to_bytes(&mut buf).map_err(|_| Error::Store {
-                    why: StoreFailure::Flash,
-                })?;
-                let r = sh.store.lock(|st| match st {
-                    Some(st) => st.store(bytes).map_err(|_| StoreFailure::Flash),
-                    None => Err(StoreFailure::Flash),
-                });
-                match r {
-                    Ok(seq) => {
-                        sh.dev.lock(|d| {
-                            d.source = proto::SettingsSource::Store;
-                            d.changed = false;
-                        });
-                        defmt::info!(
-                            "SETTINGS stored sequence={=u32} len={=usize}",
-                            seq,
-                            bytes.len()
-                        );
-                        Ok(Reply::Ack)
-                    }
-                    Err(why) => {
-                        defmt::error!("SETTINGS store failed ({=str})", failure_name(why));
-                        Err(Error::Store { why })
-                    }
-                }
-            }
-            Command::Load => {
-                idle_or_busy(sh)?;
-                let mut buf = [0u8; crate::settings_flash::MAX_PAYLOAD];
-                let r = sh.store.lock(|st| match st {
-                    Some(st) => {
-                        st.load(&mut buf)
-                            .map_err(|_| StoreFailure::Flash)
-                            .and_then(|status| match status.payload(&buf) {
-                                Some(p) => decoded(status, p),
-                                None => decoded(status, &[]),
-                            })
-                    }
-                    None => Err(StoreFailure::Flash),
-                });
-                match r {
-                    Ok(s) => {
-                        sh.dev.lock(|d| {
-                            d.settings = s;
-                            d.source = proto::SettingsSource::Store;
-                            d.changed = false;
-                        });
-                        device::set_decimation(s.telemetry_hz);
-                        defmt::info!(
-                            "SETTINGS source=store dta_unm={=i32}",
-                            (s.delta_ta_nm * 1e6) as i32
-                        );
-                        Ok(Reply::Ack)
-                    }
-                    Err(why) => {
-                        defmt::warn!("SETTINGS load failed ({=str})", failure_name(why));
-                        Err(Error::Store { why })
-                    }
-                }
-            }
+            Command::Store => store(sh),
+            Command::Load => load(sh),
             // Answered by `handle`, which resets after the acknowledgement.
             Command::Reboot => Ok(Reply::Ack),
-            Command::Drive => {
-                #[cfg(feature = "qemu")]
-                let drive = {
-                    let scene_name = sh.dev.lock(|d| d.scene.clone());
-                    let scene = plant::scenes::by_name(scene_name.as_str())
-                        .map(ctl::finger_scene)
-                        .ok_or(Error::UnknownChoice {
-                            param: ParamId::Scene,
-                        })?;
-                    ctl::scene_drive(&scene)
-                };
-                #[cfg(not(feature = "qemu"))]
-                let drive = ctl::board_drive();
-                Ok(Reply::Drive(device::drive(&drive)))
+            Command::Drive => drive(sh),
+        }
+    }
+
+    /// The version exchange: the device's name and version, or a mismatch.
+    fn hello(version: u8) -> Result<Reply, Error> {
+        if version != VERSION {
+            return Err(Error::VersionMismatch {
+                host: version,
+                device: VERSION,
+            });
+        }
+        Ok(Reply::Hello {
+            version: VERSION,
+            firmware: proto::Name::try_from(concat!("finger-fw ", env!("CARGO_PKG_VERSION")))
+                .unwrap_or_default(),
+            board: proto::Name::try_from(platform::NAME).unwrap_or_default(),
+        })
+    }
+
+    /// Torque off now, from any state; acknowledges a latched fault.
+    fn stop(sh: &mut Rx<'_>) {
+        let rx_tick = tm::TICKS.load(Ordering::Relaxed);
+        HALT.store(true, Ordering::SeqCst);
+        ACTIVE.store(false, Ordering::SeqCst);
+        (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
+        HOST_LOST.store(false, Ordering::SeqCst);
+        let off_tick = tm::TICKS.load(Ordering::Relaxed);
+        defmt::info!(
+            "STOP requested_tick={=u32} off_tick={=u32}",
+            rx_tick,
+            off_tick
+        );
+        sh.dev.lock(|d| {
+            d.rest = Some(DeviceState::Stopped);
+            d.send(&DeviceMsg::Event(Event {
+                tick: off_tick,
+                kind: EventKind::Stopped {
+                    requested_tick: rx_tick,
+                },
+            }));
+            d.sweep_stopped(off_tick);
+        });
+    }
+
+    fn status(sh: &mut Rx<'_>) -> Reply {
+        let state = current(sh);
+        let bridge_on = !sh.board.lock(|b| b.is_safe());
+        sh.dev.lock(|d| {
+            Reply::Status(proto::Status {
+                state,
+                tick: tm::TICKS.load(Ordering::Relaxed),
+                grasps: d.grasps,
+                settings: d.settings,
+                // A real finger has no scene to choose.
+                scene: cfg!(feature = "qemu").then(|| d.scene.clone()),
+                bridge_on,
+                settings_source: d.source,
+                settings_changed: d.changed,
+            })
+        })
+    }
+
+    fn set(sh: &mut Rx<'_>, p: proto::Param) -> Result<Reply, Error> {
+        // The telemetry rate changes nothing the controller does: settable any time (a
+        // recording raises it for one grasp and restores it while holding).
+        if !matches!(p, proto::Param::TelemetryHz(_)) {
+            idle_or_busy(sh)?;
+        }
+        if let proto::Param::Scene(name) = &p {
+            if !cfg!(feature = "qemu") {
+                return Err(Error::NotSupported {
+                    what: Unsupported::Scene,
+                });
+            }
+            if plant::scenes::by_name(name.as_str()).is_none() {
+                return Err(Error::UnknownChoice {
+                    param: ParamId::Scene,
+                });
+            }
+            sh.dev.lock(|d| d.scene = name.clone());
+            return Ok(Reply::Ack);
+        }
+        sh.dev.lock(|d| {
+            let avail: heapless::Vec<proto::Estimator, 2> = ctl::AVAILABLE
+                .iter()
+                .map(|e| ctl::proto_estimator(*e))
+                .collect();
+            let before = d.settings;
+            d.settings.set(&p, &avail)?;
+            d.changed |= d.settings != before;
+            device::set_decimation(d.settings.telemetry_hz);
+            Ok(Reply::Ack)
+        })
+    }
+
+    /// Holding: the controller lets go and opens the finger (its events follow). In any
+    /// other state of a grasp the release is an abort: torque off now.
+    fn release(sh: &mut Rx<'_>) -> Result<Reply, Error> {
+        let state = current(sh);
+        if !ACTIVE.load(Ordering::Relaxed) {
+            return Err(Error::Busy { state });
+        }
+        let released = (&mut sh.sup, &mut sh.link).lock(|s, l| {
+            let started = s.release();
+            s.publish(l);
+            started
+        });
+        if released {
+            return Ok(Reply::Ack);
+        }
+        HALT.store(true, Ordering::SeqCst);
+        ACTIVE.store(false, Ordering::SeqCst);
+        (&mut sh.lp, &mut sh.board).lock(|lp, board| lp.stop(board));
+        let tick = tm::TICKS.load(Ordering::Relaxed);
+        sh.dev.lock(|d| {
+            d.sweep_stopped(tick);
+            d.rest = Some(DeviceState::Idle);
+            d.send(&DeviceMsg::Event(Event {
+                tick,
+                kind: EventKind::Releasing,
+            }));
+            d.send(&DeviceMsg::Event(Event {
+                tick,
+                kind: EventKind::Idle,
+            }));
+        });
+        Ok(Reply::Ack)
+    }
+
+    /// The settings written to the store; never with the bridge on (erasing flash stalls
+    /// the CPU on the board).
+    fn store(sh: &mut Rx<'_>) -> Result<Reply, Error> {
+        idle_or_busy(sh)?;
+        if !sh.board.lock(|b| b.is_safe()) {
+            return Err(Error::Busy { state: current(sh) });
+        }
+        let settings = sh.dev.lock(|d| d.settings);
+        let mut buf = [0u8; proto::Settings::MAX_BYTES];
+        let bytes = settings.to_bytes(&mut buf).map_err(|_| Error::Store {
+            why: StoreFailure::Flash,
+        })?;
+        let r = sh.store.lock(|st| match st {
+            Some(st) => st.store(bytes).map_err(|_| StoreFailure::Flash),
+            None => Err(StoreFailure::Flash),
+        });
+        match r {
+            Ok(seq) => {
+                sh.dev.lock(|d| {
+                    d.source = proto::SettingsSource::Store;
+                    d.changed = false;
+                });
+                defmt::info!(
+                    "SETTINGS stored sequence={=u32} len={=usize}",
+                    seq,
+                    bytes.len()
+                );
+                Ok(Reply::Ack)
+            }
+            Err(why) => {
+                defmt::error!("SETTINGS store failed ({=str})", failure_name(why));
+                Err(Error::Store { why })
             }
         }
+    }
+
+    /// The stored settings loaded and checked, replacing the current ones.
+    fn load(sh: &mut Rx<'_>) -> Result<Reply, Error> {
+        idle_or_busy(sh)?;
+        let mut buf = [0u8; crate::settings_flash::MAX_PAYLOAD];
+        let r = sh.store.lock(|st| match st {
+            Some(st) => st
+                .load(&mut buf)
+                .map_err(|_| StoreFailure::Flash)
+                .and_then(|status| match status.payload(&buf) {
+                    Some(p) => decoded(status, p),
+                    None => decoded(status, &[]),
+                }),
+            None => Err(StoreFailure::Flash),
+        });
+        match r {
+            Ok(s) => {
+                sh.dev.lock(|d| {
+                    d.settings = s;
+                    d.source = proto::SettingsSource::Store;
+                    d.changed = false;
+                });
+                device::set_decimation(s.telemetry_hz);
+                defmt::info!(
+                    "SETTINGS source=store dta_unm={=i32}",
+                    (s.delta_ta_nm * 1e6) as i32
+                );
+                Ok(Reply::Ack)
+            }
+            Err(why) => {
+                defmt::warn!("SETTINGS load failed ({=str})", failure_name(why));
+                Err(Error::Store { why })
+            }
+        }
+    }
+
+    /// The drive constants the host needs to read a recording: the selected scene's in QEMU,
+    /// the board's build finger otherwise.
+    fn drive(sh: &mut Rx<'_>) -> Result<Reply, Error> {
+        #[cfg(feature = "qemu")]
+        let drive = {
+            let scene_name = sh.dev.lock(|d| d.scene.clone());
+            let scene = plant::scenes::by_name(scene_name.as_str())
+                .map(ctl::finger_scene)
+                .ok_or(Error::UnknownChoice {
+                    param: ParamId::Scene,
+                })?;
+            ctl::scene_drive(&scene)
+        };
+        #[cfg(not(feature = "qemu"))]
+        let drive = {
+            let _ = sh;
+            ctl::board_drive()
+        };
+        Ok(Reply::Drive(device::drive(&drive)))
     }
 
     /// The settings a load found, checked (range, and an estimator this build has).

@@ -273,8 +273,37 @@ fn session(s: &Session) -> Res {
     if hello["reply"]["Hello"]["version"].as_u64() != Some(u64::from(proto::VERSION)) {
         errs.push(format!("hello: {hello}"));
     }
+    errs.extend(bad_input(s)?);
+    errs.extend(stop_mid_approach(s)?);
+    errs.extend(disconnect_mid_grasp(s)?);
+    errs.extend(three_grasps(s)?);
+    errs.extend(record_and_replay(s)?);
+    errs.extend(calibrate_on_device(s)?);
+    errs.extend(watch_lines(s)?);
+    let (_, _, v) = s.state()?;
+    let grasps = v["reply"]["Status"]["grasps"].as_u64();
+    let boots = s
+        .frames()?
+        .iter()
+        .filter(|f| f.msg.starts_with("BOOT"))
+        .count();
+    if grasps != Some(6) || boots != 1 {
+        errs.push(format!(
+            "one power-up expected: {boots} boots, {grasps:?} grasps (expected 6)"
+        ));
+    }
+    errs.extend(store_and_reboot(s)?);
+    println!("device session: {:.1} s", t0.elapsed().as_secs_f64());
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("\n"))
+    }
+}
 
-    // Bad input: each a typed error, the device still answering.
+/// Bad input: each a typed error, the device still answering.
+fn bad_input(s: &Session) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
     // One frame (one delimiter, so exactly one reply): its COBS code promises four bytes and
     // only two follow before the delimiter.
     let malformed = s.raw(&[0x05, 0xC8, 0x01, 0x00])?;
@@ -304,7 +333,12 @@ fn session(s: &Session) -> Res {
     if code != 1 || v["ok"] != Value::Bool(false) {
         errs.push(format!("unknown scene accepted: {v}"));
     }
+    Ok(errs)
+}
 
+/// Stop in mid-approach: the bridge off within one control period; store refused while it is on.
+fn stop_mid_approach(s: &Session) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
     // Stop in mid-approach.
     s.ok(&["set", "scene", "table2"])?;
     s.ok(&["grasp", "--no-wait"])?;
@@ -349,8 +383,13 @@ fn session(s: &Session) -> Res {
         }
         None => errs.push("no STOP line in the firmware log".into()),
     }
+    Ok(errs)
+}
 
-    // A host that disconnects in mid-grasp: the device switches the bridge off by itself.
+/// A host that disconnects in mid-grasp: the device switches the bridge off by itself and
+/// latches the fault until a stop acknowledges it.
+fn disconnect_mid_grasp(s: &Session) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
     s.ok(&["grasp", "--no-wait"])?;
     let t = Instant::now();
     let mut lost = false;
@@ -376,7 +415,13 @@ fn session(s: &Session) -> Res {
         errs.push(format!("grasp with a latched fault: exit {code}, {v}"));
     }
     s.ok(&["stop"])?;
+    Ok(errs)
+}
 
+/// Three grasps in the same power-up, each k2 (and σ, two-point k2) equal to the host
+/// runner's with the same settings, each released back to rest.
+fn three_grasps(s: &Session) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
     // Three grasps in the same power-up.
     for (scene, dta, est) in GRASPS {
         s.ok(&["set", "scene", scene])?;
@@ -443,9 +488,12 @@ fn session(s: &Session) -> Res {
             )),
         }
     }
-    errs.extend(record_and_replay(s)?);
-    errs.extend(calibrate_on_device(s)?);
-    // The live view, non-interactive: summary lines, then the telemetry rate it found.
+    Ok(errs)
+}
+
+/// The live view, non-interactive: summary lines, and the telemetry rate restored after.
+fn watch_lines(s: &Session) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
     let before = s.state()?.2["reply"]["Status"]["settings"]["telemetry_hz"].clone();
     let (code, _, lines) = s.board(&["watch", "--seconds", "1.5", "--rate", "1000"])?;
     let after = s.state()?.2["reply"]["Status"]["settings"]["telemetry_hz"].clone();
@@ -454,25 +502,7 @@ fn session(s: &Session) -> Res {
             "watch: exit {code}, telemetry_hz {before} -> {after}, lines {lines}"
         ));
     }
-    let (_, _, v) = s.state()?;
-    let grasps = v["reply"]["Status"]["grasps"].as_u64();
-    let boots = s
-        .frames()?
-        .iter()
-        .filter(|f| f.msg.starts_with("BOOT"))
-        .count();
-    if grasps != Some(6) || boots != 1 {
-        errs.push(format!(
-            "one power-up expected: {boots} boots, {grasps:?} grasps (expected 6)"
-        ));
-    }
-    errs.extend(store_and_reboot(s)?);
-    println!("device session: {:.1} s", t0.elapsed().as_secs_f64());
-    if errs.is_empty() {
-        Ok(())
-    } else {
-        Err(errs.join("\n"))
-    }
+    Ok(errs)
 }
 
 /// A grasp recorded at every control tick (`pts board record`, with a ΔT_a ramp and settings

@@ -286,12 +286,9 @@ impl ControllerConfig {
         self
     }
 
-    /// Checks the configuration and converts it to the integer parameters of the tick path.
-    ///
-    /// The finger is checked here too (valid linkage, and a rest angle that agrees with
-    /// [`DriveConfig::theta_a_rest_rad`] within [`REST_ANGLE_TOL_RAD`]), so the same verdict is
-    /// given on the host (`pts finger`, build.rs) and on the board.
-    pub fn params(&self) -> Result<Params, ConfigError> {
+    /// The checks on the configuration's values alone (before any conversion): finite, signs
+    /// and ranges, the finger's rest angle, and a current sensor that reads past the limit.
+    fn check_values(&self) -> Result<(), ConfigError> {
         let d = &self.drive;
         if !d.theta_a_rest_rad.is_finite() {
             return Err(ConfigError::NonFinite);
@@ -395,6 +392,17 @@ impl ControllerConfig {
         if self.overcurrent_a > 0.95 * full_scale_a {
             return Err(ConfigError::OverCurrentBeyondSensor);
         }
+        Ok(())
+    }
+
+    /// Checks the configuration and converts it to the integer parameters of the tick path.
+    ///
+    /// The finger is checked here too (valid linkage, and a rest angle that agrees with
+    /// [`DriveConfig::theta_a_rest_rad`] within [`REST_ANGLE_TOL_RAD`]), so the same verdict is
+    /// given on the host (`pts finger`, build.rs) and on the board.
+    pub fn params(&self) -> Result<Params, ConfigError> {
+        self.check_values()?;
+        let d = &self.drive;
         let secs = |s: f64| to_u32(s / d.dt_s);
         let calib_ticks = secs(self.calib_s);
         let sample_ticks = secs(self.sample_s);

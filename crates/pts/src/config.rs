@@ -423,10 +423,36 @@ const TAU: f64 = 2.0 * core::f64::consts::PI;
 
 impl RawFile {
     fn into_validated(self) -> Result<FingerFile, ConfigError> {
+        let finger = self.finger()?;
+        check_linkage(&finger)?;
+        let drive = self.drive()?;
+        let motor = self.motor()?;
+        let current_sense = self.current_sense()?;
+        let encoder = Encoder {
+            counts_per_rev: integer(
+                "encoder.counts_per_rev",
+                self.encoder.counts_per_rev,
+                FingerFile::PAPER_ENCODER.counts_per_rev,
+                4,
+                1 << 24,
+            )?,
+        };
+        Ok(FingerFile {
+            name: self.name.unwrap_or_else(|| "unnamed finger".to_string()),
+            finger,
+            drive,
+            motor,
+            encoder,
+            current_sense,
+        })
+    }
+
+    /// `[geometry]` and `[springs]`, each value in its physical range.
+    fn finger(&self) -> Result<Finger, ConfigError> {
         let p = Finger::PAPER;
         let g = &self.geometry;
         let s = &self.springs;
-        let finger = Finger {
+        Ok(Finger {
             l1: real("geometry.l1_m", g.l1_m, p.l1, 0.0, false, 10.0, "m")?,
             l2: real("geometry.l2_m", g.l2_m, p.l2, 0.0, false, 10.0, "m")?,
             a: real("geometry.a_m", g.a_m, p.a, 0.0, false, 10.0, "m")?,
@@ -477,38 +503,13 @@ impl RawFile {
                 1e4,
                 "N·m/rad",
             )?,
-        };
-        if finger.validate().is_err() {
-            return Err(ConfigError::invalid(
-                "geometry.b_m",
-                format!(
-                    "the linkage cannot close: the coupler b = {} m must lie strictly between \
-                     |l1 − a| − c = {} m and l1 + a + c = {} m",
-                    finger.b,
-                    (finger.l1 - finger.a).abs() - finger.c,
-                    finger.l1 + finger.a + finger.c
-                ),
-            ));
-        }
-        // The rest pose must assemble, away from the toggle, for the model to start at all.
-        let model = Model::<f64>::new(&finger)
-            .map_err(|e| ConfigError::invalid("geometry", format!("{e}")))?;
-        let rest_ok = match model.free_from_torque(0.0) {
-            Ok(cfg) if cfg.x2 > crate::model::TOGGLE_X2 => Ok(()),
-            Ok(cfg) => Err(format!("x2 = {} ≤ 0 (past the toggle)", cfg.x2)),
-            Err(e) => Err(format!("{e}")),
-        };
-        if let Err(why) = rest_ok {
-            return Err(ConfigError::invalid(
-                "springs.theta02_rad",
-                format!(
-                    "the rest pose (θ2 = {} rad) is not usable with this geometry: {why}",
-                    finger.theta02
-                ),
-            ));
-        }
+        })
+    }
+
+    /// `[drive]`.
+    fn drive(&self) -> Result<Drive, ConfigError> {
         let d = &self.drive;
-        let drive = Drive {
+        Ok(Drive {
             gear_ratio: real(
                 "drive.gear_ratio",
                 d.gear_ratio,
@@ -545,10 +546,14 @@ impl RawFile {
                 0.1,
                 "(at the crank)",
             )?,
-        };
+        })
+    }
+
+    /// `[motor]`.
+    fn motor(&self) -> Result<Motor, ConfigError> {
         let m = &self.motor;
         let pm = FingerFile::PAPER_MOTOR;
-        let motor = Motor {
+        Ok(Motor {
             kt_nm_per_a: real(
                 "motor.kt_nm_per_a",
                 m.kt_nm_per_a,
@@ -585,20 +590,15 @@ impl RawFile {
                 1e3,
                 "A",
             )?,
-        };
-        let encoder = Encoder {
-            counts_per_rev: integer(
-                "encoder.counts_per_rev",
-                self.encoder.counts_per_rev,
-                FingerFile::PAPER_ENCODER.counts_per_rev,
-                4,
-                1 << 24,
-            )?,
-        };
+        })
+    }
+
+    /// `[current_sense]`: the zero code within the ADC's range.
+    fn current_sense(&self) -> Result<CurrentSense, ConfigError> {
         let c = &self.current_sense;
         let pc = FingerFile::PAPER_CURRENT_SENSE;
         let adc_bits = integer("current_sense.adc_bits", c.adc_bits, pc.adc_bits, 8, 16)?;
-        let current_sense = CurrentSense {
+        Ok(CurrentSense {
             amps_per_count: real(
                 "current_sense.amps_per_count",
                 c.amps_per_count,
@@ -616,16 +616,42 @@ impl RawFile {
                 (1i64 << adc_bits) - 1,
             )?,
             adc_bits,
-        };
-        Ok(FingerFile {
-            name: self.name.unwrap_or_else(|| "unnamed finger".to_string()),
-            finger,
-            drive,
-            motor,
-            encoder,
-            current_sense,
         })
     }
+}
+
+/// The linkage closes, and its rest pose assembles away from the toggle (else the model
+/// cannot start at all).
+fn check_linkage(finger: &Finger) -> Result<(), ConfigError> {
+    if finger.validate().is_err() {
+        return Err(ConfigError::invalid(
+            "geometry.b_m",
+            format!(
+                "the linkage cannot close: the coupler b = {} m must lie strictly between \
+                     |l1 − a| − c = {} m and l1 + a + c = {} m",
+                finger.b,
+                (finger.l1 - finger.a).abs() - finger.c,
+                finger.l1 + finger.a + finger.c
+            ),
+        ));
+    }
+    let model =
+        Model::<f64>::new(finger).map_err(|e| ConfigError::invalid("geometry", format!("{e}")))?;
+    let rest_ok = match model.free_from_torque(0.0) {
+        Ok(cfg) if cfg.x2 > crate::model::TOGGLE_X2 => Ok(()),
+        Ok(cfg) => Err(format!("x2 = {} ≤ 0 (past the toggle)", cfg.x2)),
+        Err(e) => Err(format!("{e}")),
+    };
+    if let Err(why) = rest_ok {
+        return Err(ConfigError::invalid(
+            "springs.theta02_rad",
+            format!(
+                "the rest pose (θ2 = {} rad) is not usable with this geometry: {why}",
+                finger.theta02
+            ),
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]
