@@ -9,17 +9,12 @@
 //! T_a,c + ΔT_a, step or ramp) → Settling (θa still) → Estimating (an [`EstimateRequest`] waits for [`run_estimate`](crate::run_estimate)) →
 //! Holding or Releasing → Done. Any fault → [`State::Fault`] with the bridge off.
 //!
-//! Why the static points come after a forward slide: the transmission's friction (Coulomb
-//! ≈ 0.076 N·m at the base link while sliding, stiction ≈ 0.11 N·m, and a back-driving
-//! efficiency that makes the drive hard to push back) holds the finger wherever the impact
-//! leaves it, with any friction inside the band. On the plant (Table 2, ΔT_a 0.8) the
-//! impact's rest point read T_meas − T_a = +0.005 N·m while every point reached by sliding
-//! forward read +0.081…+0.083, as the approach did (+0.083): with the rest point as the first
-//! static point, the estimator's parabola through the static points met the free-motion
-//! curve 12 mrad late and the two-point error was +22.6 % l2 instead of the quasi-static
-//! +16.35 %. With loading points only, the Coulomb term is the same at the contact
-//! (back-dated onto the approach's shifted free-motion curve) and at the end point, so it
-//! cancels in ΔT_a: +17.0 %.
+//! Why the static points come after a forward slide: the transmission's friction holds the
+//! finger wherever the impact leaves it, with any friction torque inside its stiction band, so
+//! the impact's rest point is not a static point of the model. Points reached by sliding
+//! forward carry the sliding friction the approach carried too; with loading points only, the
+//! Coulomb term is the same at the contact (back-dated onto the approach's shifted free-motion
+//! curve) and at the end point, and cancels in ΔT_a.
 #![deny(clippy::float_arithmetic)]
 
 use heapless::{Deque, Vec};
