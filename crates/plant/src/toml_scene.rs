@@ -171,33 +171,7 @@ fn int<T: TryFrom<i64>>(v: Option<i64>, dflt: T, key: &str) -> Result<T, SceneEr
 
 /// Parses a scene from TOML text. Missing keys take the realistic defaults.
 pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
-    let t: SceneT = toml::from_str(text).map_err(|e| {
-        let msg = e.message().to_string();
-        // serde names the unknown key in the message: "unknown field `x`, expected …".
-        let field = msg
-            .split('`')
-            .nth(1)
-            .filter(|_| msg.starts_with("unknown field"))
-            .unwrap_or("");
-        // Qualify it with the table it sits in (the last `[table]` header before the error).
-        let table = e
-            .span()
-            .and_then(|sp| text.get(..sp.start))
-            .and_then(|before| {
-                before.lines().rev().find_map(|l| {
-                    let l = l.trim();
-                    l.strip_prefix('[')
-                        .and_then(|r| r.strip_suffix(']'))
-                        .map(str::trim)
-                })
-            });
-        let key = match (field, table) {
-            ("", _) => String::new(),
-            (f, Some(t)) => format!("{t}.{f}"),
-            (f, None) => f.to_string(),
-        };
-        err(&key, msg)
-    })?;
+    let t: SceneT = toml::from_str(text).map_err(|e| parse_error(text, &e))?;
     let mut s = Scene::DEFAULT;
     if let Some(n) = t.name {
         // Built-in names map to their static string; others are leaked once (a scene is loaded
@@ -215,95 +189,19 @@ pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
     }
     s.start_theta_a_rad = t.start_theta_a_rad;
     if let Some(f) = t.finger {
-        let g = &mut s.finger;
-        macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = f.$k { g.$k = v; } )* } }
-        set!(
-            l1_m,
-            l2_m,
-            a_m,
-            b_m,
-            c_m,
-            phi2_rad,
-            theta01_rad,
-            theta02_rad,
-            k1_nm_per_rad,
-            k2_nm_per_rad,
-            theta1_min_rad,
-            theta1_max_rad,
-            theta2_min_rad,
-            theta2_max_rad,
-            k_lock_nm_per_rad
-        );
+        apply_finger(&mut s, f);
     }
     if let Some(d) = t.drive {
-        let g = &mut s.drive;
-        macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = d.$k { g.$k = v; } )* } }
-        set!(
-            supply_v,
-            r_ohm,
-            l_h,
-            kt_nm_per_a,
-            rotor_inertia_kgm2,
-            gear_ratio,
-            eff_drive,
-            eff_back,
-            backlash_rad,
-            coulomb_nm,
-            stiction_nm,
-            viscous_nm_s_per_rad,
-            stick_speed_rad_s
-        );
-        g.substeps = int(d.substeps, g.substeps, "drive.substeps")?;
+        apply_drive(&mut s, d)?;
     }
     if let Some(x) = t.sensors {
-        let g = &mut s.sensors;
-        macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = x.$k { g.$k = v; } )* } }
-        set!(
-            shunt_ohm,
-            amp_gain,
-            offset_v,
-            offset_error_v,
-            gain_error,
-            noise_v_rms,
-            adc_vref_v
-        );
-        g.encoder_cpt = int(x.encoder_cpt, g.encoder_cpt, "sensors.encoder_cpt")?;
-        g.adc_bits = int(x.adc_bits, g.adc_bits, "sensors.adc_bits")?;
-        if let Some(seed) = x.seed {
-            // A 64-bit pattern: TOML integers are i64, so the top bit reads as a sign.
-            g.seed = seed as u64;
-        }
+        apply_sensors(&mut s, x)?;
     }
     if let Some(c) = t.command {
-        let g = &mut s.command;
-        if let Some(m) = c.mode {
-            g.mode = match m.as_str() {
-                "external" => CommandMode::External,
-                "duty" => CommandMode::Duty,
-                "current" => CommandMode::Current,
-                _ => return Err(err("command.mode", "expected external, duty or current")),
-            };
-        }
-        macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = c.$k { g.$k = v; } )* } }
-        set!(from, to, t_start_s, ramp_s);
+        apply_command(&mut s, c)?;
     }
     if let Some(f) = t.faults {
-        let g = &mut s.faults;
-        macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = f.$k { g.$k = v; } )* } }
-        set!(
-            encoder_stuck_at_s,
-            encoder_jump_at_s,
-            short_at_s,
-            short_r_ohm,
-            remove_object_at_s,
-            over_current_a,
-            power_up_offset_rad
-        );
-        g.encoder_jump_counts = int(
-            f.encoder_jump_counts,
-            g.encoder_jump_counts,
-            "faults.encoder_jump_counts",
-        )?;
+        apply_faults(&mut s, f)?;
     }
     if let Some(o) = t.object {
         s.object = object(o)?;
@@ -316,6 +214,140 @@ pub fn from_toml_str(text: &str) -> Result<Scene, SceneError> {
         other => err("object", other.to_string()),
     })?;
     Ok(s)
+}
+
+/// A TOML or schema error, with the offending key qualified by the table it sits in.
+fn parse_error(text: &str, e: &toml::de::Error) -> SceneError {
+    let msg = e.message().to_string();
+    // serde names the unknown key in the message: "unknown field `x`, expected …".
+    let field = msg
+        .split('`')
+        .nth(1)
+        .filter(|_| msg.starts_with("unknown field"))
+        .unwrap_or("");
+    // Qualify it with the table it sits in (the last `[table]` header before the error).
+    let table = e
+        .span()
+        .and_then(|sp| text.get(..sp.start))
+        .and_then(|before| {
+            before.lines().rev().find_map(|l| {
+                let l = l.trim();
+                l.strip_prefix('[')
+                    .and_then(|r| r.strip_suffix(']'))
+                    .map(str::trim)
+            })
+        });
+    let key = match (field, table) {
+        ("", _) => String::new(),
+        (f, Some(t)) => format!("{t}.{f}"),
+        (f, None) => f.to_string(),
+    };
+    err(&key, msg)
+}
+
+/// `[finger]`: each key given replaces the default.
+fn apply_finger(s: &mut Scene, f: FingerT) {
+    let g = &mut s.finger;
+    macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = f.$k { g.$k = v; } )* } }
+    set!(
+        l1_m,
+        l2_m,
+        a_m,
+        b_m,
+        c_m,
+        phi2_rad,
+        theta01_rad,
+        theta02_rad,
+        k1_nm_per_rad,
+        k2_nm_per_rad,
+        theta1_min_rad,
+        theta1_max_rad,
+        theta2_min_rad,
+        theta2_max_rad,
+        k_lock_nm_per_rad
+    );
+}
+
+/// `[drive]`.
+fn apply_drive(s: &mut Scene, d: DriveT) -> Result<(), SceneError> {
+    let g = &mut s.drive;
+    macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = d.$k { g.$k = v; } )* } }
+    set!(
+        supply_v,
+        r_ohm,
+        l_h,
+        kt_nm_per_a,
+        rotor_inertia_kgm2,
+        gear_ratio,
+        eff_drive,
+        eff_back,
+        backlash_rad,
+        coulomb_nm,
+        stiction_nm,
+        viscous_nm_s_per_rad,
+        stick_speed_rad_s
+    );
+    g.substeps = int(d.substeps, g.substeps, "drive.substeps")?;
+    Ok(())
+}
+
+/// `[sensors]`.
+fn apply_sensors(s: &mut Scene, x: SensorsT) -> Result<(), SceneError> {
+    let g = &mut s.sensors;
+    macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = x.$k { g.$k = v; } )* } }
+    set!(
+        shunt_ohm,
+        amp_gain,
+        offset_v,
+        offset_error_v,
+        gain_error,
+        noise_v_rms,
+        adc_vref_v
+    );
+    g.encoder_cpt = int(x.encoder_cpt, g.encoder_cpt, "sensors.encoder_cpt")?;
+    g.adc_bits = int(x.adc_bits, g.adc_bits, "sensors.adc_bits")?;
+    if let Some(seed) = x.seed {
+        // A 64-bit pattern: TOML integers are i64, so the top bit reads as a sign.
+        g.seed = seed as u64;
+    }
+    Ok(())
+}
+
+/// `[command]`: the open-loop command profile.
+fn apply_command(s: &mut Scene, c: CommandT) -> Result<(), SceneError> {
+    let g = &mut s.command;
+    if let Some(m) = c.mode {
+        g.mode = match m.as_str() {
+            "external" => CommandMode::External,
+            "duty" => CommandMode::Duty,
+            "current" => CommandMode::Current,
+            _ => return Err(err("command.mode", "expected external, duty or current")),
+        };
+    }
+    macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = c.$k { g.$k = v; } )* } }
+    set!(from, to, t_start_s, ramp_s);
+    Ok(())
+}
+
+/// `[faults]`: injected faults.
+fn apply_faults(s: &mut Scene, f: FaultsT) -> Result<(), SceneError> {
+    let g = &mut s.faults;
+    macro_rules! set { ($($k:ident),*) => { $( if let Some(v) = f.$k { g.$k = v; } )* } }
+    set!(
+        encoder_stuck_at_s,
+        encoder_jump_at_s,
+        short_at_s,
+        short_r_ohm,
+        remove_object_at_s,
+        over_current_a,
+        power_up_offset_rad
+    );
+    g.encoder_jump_counts = int(
+        f.encoder_jump_counts,
+        g.encoder_jump_counts,
+        "faults.encoder_jump_counts",
+    )?;
+    Ok(())
 }
 
 fn object(o: ObjectT) -> Result<ObjectSpec, SceneError> {

@@ -126,6 +126,14 @@ pub struct Tracker {
     slope: f64,
 }
 
+/// What a new constraint did to a pass of [`Tracker::advance`].
+enum Hit {
+    /// The tracker moved to the event's pose: solve again from there.
+    Again,
+    /// A third constraint on a locked finger: the pose stands.
+    Locked,
+}
+
 impl Tracker {
     /// Starts at the rest pose; fails if the object already overlaps the finger there.
     pub fn new(kin: Kin) -> Result<Self, PlantError> {
@@ -188,6 +196,10 @@ impl Tracker {
 
     /// Moves the finger to θa (rad), reporting every event in order through `emit`.
     /// On error the tracker keeps its last good pose.
+    ///
+    /// Each pass solves toward the target in the current constraint set, then handles the
+    /// first event along the move (a release, the contact leaving its phalanx, a new
+    /// constraint), restarting from the event's pose, until a pass meets none.
     pub fn advance(
         &mut self,
         theta_a_rad: f64,
@@ -195,264 +207,20 @@ impl Tracker {
     ) -> Result<Pose, PlantError> {
         for _ in 0..8 {
             let old = self.pose;
-            // While a contact is inside its phalanx, solve against the phalanx's whole line so
-            // that a contact about to leave the segment is still solvable and can be bisected.
-            let line = match old.active {
-                Active::One(c @ Constraint::Contact(ph))
-                    if (0.0..=self.len(ph)).contains(&old.k_m) =>
-                {
-                    Some(c)
-                }
-                _ => None,
-            };
-            // First-order predictor from the last move: saves a Newton evaluation per step.
-            let guess = old.theta2_rad + self.slope * (theta_a_rad - old.theta_a_rad);
-            let guess = if guess.is_finite() && (guess - old.theta2_rad).abs() < 0.1 {
-                guess
-            } else {
-                old.theta2_rad
-            };
-            let solved = match (line, old.active) {
-                (Some(c), _) => self.kin.solve_one(theta_a_rad, c, guess, true),
-                // Locked: the geometry is frozen; only the structural spring moves.
-                (
-                    None,
-                    Active::Two {
-                        theta_a_rad: ta_lock,
-                        torque_nm,
-                        ..
-                    },
-                ) => Ok(Pose {
-                    theta_a_rad,
-                    torque_nm: torque_nm
-                        + self.kin.finger.k_lock_nm_per_rad * (theta_a_rad - ta_lock),
-                    ..old
-                }),
-                (None, _) => self.kin.solve(theta_a_rad, old.active, guess),
-            };
-            let p = match (solved, old.active) {
-                (Ok(p), _) => p,
-                (Err(_), Active::One(c)) => {
-                    // The constrained configuration stopped existing inside this step. Find the
-                    // last solvable pose; if the free finger at the target clears the object it
-                    // snapped off (a cylinder slipping off a corner), otherwise it is jammed.
-                    let at = self.bisect(old, theta_a_rad, |k, pose| {
-                        Ok(match k.solve(pose, old.active, old.theta2_rad) {
-                            Ok(q) if q.lambda >= 0.0 => (1.0, q),
-                            _ => (-1.0, old),
-                        })
-                    })?;
-                    let free = self.kin.solve(theta_a_rad, Active::None, at.theta2_rad);
-                    let clear = free.as_ref().is_ok_and(|f| {
-                        self.kin
-                            .gap(c, f.theta1_rad, f.theta2_rad)
-                            .is_none_or(|g| g.gap >= 0.0)
-                    });
-                    match free {
-                        Ok(f) if clear => {
-                            let kind = match c {
-                                Constraint::Contact(ph) => EventKind::LossOfContact {
-                                    phalanx: ph,
-                                    k_m: at.k_m,
-                                },
-                                other => EventKind::LimitReleased { constraint: other },
-                            };
-                            emit(ev(&at, kind));
-                            self.pose = f;
-                            self.slope = 0.0;
-                            self.rearm();
-                        }
-                        _ => self.jam(at, c, theta_a_rad, emit),
-                    }
-                    continue;
-                }
-                (Err(e), _) => return Err(e),
-            };
-            // 1. Release of the active constraint.
-            match old.active {
-                Active::One(c) if p.lambda < 0.0 => {
-                    let at = self.bisect(old, theta_a_rad, |k, pose| {
-                        // Unsolvable counts as past the event.
-                        Ok(match k.solve(pose, old.active, old.theta2_rad) {
-                            Ok(q) => (q.lambda, q),
-                            Err(_) => (-1.0, old),
-                        })
-                    })?;
-                    if at.lambda > JAM_LAMBDA {
-                        // λ jumped from large positive to negative: not a release but a fold of
-                        // the contact path (infinite stiffness, the Newton branch switched).
-                        self.jam(at, c, theta_a_rad, emit);
-                        continue;
-                    }
-                    let kind = match c {
-                        Constraint::Contact(ph) => EventKind::LossOfContact {
-                            phalanx: ph,
-                            k_m: at.k_m,
-                        },
-                        other => EventKind::LimitReleased { constraint: other },
-                    };
-                    emit(ev(&at, kind));
-                    self.pose = self
-                        .kin
-                        .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
-                    self.rearm();
-                    continue;
-                }
-                Active::Two {
-                    first,
-                    theta_a_rad: ta_lock,
-                    dir,
-                    ..
-                } if (theta_a_rad - ta_lock) * f64::from(dir) < 0.0 => {
-                    match self.kin.solve(ta_lock, Active::One(first), old.theta2_rad) {
-                        Ok(at) => {
-                            emit(ev(&at, EventKind::Unlocked));
-                            self.pose = at;
-                        }
-                        // The first constraint has no solution at the lock (a jam): release
-                        // into free motion at the lock angle.
-                        Err(_) => {
-                            let free = self.kin.solve(ta_lock, Active::None, old.theta2_rad)?;
-                            emit(ev(&free, EventKind::Unlocked));
-                            if let Constraint::Contact(ph) = first {
-                                emit(ev(
-                                    &free,
-                                    EventKind::LossOfContact {
-                                        phalanx: ph,
-                                        k_m: old.k_m,
-                                    },
-                                ));
-                            }
-                            self.pose = free;
-                        }
-                    }
-                    self.slope = 0.0;
-                    self.rearm();
-                    continue;
-                }
-                _ => {}
-            }
-            // 2. The contact point leaving its phalanx.
-            if let Active::One(Constraint::Contact(ph)) = old.active {
-                let len = self.len(ph);
-                let was_in = (0.0..=len).contains(&old.k_m);
-                if was_in && !(0.0..=len).contains(&p.k_m) {
-                    let beyond = p.k_m > len;
-                    let at = self.bisect(old, theta_a_rad, |k, pose| {
-                        let c = Constraint::Contact(ph);
-                        let q = k.solve_one(pose, c, old.theta2_rad, true)?;
-                        let ind = if beyond { len - q.k_m } else { q.k_m };
-                        Ok((ind, q))
-                    })?;
-                    let kind = if beyond {
-                        EventKind::BeyondTip { phalanx: ph }
-                    } else {
-                        EventKind::BehindJoint { phalanx: ph }
-                    };
-                    emit(ev(&at, kind));
-                    let vertex = self.kin.object.is_none_or(|o| o.radius_m <= 0.0);
-                    if vertex {
-                        // A vertex slips off the end: the phalanx is free again.
-                        emit(ev(
-                            &at,
-                            EventKind::LossOfContact {
-                                phalanx: ph,
-                                k_m: at.k_m,
-                            },
-                        ));
-                        let mut free =
-                            self.kin
-                                .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
-                        free.theta_a_rad = at.theta_a_rad;
-                        self.pose = free;
-                        self.armed[Constraint::Contact(ph).slot()] = false;
-                    } else {
-                        // Nudge the stored k just past the end so this event fires once; a
-                        // cylinder now rests on the corner of the phalanx.
-                        let mut q = at;
-                        q.k_m = if beyond { len + 1e-12 } else { -1e-12 };
-                        self.pose = q;
-                    }
-                    continue;
-                }
-            }
-            // 3. A new constraint becomes active: take the earliest one along the move.
-            let mut first_hit: Option<(Pose, Constraint, f64)> = None;
-            let gaps = self.kin.gaps(p.theta1_rad, p.theta2_rad);
-            for c in Constraint::ALL {
-                if !self.armed[c.slot()] {
-                    continue;
-                }
-                let Some(g) = gaps.get(c.slot()).copied().flatten() else {
-                    continue;
-                };
-                if g.gap >= 0.0 {
-                    continue;
-                }
-                let at = self.bisect(old, theta_a_rad, |k, pose| {
-                    let q = k.solve(pose, old.active, old.theta2_rad)?;
-                    let g = k
-                        .gap(c, q.theta1_rad, q.theta2_rad)
-                        .ok_or(PlantError::BadPlacement)?;
-                    Ok((g.gap, q))
-                })?;
-                let k_m = self
-                    .kin
-                    .gap(c, at.theta1_rad, at.theta2_rad)
-                    .map_or(0.0, |g| g.k_m);
-                let dist = (at.theta_a_rad - old.theta_a_rad).abs();
-                if first_hit.is_none_or(|(_, _, d)| dist < d) {
-                    first_hit = Some((at, c, dist));
-                    let _ = k_m;
-                }
-            }
-            if let Some((at, c, _)) = first_hit {
-                let k_m = self
-                    .kin
-                    .gap(c, at.theta1_rad, at.theta2_rad)
-                    .map_or(0.0, |g| g.k_m);
-                match old.active {
-                    Active::None => {
-                        let kind = match c {
-                            Constraint::Contact(ph) => EventKind::FirstContact { phalanx: ph, k_m },
-                            other => EventKind::JointLimit { constraint: other },
-                        };
-                        emit(ev(&at, kind));
-                        let mut q = self.kin.balance(at.theta_a_rad, at.theta2_rad, c)?;
-                        q.lambda = q.lambda.max(0.0);
-                        self.pose = q;
-                    }
-                    Active::One(first) => {
-                        let kind = match c {
-                            Constraint::Contact(ph) => {
-                                EventKind::SecondContact { phalanx: ph, k_m }
-                            }
-                            other => EventKind::JointLimit { constraint: other },
-                        };
-                        emit(ev(&at, kind));
-                        let mut q = at;
-                        q.active = Active::Two {
-                            first,
-                            second: c,
-                            theta_a_rad: at.theta_a_rad,
-                            torque_nm: at.torque_nm,
-                            dir: if theta_a_rad >= old.theta_a_rad {
-                                1
-                            } else {
-                                -1
-                            },
-                        };
-                        self.pose = q;
-                    }
-                    Active::Two { .. } => {
-                        // Already locked: a third constraint changes nothing in the model.
-                        self.pose = p;
-                        self.rearm();
-                        return Ok(p);
-                    }
-                }
-                self.armed[c.slot()] = false;
+            let Some(p) = self.solve_toward(old, theta_a_rad, emit)? else {
                 continue;
+            };
+            if self.release(old, p, theta_a_rad, emit)? {
+                continue;
+            }
+            if self.leave_phalanx(old, p, theta_a_rad, emit)? {
+                continue;
+            }
+            let gaps = self.kin.gaps(p.theta1_rad, p.theta2_rad);
+            match self.new_constraint(old, p, &gaps, theta_a_rad, emit)? {
+                Some(Hit::Again) => continue,
+                Some(Hit::Locked) => return Ok(p),
+                None => {}
             }
             let dth = p.theta_a_rad - old.theta_a_rad;
             self.slope = if p.active == old.active && dth.abs() > 1e-12 {
@@ -465,6 +233,300 @@ impl Tracker {
             return Ok(p);
         }
         Err(PlantError::NoConvergence)
+    }
+
+    /// The pose at θa in the current constraint set; `None` when that set stopped existing
+    /// inside the move and the tracker moved on (snapped off into free motion, or jammed).
+    fn solve_toward(
+        &mut self,
+        old: Pose,
+        theta_a_rad: f64,
+        emit: &mut dyn FnMut(Event),
+    ) -> Result<Option<Pose>, PlantError> {
+        // While a contact is inside its phalanx, solve against the phalanx's whole line so
+        // that a contact about to leave the segment is still solvable and can be bisected.
+        let line = match old.active {
+            Active::One(c @ Constraint::Contact(ph)) if (0.0..=self.len(ph)).contains(&old.k_m) => {
+                Some(c)
+            }
+            _ => None,
+        };
+        // First-order predictor from the last move: saves a Newton evaluation per step.
+        let guess = old.theta2_rad + self.slope * (theta_a_rad - old.theta_a_rad);
+        let guess = if guess.is_finite() && (guess - old.theta2_rad).abs() < 0.1 {
+            guess
+        } else {
+            old.theta2_rad
+        };
+        let solved = match (line, old.active) {
+            (Some(c), _) => self.kin.solve_one(theta_a_rad, c, guess, true),
+            // Locked: the geometry is frozen; only the structural spring moves.
+            (
+                None,
+                Active::Two {
+                    theta_a_rad: ta_lock,
+                    torque_nm,
+                    ..
+                },
+            ) => Ok(Pose {
+                theta_a_rad,
+                torque_nm: torque_nm + self.kin.finger.k_lock_nm_per_rad * (theta_a_rad - ta_lock),
+                ..old
+            }),
+            (None, _) => self.kin.solve(theta_a_rad, old.active, guess),
+        };
+        match (solved, old.active) {
+            (Ok(p), _) => Ok(Some(p)),
+            (Err(_), Active::One(c)) => {
+                // The constrained configuration stopped existing inside this step. Find the
+                // last solvable pose; if the free finger at the target clears the object it
+                // snapped off (a cylinder slipping off a corner), otherwise it is jammed.
+                let at = self.bisect(old, theta_a_rad, |k, pose| {
+                    Ok(match k.solve(pose, old.active, old.theta2_rad) {
+                        Ok(q) if q.lambda >= 0.0 => (1.0, q),
+                        _ => (-1.0, old),
+                    })
+                })?;
+                let free = self.kin.solve(theta_a_rad, Active::None, at.theta2_rad);
+                let clear = free.as_ref().is_ok_and(|f| {
+                    self.kin
+                        .gap(c, f.theta1_rad, f.theta2_rad)
+                        .is_none_or(|g| g.gap >= 0.0)
+                });
+                match free {
+                    Ok(f) if clear => {
+                        let kind = match c {
+                            Constraint::Contact(ph) => EventKind::LossOfContact {
+                                phalanx: ph,
+                                k_m: at.k_m,
+                            },
+                            other => EventKind::LimitReleased { constraint: other },
+                        };
+                        emit(ev(&at, kind));
+                        self.pose = f;
+                        self.slope = 0.0;
+                        self.rearm();
+                    }
+                    _ => self.jam(at, c, theta_a_rad, emit),
+                }
+                Ok(None)
+            }
+            (Err(e), _) => Err(e),
+        }
+    }
+
+    /// 1. Release of the active constraint (λ < 0), or unlocking on reversal: `true` when it
+    /// happened and the tracker moved to the event.
+    fn release(
+        &mut self,
+        old: Pose,
+        p: Pose,
+        theta_a_rad: f64,
+        emit: &mut dyn FnMut(Event),
+    ) -> Result<bool, PlantError> {
+        // 1. Release of the active constraint.
+        match old.active {
+            Active::One(c) if p.lambda < 0.0 => {
+                let at = self.bisect(old, theta_a_rad, |k, pose| {
+                    // Unsolvable counts as past the event.
+                    Ok(match k.solve(pose, old.active, old.theta2_rad) {
+                        Ok(q) => (q.lambda, q),
+                        Err(_) => (-1.0, old),
+                    })
+                })?;
+                if at.lambda > JAM_LAMBDA {
+                    // λ jumped from large positive to negative: not a release but a fold of
+                    // the contact path (infinite stiffness, the Newton branch switched).
+                    self.jam(at, c, theta_a_rad, emit);
+                    return Ok(true);
+                }
+                let kind = match c {
+                    Constraint::Contact(ph) => EventKind::LossOfContact {
+                        phalanx: ph,
+                        k_m: at.k_m,
+                    },
+                    other => EventKind::LimitReleased { constraint: other },
+                };
+                emit(ev(&at, kind));
+                self.pose = self
+                    .kin
+                    .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
+                self.rearm();
+                return Ok(true);
+            }
+            Active::Two {
+                first,
+                theta_a_rad: ta_lock,
+                dir,
+                ..
+            } if (theta_a_rad - ta_lock) * f64::from(dir) < 0.0 => {
+                match self.kin.solve(ta_lock, Active::One(first), old.theta2_rad) {
+                    Ok(at) => {
+                        emit(ev(&at, EventKind::Unlocked));
+                        self.pose = at;
+                    }
+                    // The first constraint has no solution at the lock (a jam): release
+                    // into free motion at the lock angle.
+                    Err(_) => {
+                        let free = self.kin.solve(ta_lock, Active::None, old.theta2_rad)?;
+                        emit(ev(&free, EventKind::Unlocked));
+                        if let Constraint::Contact(ph) = first {
+                            emit(ev(
+                                &free,
+                                EventKind::LossOfContact {
+                                    phalanx: ph,
+                                    k_m: old.k_m,
+                                },
+                            ));
+                        }
+                        self.pose = free;
+                    }
+                }
+                self.slope = 0.0;
+                self.rearm();
+                return Ok(true);
+            }
+            _ => {}
+        }
+        Ok(false)
+    }
+
+    /// 2. The contact point leaving its phalanx (past the tip or behind the joint): `true`
+    /// when it happened.
+    fn leave_phalanx(
+        &mut self,
+        old: Pose,
+        p: Pose,
+        theta_a_rad: f64,
+        emit: &mut dyn FnMut(Event),
+    ) -> Result<bool, PlantError> {
+        // 2. The contact point leaving its phalanx.
+        if let Active::One(Constraint::Contact(ph)) = old.active {
+            let len = self.len(ph);
+            let was_in = (0.0..=len).contains(&old.k_m);
+            if was_in && !(0.0..=len).contains(&p.k_m) {
+                let beyond = p.k_m > len;
+                let at = self.bisect(old, theta_a_rad, |k, pose| {
+                    let c = Constraint::Contact(ph);
+                    let q = k.solve_one(pose, c, old.theta2_rad, true)?;
+                    let ind = if beyond { len - q.k_m } else { q.k_m };
+                    Ok((ind, q))
+                })?;
+                let kind = if beyond {
+                    EventKind::BeyondTip { phalanx: ph }
+                } else {
+                    EventKind::BehindJoint { phalanx: ph }
+                };
+                emit(ev(&at, kind));
+                let vertex = self.kin.object.is_none_or(|o| o.radius_m <= 0.0);
+                if vertex {
+                    // A vertex slips off the end: the phalanx is free again.
+                    emit(ev(
+                        &at,
+                        EventKind::LossOfContact {
+                            phalanx: ph,
+                            k_m: at.k_m,
+                        },
+                    ));
+                    let mut free = self
+                        .kin
+                        .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
+                    free.theta_a_rad = at.theta_a_rad;
+                    self.pose = free;
+                    self.armed[Constraint::Contact(ph).slot()] = false;
+                } else {
+                    // Nudge the stored k just past the end so this event fires once; a
+                    // cylinder now rests on the corner of the phalanx.
+                    let mut q = at;
+                    q.k_m = if beyond { len + 1e-12 } else { -1e-12 };
+                    self.pose = q;
+                }
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
+    /// 3. A new constraint becoming active: the earliest one along the move.
+    fn new_constraint(
+        &mut self,
+        old: Pose,
+        p: Pose,
+        gaps: &[Option<Gap>; 6],
+        theta_a_rad: f64,
+        emit: &mut dyn FnMut(Event),
+    ) -> Result<Option<Hit>, PlantError> {
+        // 3. A new constraint becomes active: take the earliest one along the move.
+        let mut first_hit: Option<(Pose, Constraint, f64)> = None;
+        for c in Constraint::ALL {
+            if !self.armed[c.slot()] {
+                continue;
+            }
+            let Some(g) = gaps.get(c.slot()).copied().flatten() else {
+                continue;
+            };
+            if g.gap >= 0.0 {
+                continue;
+            }
+            let at = self.bisect(old, theta_a_rad, |k, pose| {
+                let q = k.solve(pose, old.active, old.theta2_rad)?;
+                let g = k
+                    .gap(c, q.theta1_rad, q.theta2_rad)
+                    .ok_or(PlantError::BadPlacement)?;
+                Ok((g.gap, q))
+            })?;
+            let dist = (at.theta_a_rad - old.theta_a_rad).abs();
+            if first_hit.is_none_or(|(_, _, d)| dist < d) {
+                first_hit = Some((at, c, dist));
+            }
+        }
+        if let Some((at, c, _)) = first_hit {
+            let k_m = self
+                .kin
+                .gap(c, at.theta1_rad, at.theta2_rad)
+                .map_or(0.0, |g| g.k_m);
+            match old.active {
+                Active::None => {
+                    let kind = match c {
+                        Constraint::Contact(ph) => EventKind::FirstContact { phalanx: ph, k_m },
+                        other => EventKind::JointLimit { constraint: other },
+                    };
+                    emit(ev(&at, kind));
+                    let mut q = self.kin.balance(at.theta_a_rad, at.theta2_rad, c)?;
+                    q.lambda = q.lambda.max(0.0);
+                    self.pose = q;
+                }
+                Active::One(first) => {
+                    let kind = match c {
+                        Constraint::Contact(ph) => EventKind::SecondContact { phalanx: ph, k_m },
+                        other => EventKind::JointLimit { constraint: other },
+                    };
+                    emit(ev(&at, kind));
+                    let mut q = at;
+                    q.active = Active::Two {
+                        first,
+                        second: c,
+                        theta_a_rad: at.theta_a_rad,
+                        torque_nm: at.torque_nm,
+                        dir: if theta_a_rad >= old.theta_a_rad {
+                            1
+                        } else {
+                            -1
+                        },
+                    };
+                    self.pose = q;
+                }
+                Active::Two { .. } => {
+                    // Already locked: a third constraint changes nothing in the model.
+                    self.pose = p;
+                    self.rearm();
+                    return Ok(Some(Hit::Locked));
+                }
+            }
+            self.armed[c.slot()] = false;
+            return Ok(Some(Hit::Again));
+        }
+        Ok(None)
     }
 
     /// Locks the finger at `at`: the path of constraint `c` folds there (dθa/dθ2 = 0, the
