@@ -315,8 +315,8 @@ impl Tracker {
         }
     }
 
-    /// 1. Release of the active constraint (λ < 0), or unlocking on reversal: `true` when it
-    /// happened and the tracker moved to the event.
+    /// Step 1 of a pass: release of the active constraint (λ < 0), or unlocking on reversal;
+    /// `true` when it happened and the tracker moved to the event.
     fn release(
         &mut self,
         old: Pose,
@@ -391,8 +391,8 @@ impl Tracker {
         Ok(false)
     }
 
-    /// 2. The contact point leaving its phalanx (past the tip or behind the joint): `true`
-    /// when it happened.
+    /// Step 2 of a pass: the contact point leaving its phalanx (past the tip or behind the
+    /// joint); `true` when it happened.
     fn leave_phalanx(
         &mut self,
         old: Pose,
@@ -447,7 +447,7 @@ impl Tracker {
         Ok(false)
     }
 
-    /// 3. A new constraint becoming active: the earliest one along the move.
+    /// Step 3 of a pass: a new constraint becoming active, the earliest one along the move.
     fn new_constraint(
         &mut self,
         old: Pose,
