@@ -866,6 +866,17 @@ pub fn main(args: &[String]) -> Res<i32> {
         st.failed
             .push(("toolchain targets and qemu-system-arm".into(), e));
     }
+    host_stages(&mut st);
+    firmware_build_stages(&mut st);
+    let mut work = Vec::new();
+    qemu_scene_stages(&mut st, &mut work);
+    gate_stages(&mut st);
+    qemu_fault_and_device_stages(&mut st);
+    summary(st, start, &work)
+}
+
+/// Format, lint and the workspace's tests on the host; the model crate for both thumb targets.
+fn host_stages(st: &mut Stages) {
     st.run("cargo fmt --check", || {
         cargo(&["fmt", "--all", "--", "--check"])
     });
@@ -887,6 +898,11 @@ pub fn main(args: &[String]) -> Res<i32> {
             cargo(&["build", "-p", "pts", "--target", t])
         });
     }
+}
+
+/// The firmware's builds: clippy for every configuration, the panic call graph, and the
+/// board builds' flash and RAM against their budgets.
+fn firmware_build_stages(st: &mut Stages) {
     st.run("clippy: firmware for QEMU (thumbv7em)", || {
         cargo(&[
             "clippy",
@@ -961,16 +977,20 @@ pub fn main(args: &[String]) -> Res<i32> {
             )
         },
     );
-    let mut work = Vec::new();
+}
+
+/// The firmware in QEMU against the host runner: the estimate scenes, a fault scene, the
+/// two-point build, the rest check and a non-paper finger.
+fn qemu_scene_stages(st: &mut Stages, work: &mut Vec<(String, f64, f64, f64, f64)>) {
     for s in ESTIMATE_SCENES {
         st.run(
             &format!("QEMU scene {s}: events, estimate = host within 1e-4·l2"),
-            || scene_check(s, false, &mut work),
+            || scene_check(s, false, work),
         );
     }
     st.run(
         &format!("QEMU fault scene {FAULT_SCENE}: ends in the safe state"),
-        || scene_check(FAULT_SCENE, true, &mut work),
+        || scene_check(FAULT_SCENE, true, work),
     );
     // The two-point build (the paper's method only, the smaller firmware) on the Table 2
     // scene: the same checks, QEMU against the host build of the same estimator.
@@ -999,6 +1019,10 @@ pub fn main(args: &[String]) -> Res<i32> {
         "non-paper finger file: QEMU = host runner = pts sim = pts estimate within 1e-4·l2",
         finger_check,
     );
+}
+
+/// The instruction-count gate and the documented figures.
+fn gate_stages(st: &mut Stages) {
     // The numerics owner's benchmark gate (xtask/src/bench.rs), run as its own command so
     // the two modules stay independent.
     st.run("cargo xtask bench --check", || {
@@ -1008,6 +1032,11 @@ pub fn main(args: &[String]) -> Res<i32> {
         "documented figures are what the code draws now (cargo xtask figures --check)",
         crate::figures::check_current,
     );
+}
+
+/// Injected faults in QEMU (panic, HardFault, stack overflow, a latched fault across reset,
+/// a full telemetry queue), the settings store, and device mode driven by `pts board`.
+fn qemu_fault_and_device_stages(st: &mut Stages) {
     st.run("QEMU: injected panic -> bridge safe, exit 101", || {
         inject_check("panic", 3000, 101, "PANIC").map(|_| ())
     });
@@ -1050,12 +1079,15 @@ pub fn main(args: &[String]) -> Res<i32> {
         "QEMU device mode over pts board: typed errors, stop, disconnect, three grasps = host within 1e-4·l2, calibration sweep = host within σ",
         crate::device::check,
     );
+}
 
+/// The closing report: the work on the target ISA, each stage's verdict, `N passed, M failed`.
+fn summary(st: Stages, start: Instant, work: &[(String, f64, f64, f64, f64)]) -> Res<i32> {
     eprintln!(
         "\n==== summary ({:.0} s) ====",
         start.elapsed().as_secs_f64()
     );
-    for (scene, w, m, e, sv) in &work {
+    for (scene, w, m, e, sv) in work {
         eprintln!(
             "work on the target ISA ({scene}): sampling task max {w:.0} / mean {m:.0} instructions per 10 kHz tick, state machine max {sv:.0} per run, estimate task max {e:.0} instructions (±{INSTR_PER_TICK})"
         );
