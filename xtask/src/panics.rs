@@ -32,9 +32,7 @@ const BUILDS: &[Build] = &[
     ("board, two-point", &[], "two-point", BOARD_ROOTS, &[]),
     ("board, path fit", &[], "path-fit", BOARD_ROOTS, &[]),
     // Device mode: the loop, the supervisor and the estimate are held to the same rule; the host
-    // link's two tasks are known open: OTG_FS (the USB stack's slice indexing and RefCell
-    // borrows in usb-device, usbd-serial and the Synopsys driver, the request handler, the
-    // flash write through the HAL) and SPI2 (the host task: postcard's serialiser).
+    // link's two tasks are an allowance (DEVICE_OPEN_ROOTS: reported, not failed).
     (
         "board, device mode (USB), path fit",
         &["board", "device"],
@@ -48,8 +46,16 @@ const BUILDS: &[Build] = &[
 pub const BOARD_ROOTS: &[&str] = &["ADC", "SPI2", "SPI3", "SPI4"];
 /// Device mode's on the board: those and the host link's USB interrupt.
 pub const DEVICE_ROOTS: &[&str] = &["ADC", "SPI2", "SPI3", "SPI4", "OTG_FS"];
-/// Device mode's tasks whose panic paths are known open: the USB interrupt and the priority-1
-/// dispatcher (the host task).
+/// Device mode's tasks whose panic paths are known open, reported and not failed: the USB
+/// interrupt and the priority-1 dispatcher (the host task). Why: every panic site they reach
+/// lies in a crate this project does not own, by the line tables of a build with
+/// `-C debuginfo=line-tables-only`: usb-device (descriptor writer, control pipe, endpoint
+/// read/write/unstall), usbd-serial (its buffer), synopsys-usb-otg (its endpoint memory and
+/// RefCell'd register block), stm32f4xx-hal (the flash write's assertion), cobs (frame
+/// decoding) and postcard/heapless (the serialiser's varint and string paths); the request
+/// handler, `proto::frame`, `device::Device` and `board::usb` index with `get`. Fat LTO inlines
+/// that code into our functions, so an edge of the call graph cannot tell whose code a site
+/// is: the allowance is per task, not per crate, and only for these two tasks.
 const DEVICE_OPEN_ROOTS: &[&str] = &["OTG_FS", "SPI2"];
 
 /// The panic paths reachable from `root`: every call from a reachable function into a panic
@@ -106,10 +112,6 @@ const ACCEPTED: &[(&str, &str, &str)] = &[
         "the compiler's guard against polling a finished async task: RTIC's executor never does",
     ),
 ];
-
-/// Panic edges known to remain, reported but not failed: (caller, panic function) substrings.
-/// The path fit (crates/pathfit, owned by the estimator's side).
-const KNOWN_OPEN: &[(&str, &str)] = &[("_ZN7pathfit", "")];
 
 fn matches_edge(chain: &[String], caller: &str, callee: &str) -> bool {
     let n = chain.len();
@@ -204,9 +206,7 @@ pub fn check_asm(asm: &str, roots: &[&str], open_roots: &[&str]) -> Res<Vec<Stri
         for p in paths {
             if ACCEPTED.iter().any(|(a, b, _)| matches_edge(&p, a, b)) {
                 accepted += 1;
-            } else if KNOWN_OPEN.iter().any(|(a, b)| matches_edge(&p, a, b))
-                || open_roots.contains(root)
-            {
+            } else if open_roots.contains(root) {
                 lines.push(format!("  KNOWN OPEN {root}: {}", p.join(" -> ")));
             } else {
                 bad.push(format!("{root}: {}", p.join(" -> ")));
@@ -264,6 +264,8 @@ fn ph(_: &core::panic::PanicInfo) -> ! { loop {} }
 #[no_mangle] #[inline(never)] pub fn planted_range(s: &[u32], n: usize) -> u32 { s[..n].iter().sum() }
 #[no_mangle] #[inline(never)] pub fn planted_div(a: u32, b: u32) -> u32 { a / b }
 #[no_mangle] #[inline(never)] pub fn planted_deep(s: &[u32], i: usize) -> u32 { planted_index(s, i) + 1 }
+#[export_name = "_ZN7pathfit1q7bin_raw17h0123456789abcdefE"] #[inline(never)] pub fn planted_pathfit(s: &[u32], i: usize) -> u32 { s[i] }
+#[no_mangle] #[inline(never)] pub fn planted_estimate(s: &[u32], i: usize) -> u32 { planted_pathfit(s, i) + 1 }
 #[no_mangle] #[inline(never)] pub fn planted_clean(s: &[u32], i: usize) -> u32 { s.get(i).copied().unwrap_or(0) / 3 }
 "#;
 
@@ -322,6 +324,8 @@ fn ph(_: &core::panic::PanicInfo) -> ! { loop {} }
             assert!(check_asm(&asm, &[f], &[]).is_err());
             assert!(check_asm(&asm, &[f], &[f]).is_ok());
         }
+        // The path fit's kernel is no longer excused: its panic fails the estimate task.
+        assert!(check_asm(&asm, &["planted_estimate"], &[]).is_err());
         assert!(panic_paths(&g, "planted_clean").is_empty());
         assert!(check_asm(&asm, &["planted_clean"], &[]).is_ok());
         assert!(check_asm(&asm, &["no_such_task"], &[]).is_err());

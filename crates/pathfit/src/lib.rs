@@ -1579,20 +1579,32 @@ struct Ldl<R> {
 /// (co)variances come from the last two pivots ([`Ldl::last_two`]).
 const ORDER: [usize; NP] = [TF, TC, K, RAD];
 
+/// `i` as an index into an `NP` array, without a bounds check (and so without a panic path
+/// on the firmware): the identity for every index the factorisation forms, all below `NP`
+/// (a power of two).
+#[inline(always)]
+const fn ix(i: usize) -> usize {
+    i & (NP - 1)
+}
+const _: () = assert!(NP.is_power_of_two());
+
 #[allow(clippy::needless_range_loop)]
 fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
     let z = R::zero();
     let mut idx = [0usize; NP];
     let mut n = 0usize;
     for &i in ORDER.iter() {
-        if set[i] {
-            idx[n] = i;
+        if set[ix(i)] {
+            // n ≤ 3 here: one of the NP entries of ORDER not yet seen.
+            idx[ix(n)] = i;
             n += 1;
         }
     }
+    let n = n.min(NP);
     let mut k = [0i32; NP];
     for i in 0..n {
-        k[i] = a[idx[i]][idx[i]].half_log2()?;
+        let d = ix(idx[i]);
+        k[i] = a[d][d].half_log2()?;
     }
     let mut l = [[z; NP]; NP];
     // U = L P below the diagonal (the eliminated entries before their division by the
@@ -1600,7 +1612,8 @@ fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
     let mut u = [[z; NP]; NP];
     let mut ip = [z; NP];
     for j in 0..n {
-        let mut dj = a[idx[j]][idx[j]].ldexp(-2 * k[j]);
+        let jj = ix(idx[j]);
+        let mut dj = a[jj][jj].ldexp(-2 * k[j]);
         for m in 0..j {
             dj = dj - l[j][m] * u[j][m];
         }
@@ -1609,7 +1622,7 @@ fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
         }
         ip[j] = R::one() / dj;
         for i in j + 1..n {
-            let mut v = a[idx[i]][idx[j]].ldexp(-k[i] - k[j]);
+            let mut v = a[ix(idx[i])][jj].ldexp(-k[i] - k[j]);
             for m in 0..j {
                 v = v - l[i][m] * u[j][m];
             }
@@ -1625,10 +1638,10 @@ impl<R: Real> Ldl<R> {
     #[allow(clippy::needless_range_loop)]
     fn solve(&self, g: &[R; NP]) -> [R; NP] {
         let z = R::zero();
-        let (idx, n, k, l) = (&self.idx, self.n, &self.k, &self.l);
+        let (idx, n, k, l) = (&self.idx, self.n.min(NP), &self.k, &self.l);
         let mut y = [z; NP];
         for i in 0..n {
-            let mut v = -g[idx[i]].ldexp(-k[i]);
+            let mut v = -g[ix(idx[i])].ldexp(-k[i]);
             for m in 0..i {
                 v = v - l[i][m] * y[m];
             }
@@ -1644,7 +1657,7 @@ impl<R: Real> Ldl<R> {
         }
         let mut out = [z; NP];
         for i in 0..n {
-            out[idx[i]] = x[i].ldexp(-k[i]);
+            out[ix(idx[i])] = x[i].ldexp(-k[i]);
         }
         out
     }
@@ -1672,7 +1685,7 @@ impl<R: Real> Ldl<R> {
 
     /// (A⁻¹)_ii of the last parameter eliminated (its reciprocal pivot, unscaled).
     fn last_var(&self) -> R {
-        let j = self.n.saturating_sub(1);
+        let j = ix(self.n.saturating_sub(1));
         self.ip[j].ldexp(-2 * self.k[j])
     }
 
@@ -1680,7 +1693,7 @@ impl<R: Real> Ldl<R> {
     /// the regression of b's column on a, the marginal variance of b) =
     /// (1/P_a, −L_ba, (A⁻¹)_bb), unscaled.
     fn last_two(&self) -> (R, R, R) {
-        let (a, b) = (self.n.saturating_sub(2), self.n.saturating_sub(1));
+        let (a, b) = (ix(self.n.saturating_sub(2)), ix(self.n.saturating_sub(1)));
         (
             self.ip[a].ldexp(-2 * self.k[a]),
             -self.l[b][a].ldexp(self.k[b] - self.k[a]),
@@ -1695,7 +1708,7 @@ impl<R: Real> Ldl<R> {
     #[allow(clippy::needless_range_loop)]
     fn inverse(&self) -> [[R; NP]; NP] {
         let z = R::zero();
-        let (n, l) = (self.n, &self.l);
+        let (n, l) = (self.n.min(NP), &self.l);
         // M = L⁻¹ (unit lower): M[i][j] = −Σ_{m=j}^{i−1} L[i][m] M[m][j].
         let mut m = [[z; NP]; NP];
         for i in 0..n {
@@ -1716,8 +1729,9 @@ impl<R: Real> Ldl<R> {
                     v = v + m[q][i] * (m[q][j] * self.ip[q]);
                 }
                 let v = v.ldexp(-self.k[i] - self.k[j]);
-                out[self.idx[i]][self.idx[j]] = v;
-                out[self.idx[j]][self.idx[i]] = v;
+                let (a, b) = (ix(self.idx[i]), ix(self.idx[j]));
+                out[a][b] = v;
+                out[b][a] = v;
             }
         }
         out

@@ -37,6 +37,7 @@ use super::{
     run_fit, Eval, FitConsts, Kernel, PathFit, PathFitConfig, PathFitError, Work, MAX_BINS,
     MIN_BINS, NP, RAD, TC, TF,
 };
+use core::num::NonZeroU32;
 use pts::fixed::{recip_q31, Fx32};
 use pts::table::{TABLE_TA_MAX_NM, TABLE_TA_MIN_NM};
 use pts::{Config, Finger, Model, PtsError, Real};
@@ -1205,10 +1206,16 @@ where
         Some(span) => thc_q16 - span,
         None => thc_q16 + sc.dead_urad_q16 + ((travel as i128 * sc.skip_q16 as i128) >> 16) as i64,
     };
-    let lo = ((lo_q16 + 0xFFFF) >> 16).clamp(i32::MIN as i64, hi as i64 - 1) as i32;
+    // Below hi and within i32 (min, then max: `clamp` would check that hi − 1 ≥ i32::MIN,
+    // with a panic path; for hi = i32::MIN this gives i32::MIN, and a span of 1).
+    let lo = ((lo_q16 + 0xFFFF) >> 16)
+        .min(hi as i64 - 1)
+        .max(i32::MIN as i64) as i32;
     let mut acc = Binner {
         lo,
-        span: (hi as i64 - lo as i64).clamp(1, u32::MAX as i64) as u32,
+        // At least 1: a nonzero divisor by type (no division-by-zero path).
+        span: NonZeroU32::new((hi as i64 - lo as i64).clamp(1, u32::MAX as i64) as u32)
+            .unwrap_or(NonZeroU32::MIN),
         nbins: sc.nbins,
         envelope: sc.envelope_urad,
         min_th: hi,
@@ -1241,6 +1248,13 @@ where
         if c == 0 {
             continue;
         }
+        // The nb-th used bin's slots (nb counts the used bins before this one, so it is below
+        // MAX_BINS: never the `else`, which only spares a bounds check's panic path).
+        let (Some(me), Some(mo), Some(kb)) =
+            (mean.get_mut(nb), mom.get_mut(nb), k.bins.get_mut(nb))
+        else {
+            break;
+        };
         let a = bin.s;
         // Means (Q16) by the reciprocal of the count: one hardware division.
         let (mth_q16, mt_q16) = if c == 1 {
@@ -1252,23 +1266,21 @@ where
                 mul_shr(a[1], inv, 16).unwrap_or(0),
             )
         };
-        mean[nb] = (
+        *me = (
             ((bin.th0 as i64) << 16) + mth_q16,
             ((bin.t0 as i64) << 16) + mt_q16,
         );
-        mom[nb] = [
+        *mo = [
             a[2].saturating_sub(mul_sat(a[0], mth_q16) >> 16),
             a[3].saturating_sub(mul_sat(a[1], mt_q16) >> 16),
             a[4].saturating_sub(mul_sat(a[0], mt_q16) >> 16),
         ];
-        k.bins[nb] = QBin {
+        *kb = QBin {
             n: c,
             // µrad Q16 → rad Q28: · 2^12 / 10^6; µN·m Q16 → N·m Q24: · 2^8 / 10^6 (both
             // 4.096e-3 · 2^34 / 2^32 on a quarter: constant to 1e-9, products within i64).
-            dta: clamp32(
-                (((mean[nb].0 - thc_q16).clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 32,
-            ),
-            t: clamp32(((mean[nb].1.clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 36),
+            dta: clamp32((((me.0 - thc_q16).clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 32),
+            t: clamp32(((me.1.clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 36),
             w: 0,
         };
         nb += 1;
@@ -1279,8 +1291,16 @@ where
     }
     // Within-bin scatter about the local trend (slope from the neighbouring bins' means).
     let mut ss = 0i64;
-    for i in 0..nb {
-        let (a, b) = (mean[i.saturating_sub(1)], mean[(i + 1).min(nb - 1)]);
+    // The used bins (nb ≤ MAX_BINS, see above); each with its neighbours' means, the first
+    // and last standing for their own missing neighbour.
+    let used = mean.get(..nb).unwrap_or(&[]);
+    for (i, m) in mom.iter().take(used.len()).enumerate() {
+        let (Some(&a), Some(&b)) = (
+            used.get(i.saturating_sub(1)),
+            used.get(i + 1).or(used.last()),
+        ) else {
+            break;
+        };
         let dth = b.0 - a.0;
         // Slope in µN·m per µrad (= N·m/rad), Q16.
         // Δt (µN·m, Q16) / Δθ (µrad, Q8): Q16 − 16 + 8 → K = 8.
@@ -1288,7 +1308,6 @@ where
             Some(r) if dth > (1 << 16) / 10 => r.div64::<8>(b.1 - a.1).unwrap_or(0),
             _ => 0,
         };
-        let m = mom[i];
         let v = m[1]
             .saturating_sub(mul_sat(sl.saturating_mul(2), m[2]) >> 16)
             .saturating_add(mul_sat(sl, mul_sat(sl, m[0]) >> 16) >> 16);
@@ -1324,7 +1343,7 @@ struct BinAcc {
 struct Binner {
     /// Bins from `lo` over `span` (µrad) in `nbins` equal parts.
     lo: i32,
-    span: u32,
+    span: NonZeroU32,
     nbins: u32,
     envelope: i32,
     /// The lowest θ so far, and it plus the envelope tolerance (saturating).

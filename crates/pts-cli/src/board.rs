@@ -984,10 +984,10 @@ mod tests {
         assert_eq!(c.approach_speed_rad_s, Some(0.3));
         assert_eq!(c.approach_max_nm, Some(1.2));
         let tr = crate::trace::read_csv(&text, &|i| i).unwrap();
-        assert_eq!(tr.rows.len(), 10);
-        assert_eq!(tr.rows[3].encoder_count, Some(104));
-        assert_eq!(tr.rows[3].current_code, Some(2040));
-        assert!((tr.rows[3].t_s - 3e-4).abs() < 1e-12);
-        assert!((tr.rows[3].theta_a_rad - (-0.849_896)).abs() < 1e-12);
+        assert_eq!(tr.len(), 10);
+        assert_eq!(tr.encoder_count(3), Some(104));
+        assert_eq!(tr.current_code(3), Some(2040));
+        assert!((tr.t_s[3] - 3e-4).abs() < 1e-12);
+        assert!((tr.theta_a_rad[3] - (-0.849_896)).abs() < 1e-12);
     }
 }

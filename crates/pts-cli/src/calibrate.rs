@@ -1294,7 +1294,7 @@ fn read_rows(path: &Path, file: &FingerFile) -> Result<(String, Vec<TraceRow>), 
     let conv = |i: f64| file.torque_from_current(i);
     let tr =
         crate::trace::read_csv(&text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
-    Ok((text, tr.rows))
+    Ok((text, tr.to_rows()))
 }
 
 /// Runs `pts calibrate`.

@@ -147,8 +147,8 @@ pub fn run(
         _ => None,
     };
     let (t0, t1) = (
-        tr.rows.first().map_or(0.0, |r| r.t_s),
-        tr.rows.last().map_or(0.0, |r| r.t_s),
+        tr.t_s.first().copied().unwrap_or(0.0),
+        tr.t_s.last().copied().unwrap_or(0.0),
     );
     let outcome = match (&rep.contact, &rep.estimate, fault) {
         (_, Some(Ok(_)), _) => Ok(()),
@@ -183,7 +183,7 @@ pub fn run(
         };
         let out = json!({
             "trace": path.display().to_string(),
-            "rows": tr.rows.len(),
+            "rows": tr.len(),
             "t_s": [n(t0), n(t1)],
             "dt_s": n(rep.dt_s),
             "dta_cmd": n(dta),
@@ -202,7 +202,7 @@ pub fn run(
     crate::outln!(
         "{}: {} rows, t = {t0:.4} … {t1:.4} s, control period {} s, ΔT_a = {dta} N·m, {} estimate{}",
         path.display(),
-        tr.rows.len(),
+        tr.len(),
         rep.dt_s,
         method.name(),
         if rep.raw {
@@ -267,8 +267,8 @@ fn run_segmented(
         );
     }
     let (t0, t1) = (
-        tr.rows.first().map_or(0.0, |r| r.t_s),
-        tr.rows.last().map_or(0.0, |r| r.t_s),
+        tr.t_s.first().copied().unwrap_or(0.0),
+        tr.t_s.last().copied().unwrap_or(0.0),
     );
     let outcome = if seg.contacts.iter().any(|c| c.estimate.is_ok()) {
         Ok(())
@@ -325,7 +325,7 @@ fn run_segmented(
         let errors: Vec<Value> = seg.errors.iter().map(|(k, _)| json!(k)).collect();
         let out = json!({
             "trace": path.display().to_string(),
-            "rows": tr.rows.len(),
+            "rows": tr.len(),
             "t_s": [n(t0), n(t1)],
             "block_s": n(seg.block_s),
             "method": method.name(),
@@ -345,7 +345,7 @@ fn run_segmented(
         "{}: {} rows, t = {t0:.4} … {t1:.4} s, no # pts-sim line: contacts found by segmentation \
          ({} ms blocks), {} estimate",
         path.display(),
-        tr.rows.len(),
+        tr.len(),
         seg.block_s * 1e3,
         method.name(),
     );
@@ -421,25 +421,26 @@ pub fn from_defmt(
     for w in &tr.warnings {
         eprintln!("warning: {w}");
     }
-    if tr.rows.is_empty() {
+    if tr.is_empty() {
         return Err(format!(
             "{}: no telemetry sample lines (`S tick=… theta_a_urad=… torque_unm=…`) found",
             input.display()
         ));
     }
+    let rows = tr.to_rows();
     match out {
         Some(p) => {
             let f = std::fs::File::create(p)
                 .map_err(|e| format!("cannot create {}: {e}", p.display()))?;
             let mut w = std::io::BufWriter::new(f);
-            trace::write_csv(&tr.rows, &mut w)
+            trace::write_csv(&rows, &mut w)
                 .and_then(|()| w.flush())
                 .map_err(|e| format!("writing {}: {e}", p.display()))?;
-            eprintln!("wrote {} ({} rows)", p.display(), tr.rows.len());
+            eprintln!("wrote {} ({} rows)", p.display(), tr.len());
         }
         None => {
             let mut w = std::io::BufWriter::new(std::io::stdout().lock());
-            trace::write_csv(&tr.rows, &mut w)
+            trace::write_csv(&rows, &mut w)
                 .and_then(|()| w.flush())
                 .map_err(|e| format!("writing stdout: {e}"))?;
         }
@@ -457,25 +458,25 @@ pub fn plot_signals(
     out: &Path,
     size: crate::plot::Size,
 ) -> Result<(), String> {
-    let (mut tr, rep, dta) = load_and_replay(path, finger, dta, None, method)?;
+    let (tr, rep, dta) = load_and_replay(path, finger, dta, None, method)?;
     for w in tr.warnings.iter().chain(&rep.warnings) {
         eprintln!("warning: {w}");
     }
+    // Every column of every row, for the plot.
+    let mut all = tr.to_rows();
     // Show the controller state the replay went through when the trace has none.
-    for (row, st) in tr.rows.iter_mut().zip(&rep.states) {
+    for (row, st) in all.iter_mut().zip(&rep.states) {
         if row.state.is_none() {
             row.state = Some(st.clone());
         }
     }
     // The plant's first contact (simulated traces), before the window cuts it away.
-    let truth = tr
-        .rows
+    let truth = all
         .iter()
         .find(|r| r.true_contact.as_deref() == Some("distal"))
         .and_then(|r| r.true_k_m);
     let (from, to) = window;
-    let rows: Vec<_> = tr
-        .rows
+    let rows: Vec<_> = all
         .into_iter()
         .filter(|r| from.is_none_or(|f| r.t_s >= f) && to.is_none_or(|t| r.t_s <= t))
         .collect();

@@ -240,7 +240,7 @@ pub fn drive_config(f: &FingerFile, dt_s: f64) -> Result<DriveConfig, String> {
 
 /// Feeds the recorded rows to the controller, one a tick, and records what it did.
 struct ReplayFeed<'a> {
-    rows: &'a [crate::trace::TraceRow],
+    trace: &'a Trace,
     finger: &'a FingerFile,
     /// The rows carry raw encoder counts and ADC codes.
     raw: bool,
@@ -257,22 +257,20 @@ struct ReplayFeed<'a> {
 
 impl Observer<TraceHw> for ReplayFeed<'_> {
     fn before_tick(&mut self, n: u64, ctl: &Controller, hw: &mut TraceHw) -> bool {
-        let Some(row) = usize::try_from(n).ok().and_then(|i| self.rows.get(i)) else {
+        let tr = self.trace;
+        let Some(i) = usize::try_from(n).ok().filter(|&i| i < tr.len()) else {
             return false;
         };
-        let prev = n
-            .checked_sub(1)
-            .and_then(|p| usize::try_from(p).ok())
-            .and_then(|p| self.rows.get(p));
-        if prev.is_some_and(|p| row.t_s - p.t_s > 1.5 * self.dt) {
+        let prev = i.checked_sub(1).and_then(|p| tr.t_s.get(p));
+        if prev.is_some_and(|p| tr.t_s[i] - p > 1.5 * self.dt) {
             self.gaps += 1;
         }
         if self.raw {
-            hw.count = row.encoder_count.unwrap_or(0);
-            hw.code = row.current_code.unwrap_or(0);
+            hw.count = tr.encoder_count(i).unwrap_or(0);
+            hw.code = tr.current_code(i).unwrap_or(0);
         } else {
             let finger = self.finger;
-            let counts = ((row.theta_a_rad - self.rest) / finger.rad_per_count()).round();
+            let counts = ((tr.theta_a_rad[i] - self.rest) / finger.rad_per_count()).round();
             hw.count = (counts.clamp(-1e15, 1e15) as i64).rem_euclid(65536) as u16;
             // The recorded torque is already offset-corrected: feed the nominal zero while
             // the controller calibrates (bridge off), so that its offset is the nominal one
@@ -282,7 +280,7 @@ impl Observer<TraceHw> for ReplayFeed<'_> {
             let exact = if matches!(ctl.state(), State::Init | State::Calibrating) {
                 zero
             } else {
-                zero + finger.current_from_torque(row.torque_nm)
+                zero + finger.current_from_torque(tr.torque_nm[i])
                     / finger.current_sense.amps_per_count
             };
             let code = (exact + self.dither).round().clamp(0.0, 4095.0);
@@ -313,11 +311,12 @@ impl Observer<TraceHw> for ReplayFeed<'_> {
         {
             // Tick n is row n−1 (ticks count from 1).
             let idx = (contact_tick as usize).saturating_sub(1);
-            let t_first = self.rows.first().map_or(0.0, |r| r.t_s);
-            let t = self
-                .rows
+            let t_s = &self.trace.t_s;
+            let t_first = t_s.first().copied().unwrap_or(0.0);
+            let t = t_s
                 .get(idx)
-                .map_or(t_first + f64::from(contact_tick) * self.dt, |r| r.t_s);
+                .copied()
+                .unwrap_or(t_first + f64::from(contact_tick) * self.dt);
             self.rep.contact_t_s = Some(t);
             self.rep.contact = Some((
                 t,
@@ -357,9 +356,9 @@ impl Hardware for TraceHw {
 /// written as 1e-4 reads back as exactly 1e-4.
 pub fn median_dt(trace: &Trace) -> Option<f64> {
     let mut d: Vec<f64> = trace
-        .rows
+        .t_s
         .windows(2)
-        .map(|w| w[1].t_s - w[0].t_s)
+        .map(|w| w[1] - w[0])
         .filter(|d| *d > 0.0)
         .collect();
     if d.is_empty() {
@@ -396,10 +395,8 @@ pub fn replay(
     // Refused here, with the reason, rather than as an estimate error after the grasp.
     pts::Model::<grasp::EstReal>::new(&finger.finger)
         .map_err(|e| format!("finger on the firmware back end: {e}"))?;
-    let raw = trace
-        .rows
-        .iter()
-        .all(|r| r.encoder_count.is_some() && r.current_code.is_some());
+    let raw = (0..trace.len())
+        .all(|i| trace.encoder_count(i).is_some() && trace.current_code(i).is_some());
     if !raw {
         warnings.push(
             "no encoder_count/current_code columns: θa and T_a converted back to counts and \
@@ -414,18 +411,18 @@ pub fn replay(
         contact_t_s: None,
         contact: None,
         state: State::Init,
-        states: Vec::with_capacity(trace.rows.len()),
+        states: Vec::with_capacity(trace.len()),
         dt_s: dt,
         raw,
         warnings,
     };
     let limits = Limits {
-        max_ticks: trace.rows.len() as u64,
+        max_ticks: trace.len() as u64,
         extra_ticks: None,
         timing: Timing::Immediate,
     };
     let mut obs = ReplayFeed {
-        rows: &trace.rows,
+        trace,
         finger,
         raw,
         rest,
@@ -494,22 +491,19 @@ pub fn segment(
     // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
     // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
     const IDLE_KEEP_S: f64 = 2.0;
-    let start = trace.rows.first().map_or(0, |r0| {
-        let moved = trace
-            .rows
-            .iter()
-            .position(|r| (r.theta_a_rad - r0.theta_a_rad).abs() > 1e-3);
+    let th = &trace.theta_a_rad;
+    let start = th.first().map_or(0, |th0| {
+        let moved = th.iter().position(|v| (v - th0).abs() > 1e-3);
         moved.map_or(0, |m| {
-            let t_keep = trace.rows[m].t_s - IDLE_KEEP_S;
-            trace.rows.partition_point(|r| r.t_s < t_keep)
+            let t_keep = trace.t_s[m] - IDLE_KEEP_S;
+            trace.t_s.partition_point(|t| *t < t_keep)
         })
     });
-    let rows: Vec<TraceSample> = trace.rows[start..]
-        .iter()
-        .map(|r| TraceSample {
-            t_s: r.t_s,
-            theta_a_rad: r.theta_a_rad,
-            torque_nm: r.torque_nm,
+    let rows: Vec<TraceSample> = (start..trace.len())
+        .map(|i| TraceSample {
+            t_s: trace.t_s[i],
+            theta_a_rad: trace.theta_a_rad[i],
+            torque_nm: trace.torque_nm[i],
         })
         .collect();
     let base = segment_rows(&rows, finger, method)?;

@@ -148,13 +148,300 @@ pub fn write_csv(rows: &[TraceRow], out: &mut impl std::io::Write) -> std::io::R
     out.write_all(s.as_bytes())
 }
 
-/// A parsed trace with what was skipped on the way.
-#[derive(Clone, Debug, Default)]
+/// A parsed trace with what was skipped on the way, held by column: the three required columns
+/// as `f64`, and only the optional columns the file has (an `f64` column holds NaN where a row
+/// has no value: the values read are finite; the text columns are numbers into a table of the
+/// distinct strings). A narrow three-column recording then holds 24 B a row against its 29 B
+/// of text, not a full [`TraceRow`] (160 B) per row; [`Trace::row`] gives one when wanted.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Trace {
-    /// Valid rows, in time order.
-    pub rows: Vec<TraceRow>,
+    /// Time (s) of each valid row, in time order.
+    pub t_s: Vec<f64>,
+    /// θa (rad), absolute model angle, per row.
+    pub theta_a_rad: Vec<f64>,
+    /// Measured T_a (N·m) per row.
+    pub torque_nm: Vec<f64>,
+    /// The optional columns present.
+    opt: OptColumns,
     /// Human-readable notes about skipped or reordered lines.
     pub warnings: Vec<String>,
+}
+
+/// [`Trace`]'s optional columns: `None` when the trace has no such column.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct OptColumns {
+    torque_ref_nm: Option<Vec<f64>>,
+    duty: Option<Vec<f64>>,
+    state: Option<Vec<u32>>,
+    encoder_count: Option<Vec<Option<u16>>>,
+    current_code: Option<Vec<Option<u16>>>,
+    true_theta_a_rad: Option<Vec<f64>>,
+    true_torque_nm: Option<Vec<f64>>,
+    true_contact: Option<Vec<u32>>,
+    true_k_m: Option<Vec<f64>>,
+    /// The distinct strings of the text columns; [`NO_STR`] for an empty cell.
+    strings: Vec<String>,
+}
+
+/// A text cell without a value.
+const NO_STR: u32 = u32::MAX;
+
+fn opt_f(v: Option<&Vec<f64>>, i: usize) -> Option<f64> {
+    v.and_then(|c| c.get(i).copied()).filter(|x| !x.is_nan())
+}
+
+fn permute<T: Copy>(v: &mut Vec<T>, order: &[u32]) {
+    *v = order.iter().map(|&i| v[i as usize]).collect();
+}
+
+impl Trace {
+    /// Rows.
+    pub fn len(&self) -> usize {
+        self.t_s.len()
+    }
+
+    /// No rows.
+    pub fn is_empty(&self) -> bool {
+        self.t_s.is_empty()
+    }
+
+    /// Row `i`'s raw encoder count.
+    pub fn encoder_count(&self, i: usize) -> Option<u16> {
+        self.opt
+            .encoder_count
+            .as_ref()
+            .and_then(|c| c.get(i).copied().flatten())
+    }
+
+    /// Row `i`'s raw ADC code.
+    pub fn current_code(&self, i: usize) -> Option<u16> {
+        self.opt
+            .current_code
+            .as_ref()
+            .and_then(|c| c.get(i).copied().flatten())
+    }
+
+    fn text(&self, col: Option<&Vec<u32>>, i: usize) -> Option<String> {
+        let id = *col?.get(i)?;
+        self.opt.strings.get(id as usize).cloned()
+    }
+
+    /// Row `i` with every column (`None` past the end).
+    pub fn row(&self, i: usize) -> Option<TraceRow> {
+        let o = &self.opt;
+        Some(TraceRow {
+            t_s: *self.t_s.get(i)?,
+            theta_a_rad: *self.theta_a_rad.get(i)?,
+            torque_nm: *self.torque_nm.get(i)?,
+            torque_ref_nm: opt_f(o.torque_ref_nm.as_ref(), i),
+            duty: opt_f(o.duty.as_ref(), i),
+            state: self.text(o.state.as_ref(), i),
+            encoder_count: self.encoder_count(i),
+            current_code: self.current_code(i),
+            true_theta_a_rad: opt_f(o.true_theta_a_rad.as_ref(), i),
+            true_torque_nm: opt_f(o.true_torque_nm.as_ref(), i),
+            true_contact: self.text(o.true_contact.as_ref(), i),
+            true_k_m: opt_f(o.true_k_m.as_ref(), i),
+        })
+    }
+
+    /// Every row, with every column.
+    pub fn to_rows(&self) -> Vec<TraceRow> {
+        (0..self.len()).filter_map(|i| self.row(i)).collect()
+    }
+
+    /// The trace of these rows (an optional column is kept when a row has a value in it).
+    pub fn from_rows(rows: &[TraceRow], warnings: Vec<String>) -> Trace {
+        let mut b = Builder::new(rows.len(), |name| {
+            let any = |f: &dyn Fn(&TraceRow) -> bool| rows.iter().any(f);
+            match name {
+                "torque_ref_nm" => any(&|r| r.torque_ref_nm.is_some()),
+                "duty" => any(&|r| r.duty.is_some()),
+                "state" => any(&|r| r.state.is_some()),
+                "encoder_count" => any(&|r| r.encoder_count.is_some()),
+                "current_code" => any(&|r| r.current_code.is_some()),
+                "true_theta_a_rad" => any(&|r| r.true_theta_a_rad.is_some()),
+                "true_torque_nm" => any(&|r| r.true_torque_nm.is_some()),
+                "true_contact" => any(&|r| r.true_contact.is_some()),
+                "true_k_m" => any(&|r| r.true_k_m.is_some()),
+                _ => false,
+            }
+        });
+        for r in rows {
+            b.push(r.t_s, r.theta_a_rad, r.torque_nm, |name| match name {
+                Cell::F(n) => match n {
+                    "torque_ref_nm" => r.torque_ref_nm,
+                    "duty" => r.duty,
+                    "true_theta_a_rad" => r.true_theta_a_rad,
+                    "true_torque_nm" => r.true_torque_nm,
+                    _ => r.true_k_m,
+                }
+                .map(CellValue::F),
+                Cell::U(n) => match n {
+                    "encoder_count" => r.encoder_count,
+                    _ => r.current_code,
+                }
+                .map(CellValue::U),
+                Cell::S(n) => match n {
+                    "state" => r.state.as_deref(),
+                    _ => r.true_contact.as_deref(),
+                }
+                .map(CellValue::S),
+            });
+        }
+        let mut t = b.finish();
+        t.warnings = warnings;
+        t
+    }
+
+    /// Sorts the rows by time (stable: rows with equal times keep their order).
+    fn sort_by_time(&mut self) {
+        let mut order: Vec<u32> = (0..self.len() as u32).collect();
+        let t = &self.t_s;
+        order.sort_by(|&a, &b| {
+            t[a as usize]
+                .partial_cmp(&t[b as usize])
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        permute(&mut self.t_s, &order);
+        permute(&mut self.theta_a_rad, &order);
+        permute(&mut self.torque_nm, &order);
+        let o = &mut self.opt;
+        for c in [
+            &mut o.torque_ref_nm,
+            &mut o.duty,
+            &mut o.true_theta_a_rad,
+            &mut o.true_torque_nm,
+            &mut o.true_k_m,
+        ]
+        .into_iter()
+        .flatten()
+        {
+            permute(c, &order);
+        }
+        for c in [&mut o.state, &mut o.true_contact].into_iter().flatten() {
+            permute(c, &order);
+        }
+        for c in [&mut o.encoder_count, &mut o.current_code]
+            .into_iter()
+            .flatten()
+        {
+            permute(c, &order);
+        }
+    }
+}
+
+/// An optional cell asked of a row by its column name.
+enum Cell<'a> {
+    F(&'a str),
+    U(&'a str),
+    S(&'a str),
+}
+
+enum CellValue<'a> {
+    F(f64),
+    U(u16),
+    S(&'a str),
+}
+
+/// Fills a [`Trace`] row by row, with exactly the optional columns asked for at the start.
+struct Builder {
+    t: Trace,
+    ids: std::collections::HashMap<String, u32>,
+}
+
+impl Builder {
+    /// Room for `rows` rows; `has(column)` tells which optional columns to hold.
+    fn new(rows: usize, has: impl Fn(&str) -> bool) -> Builder {
+        let f = |n: &str| has(n).then(|| Vec::with_capacity(rows));
+        let s = |n: &str| has(n).then(|| Vec::with_capacity(rows));
+        let u = |n: &str| has(n).then(|| Vec::with_capacity(rows));
+        Builder {
+            t: Trace {
+                t_s: Vec::with_capacity(rows),
+                theta_a_rad: Vec::with_capacity(rows),
+                torque_nm: Vec::with_capacity(rows),
+                opt: OptColumns {
+                    torque_ref_nm: f("torque_ref_nm"),
+                    duty: f("duty"),
+                    state: s("state"),
+                    encoder_count: u("encoder_count"),
+                    current_code: u("current_code"),
+                    true_theta_a_rad: f("true_theta_a_rad"),
+                    true_torque_nm: f("true_torque_nm"),
+                    true_contact: s("true_contact"),
+                    true_k_m: f("true_k_m"),
+                    strings: Vec::new(),
+                },
+                warnings: Vec::new(),
+            },
+            ids: std::collections::HashMap::new(),
+        }
+    }
+
+    /// One row: the required values, and `cell` asked for each optional column held.
+    fn push<'a>(
+        &mut self,
+        t_s: f64,
+        theta_a_rad: f64,
+        torque_nm: f64,
+        mut cell: impl FnMut(Cell<'_>) -> Option<CellValue<'a>>,
+    ) {
+        let t = &mut self.t;
+        t.t_s.push(t_s);
+        t.theta_a_rad.push(theta_a_rad);
+        t.torque_nm.push(torque_nm);
+        let o = &mut t.opt;
+        for (name, col) in [
+            ("torque_ref_nm", &mut o.torque_ref_nm),
+            ("duty", &mut o.duty),
+            ("true_theta_a_rad", &mut o.true_theta_a_rad),
+            ("true_torque_nm", &mut o.true_torque_nm),
+            ("true_k_m", &mut o.true_k_m),
+        ] {
+            if let Some(c) = col {
+                c.push(match cell(Cell::F(name)) {
+                    Some(CellValue::F(v)) => v,
+                    _ => f64::NAN,
+                });
+            }
+        }
+        for (name, col) in [
+            ("encoder_count", &mut o.encoder_count),
+            ("current_code", &mut o.current_code),
+        ] {
+            if let Some(c) = col {
+                c.push(match cell(Cell::U(name)) {
+                    Some(CellValue::U(v)) => Some(v),
+                    _ => None,
+                });
+            }
+        }
+        for (name, col) in [
+            ("state", &mut o.state),
+            ("true_contact", &mut o.true_contact),
+        ] {
+            if let Some(c) = col {
+                let id = match cell(Cell::S(name)) {
+                    Some(CellValue::S(v)) => match self.ids.get(v) {
+                        Some(&id) => id,
+                        None => {
+                            let id = o.strings.len() as u32;
+                            o.strings.push(v.to_string());
+                            self.ids.insert(v.to_string(), id);
+                            id
+                        }
+                    },
+                    _ => NO_STR,
+                };
+                c.push(id);
+            }
+        }
+    }
+
+    fn finish(self) -> Trace {
+        self.t
+    }
 }
 
 /// Reads a trace CSV. `current_to_torque` converts a `current_a` column (A → N·m) when there is
@@ -198,33 +485,16 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
             ))
         }
     };
-    let opt_f = |cells: &[&str], name: &str| -> Option<f64> {
-        col(name)
-            .and_then(|i| cells.get(i))
-            .and_then(|c| c.trim().parse::<f64>().ok())
-            .filter(|v| v.is_finite())
-    };
-    let opt_u16 = |cells: &[&str], name: &str| -> Option<u16> {
-        col(name)
-            .and_then(|i| cells.get(i))
-            .and_then(|c| c.trim().parse::<u16>().ok())
-    };
-    let opt_s = |cells: &[&str], name: &str| -> Option<String> {
-        col(name)
-            .and_then(|i| cells.get(i))
-            .map(|c| c.trim().to_string())
-            .filter(|c| !c.is_empty())
-    };
-    // As many rows as lines (a cheap count): the vector is not grown geometrically (up to
-    // twice the rows' size).
-    let mut trace = Trace {
-        rows: Vec::with_capacity(text.lines().count()),
-        warnings: Vec::new(),
-    };
-    let mut skipped: Vec<usize> = vec![];
+    // As many rows as lines (a cheap count): the columns are not grown geometrically (up to
+    // twice their size), and hold only the optional columns the header names.
+    let mut b = Builder::new(text.lines().count(), |name| col(name).is_some());
+    let mut warnings = Vec::new();
+    let mut skipped = 0usize;
     let mut first_reason: Option<String> = None;
+    let mut cells: Vec<&str> = Vec::new();
     for (line_no, line) in lines {
-        let cells: Vec<&str> = line.split(',').collect();
+        cells.clear();
+        cells.extend(line.split(','));
         let num = |i: usize, name: &str| -> Result<f64, String> {
             let cell = cells
                 .get(i)
@@ -237,7 +507,7 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
                 )),
             }
         };
-        let parsed = (|| -> Result<TraceRow, String> {
+        let parsed = (|| -> Result<(f64, f64, f64), String> {
             let t_s = num(it, "t_s")?;
             let theta_a_rad = num(ith, "theta_a_rad")?;
             let torque_nm = if torque_col.1 {
@@ -245,47 +515,41 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
             } else {
                 num(torque_col.0, "torque_nm")?
             };
-            Ok(TraceRow {
-                t_s,
-                theta_a_rad,
-                torque_nm,
-                torque_ref_nm: opt_f(&cells, "torque_ref_nm"),
-                duty: opt_f(&cells, "duty"),
-                state: opt_s(&cells, "state"),
-                encoder_count: opt_u16(&cells, "encoder_count"),
-                current_code: opt_u16(&cells, "current_code"),
-                true_theta_a_rad: opt_f(&cells, "true_theta_a_rad"),
-                true_torque_nm: opt_f(&cells, "true_torque_nm"),
-                true_contact: opt_s(&cells, "true_contact"),
-                true_k_m: opt_f(&cells, "true_k_m"),
-            })
+            Ok((t_s, theta_a_rad, torque_nm))
         })();
         match parsed {
-            Ok(r) => trace.rows.push(r),
+            Ok((t_s, theta_a_rad, torque_nm)) => {
+                let cell_of = |name: &str| col(name).and_then(|i| cells.get(i)).map(|c| c.trim());
+                b.push(t_s, theta_a_rad, torque_nm, |c| match c {
+                    Cell::F(n) => cell_of(n)
+                        .and_then(|c| c.parse::<f64>().ok())
+                        .filter(|v| v.is_finite())
+                        .map(CellValue::F),
+                    Cell::U(n) => cell_of(n)
+                        .and_then(|c| c.parse::<u16>().ok())
+                        .map(CellValue::U),
+                    Cell::S(n) => cell_of(n).filter(|c| !c.is_empty()).map(CellValue::S),
+                });
+            }
             Err(why) => {
-                skipped.push(line_no);
+                skipped += 1;
                 first_reason.get_or_insert(why);
             }
         }
     }
+    let mut trace = b.finish();
     if let Some(why) = first_reason {
-        trace.warnings.push(format!(
-            "skipped {} unusable line(s), first: {why}",
-            skipped.len()
-        ));
+        warnings.push(format!("skipped {skipped} unusable line(s), first: {why}"));
     }
-    if trace.rows.is_empty() {
+    trace.warnings = warnings;
+    if trace.is_empty() {
         return Err(match trace.warnings.first() {
             Some(w) => format!("no usable rows in the trace ({w})"),
             None => "the trace has a header but no rows".into(),
         });
     }
-    if trace.rows.windows(2).any(|w| w[1].t_s < w[0].t_s) {
-        trace.rows.sort_by(|a, b| {
-            a.t_s
-                .partial_cmp(&b.t_s)
-                .unwrap_or(std::cmp::Ordering::Equal)
-        });
+    if trace.t_s.windows(2).any(|w| w[1] < w[0]) {
+        trace.sort_by_time();
         trace
             .warnings
             .push("rows were not in time order: sorted by t_s".into());
@@ -307,7 +571,8 @@ pub const FIRMWARE_DT_S: f64 = 1e-4;
 /// `current_a=` (converted with `current_to_torque`). Other lines (`E`, `P`, `TRUTH`, `END`) are
 /// ignored.
 pub fn from_defmt(text: &str, dt_s: Option<f64>, current_to_torque: &dyn Fn(f64) -> f64) -> Trace {
-    let mut trace = Trace::default();
+    let mut rows = Vec::new();
+    let mut warnings = Vec::new();
     let boot_dt = text.lines().find_map(|l| {
         let words: Vec<&str> = l.split_whitespace().collect();
         if !words.contains(&"BOOT") {
@@ -349,7 +614,7 @@ pub fn from_defmt(text: &str, dt_s: Option<f64>, current_to_torque: &dyn Fn(f64)
             .or_else(|| f("current_a").map(current_to_torque))
             .or_else(|| f("current_ua").map(|v| current_to_torque(v / 1e6)));
         match (t, th, tq) {
-            (Some(t_s), Some(theta_a_rad), Some(torque_nm)) => trace.rows.push(TraceRow {
+            (Some(t_s), Some(theta_a_rad), Some(torque_nm)) => rows.push(TraceRow {
                 t_s,
                 theta_a_rad,
                 torque_nm,
@@ -364,11 +629,11 @@ pub fn from_defmt(text: &str, dt_s: Option<f64>, current_to_torque: &dyn Fn(f64)
         }
     }
     if bad > 0 {
-        trace.warnings.push(format!(
+        warnings.push(format!(
             "{bad} sample line(s) lacked a time, θa or torque and were skipped"
         ));
     }
-    trace
+    Trace::from_rows(&rows, warnings)
 }
 
 #[cfg(test)]
@@ -401,14 +666,41 @@ mod tests {
         let mut buf = vec![];
         write_csv(&rows, &mut buf).unwrap();
         let t = read_csv(std::str::from_utf8(&buf).unwrap(), &nm).unwrap();
-        assert_eq!(t.rows, rows);
+        assert_eq!(t.to_rows(), rows);
         assert!(t.warnings.is_empty());
+        assert_eq!(Trace::from_rows(&rows, vec![]).to_rows(), rows);
+    }
+
+    #[test]
+    fn columns_sort_with_their_rows_and_only_the_file_s_columns_are_held() {
+        let text = "t_s,theta_a_rad,torque_nm,state,encoder_count\n\
+                    2,0.2,2,b,2\n1,0.1,1,a,\n3,0.3,3,,3\n1,0.15,1.5,b,7\n";
+        let t = read_csv(text, &nm).unwrap();
+        let rows = t.to_rows();
+        let got: Vec<_> = rows
+            .iter()
+            .map(|r| (r.t_s, r.theta_a_rad, r.state.as_deref(), r.encoder_count))
+            .collect();
+        // Stable: the two rows at t = 1 keep their order.
+        assert_eq!(
+            got,
+            [
+                (1.0, 0.1, Some("a"), None),
+                (1.0, 0.15, Some("b"), Some(7)),
+                (2.0, 0.2, Some("b"), Some(2)),
+                (3.0, 0.3, None, Some(3)),
+            ]
+        );
+        assert!(t.warnings.iter().any(|w| w.contains("sorted")));
+        assert!(t.opt.duty.is_none() && t.opt.true_k_m.is_none() && t.opt.true_contact.is_none());
+        assert_eq!(t.opt.strings, ["b", "a"]);
+        assert_eq!(Trace::from_rows(&rows, t.warnings.clone()).to_rows(), rows);
     }
 
     #[test]
     fn current_column_is_converted() {
         let t = read_csv("t_s,current_a,theta_a_rad\n0,0.5,-0.8\n", &nm).unwrap();
-        assert_eq!(t.rows[0].torque_nm, 1.0);
+        assert_eq!(t.torque_nm[0], 1.0);
     }
 
     #[test]
@@ -424,8 +716,8 @@ mod tests {
         let e = read_csv("t_s,theta_a_rad,torque_nm\nx,1,2\n", &nm).unwrap_err();
         assert!(e.contains("line 2") && e.contains("t_s"), "{e}");
         let t = read_csv("t_s,theta_a_rad,torque_nm\n1,1,1\n0,1,1\n2,1\n", &nm).unwrap();
-        assert_eq!(t.rows.len(), 2);
-        assert_eq!(t.rows[0].t_s, 0.0);
+        assert_eq!(t.len(), 2);
+        assert_eq!(t.t_s[0], 0.0);
         assert_eq!(t.warnings.len(), 2, "{:?}", t.warnings);
     }
 
@@ -445,7 +737,7 @@ mod tests {
         proto::log::render(&mut line, proto::log::SAMPLE, &args).unwrap();
         let t = from_defmt(&line, Some(1e-4), &nm);
         assert_eq!(t.warnings, Vec::<String>::new());
-        let r = &t.rows[0];
+        let r = &t.to_rows()[0];
         assert!((r.t_s - 40.0 * 1e-4).abs() < 1e-15);
         assert!((r.theta_a_rad - -0.850361).abs() < 1e-15);
         assert!((r.torque_nm - 0.123456).abs() < 1e-15);
@@ -463,15 +755,16 @@ mod tests {
                    400 INFO  S tick=400 theta_a_urad=oops torque_unm=1000\n\
                    500 INFO  S tick=500 theta_a_urad=-800000 torque_unm=1 ref_unm=2 duty=1 state=Fault(NoContact)\n";
         let t = from_defmt(log, None, &nm);
-        assert_eq!(t.rows.len(), 2, "{:?}", t.rows);
-        assert!((t.rows[0].t_s - 0.04).abs() < 1e-15);
-        assert!((t.rows[0].theta_a_rad - -0.85036).abs() < 1e-15);
-        assert_eq!(t.rows[0].duty, Some(-0.5));
-        assert_eq!(t.rows[0].state.as_deref(), Some("approach"));
-        assert_eq!(t.rows[1].state.as_deref(), Some("fault"));
+        let rows = t.to_rows();
+        assert_eq!(rows.len(), 2, "{rows:?}");
+        assert!((rows[0].t_s - 0.04).abs() < 1e-15);
+        assert!((rows[0].theta_a_rad - -0.85036).abs() < 1e-15);
+        assert_eq!(rows[0].duty, Some(-0.5));
+        assert_eq!(rows[0].state.as_deref(), Some("approach"));
+        assert_eq!(rows[1].state.as_deref(), Some("fault"));
         assert_eq!(t.warnings.len(), 1);
         // An explicit period wins over the BOOT line.
         let t = from_defmt(log, Some(1e-3), &nm);
-        assert!((t.rows[0].t_s - 0.2).abs() < 1e-12);
+        assert!((t.t_s[0] - 0.2).abs() < 1e-12);
     }
 }

@@ -129,10 +129,7 @@ fn grasp_errors(
     let Some((_, "distal", k_true)) = rep.first_contact else {
         return vec![None; files.len()];
     };
-    let trace = Trace {
-        rows: rep.rows.clone(),
-        warnings: vec![],
-    };
+    let trace = Trace::from_rows(&rep.rows, vec![]);
     files
         .iter()
         .map(|f| {
@@ -596,8 +593,8 @@ fn calibration_on_the_engine_finger() {
             .map(|(f, _)| {
                 let mut tr = pts_cli::trace::read_csv(&csv, &|i| f.torque_from_current(i)).ok()?;
                 let shift = rest_of(f) - rest_of(&truth);
-                for r in &mut tr.rows {
-                    r.theta_a_rad += shift;
+                for th in &mut tr.theta_a_rad {
+                    *th += shift;
                 }
                 let seg = pts_cli::replay::segment(&tr, f, Method::Pathfit).ok()?;
                 let est = seg.contacts.first()?.estimate.as_ref().ok()?;
