@@ -21,6 +21,8 @@ mod demo_device;
 mod device;
 mod figures;
 mod fuzz;
+#[cfg(test)]
+mod links;
 mod log;
 mod panics;
 mod qemu;
