@@ -148,6 +148,7 @@ fn finger_consts(src: &mut String) {
         cfg.drive.theta_a_rest_rad
     );
     free_table_const(src, &f);
+    path_table_const(src, &f);
 }
 
 /// The two-point estimate's free-motion table for the finger (`pts::table::FreeTable`, Q32.32,
@@ -167,6 +168,43 @@ fn free_table_const(src: &mut String, f: &pts::Finger) {
         src,
         "/// The two-point estimate's free-motion table for [`FINGER`] (built at build time).\n\
          pub static FREE_TABLE: Option<pts::table::FreeTable<pts::fixed::Fx32>> = {expr};"
+    );
+}
+
+/// The path fit's table for the finger and the board's control period (`grasp::path_table`,
+/// what init would build with `DriveConfig::DEFAULT.dt_s`, the period of every board build) as
+/// a constant: in flash, and the board's firmware links no table builder. `None` when the
+/// finger is outside the table's formats. The simulated board (QEMU, the host runner) builds
+/// its table at init for its scene's period instead.
+fn path_table_const(src: &mut String, f: &pts::Finger) {
+    let dt_ns = (grasp::DriveConfig::DEFAULT.dt_s * 1e9) as u32;
+    let expr = match grasp::path_table(f, dt_ns).ok().map(|t| t.to_raw()) {
+        Some(r) => format!(
+            "Some(pathfit::q::PathTable::from_raw(&pathfit::q::PathTableRaw {{ finger: FINGER, \
+             model: {:?}, consts: {:?}, fit_contact_angle: {:?}, object: pathfit::ObjectModel::{:?}, \
+             theta2_0: {:?}, segs: {:?}, seg: {:?}, theta_a_free: {:?}, q: {:?}, samples: {:?}, \
+             approach_urad_q16: {:?}, drop_plateaus: {:?}, tick_s_bits: {:?}, tick_ns: {:?} }}))",
+            r.model,
+            r.consts,
+            r.fit_contact_angle,
+            r.object,
+            r.theta2_0,
+            r.segs,
+            r.seg,
+            r.theta_a_free,
+            r.q,
+            r.samples,
+            r.approach_urad_q16,
+            r.drop_plateaus,
+            r.tick_s_bits,
+            r.tick_ns
+        ),
+        None => "None".to_string(),
+    };
+    let _ = writeln!(
+        src,
+        "/// The path fit's table for [`FINGER`] at the board's control period (built at build time).\n\
+         pub static PATH_TABLE: Option<pathfit::q::PathTable> = {expr};"
     );
 }
 

@@ -33,9 +33,16 @@ pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
 };
 
 /// The table this build's estimate runs on, for the build's finger: the path fit's
-/// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
-/// build time, a constant in flash: `config::FREE_TABLE`).
-#[cfg(fw_path_fit)]
+/// (`cfg(fw_path_fit)`; on the board built at build time, a constant in flash:
+/// `config::PATH_TABLE`), or the two-point method's free-motion table (built at build time, a
+/// constant in flash: `config::FREE_TABLE`).
+#[cfg(all(fw_path_fit, target_os = "none", not(feature = "qemu")))]
+pub type EstimatorTable = &'static pathfit::q::PathTable;
+/// The table this build's estimate runs on, for the build's finger: the path fit's
+/// (`cfg(fw_path_fit)`; on the simulated board built at init, for its scene's control
+/// period), or the two-point method's free-motion table (built at build time, a constant in
+/// flash: `config::FREE_TABLE`).
+#[cfg(all(fw_path_fit, any(not(target_os = "none"), feature = "qemu")))]
 pub type EstimatorTable = pathfit::q::PathTable;
 /// The table this build's estimate runs on, for the build's finger: the path fit's
 /// (`cfg(fw_path_fit)`, built at init), or the two-point method's free-motion table (built at
@@ -77,11 +84,18 @@ impl TableSlot {
 // The table and the estimator agree.
 const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFit));
 
-/// The estimator's table for a finger and a control period `dt_s` (s): the path fit's, built
-/// at init (f64 arithmetic, once), or the build-time two-point table (the build's finger);
-/// `None` when the finger is outside the table's formats (the estimate then reports that error).
+/// The estimator's table for a finger and a control period `dt_s` (s): the path fit's, on
+/// the board the build-time table (`config::PATH_TABLE`: the build's finger at the board's
+/// period, `DriveConfig::DEFAULT.dt_s`; the init that built it in RAM linked 5.3 KB of builder),
+/// on the simulated board built at init (f64 arithmetic, once), or the build-time two-point
+/// table (the build's finger); `None` when the finger is outside the table's formats or, on
+/// the board, is not the table's finger or period (the estimate then reports that error).
 pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<EstimatorTable> {
-    #[cfg(fw_path_fit)]
+    #[cfg(all(fw_path_fit, target_os = "none", not(feature = "qemu")))]
+    return crate::config::PATH_TABLE
+        .as_ref()
+        .filter(|t| t.model().finger == *finger && t.tick_ns() == (dt_s * 1e9) as u32);
+    #[cfg(all(fw_path_fit, any(not(target_os = "none"), feature = "qemu")))]
     return grasp::path_table(finger, (dt_s * 1e9) as u32).ok();
     #[cfg(not(fw_path_fit))]
     {
@@ -347,6 +361,19 @@ mod tests {
         let fixed = crate::config::FREE_TABLE.as_ref().unwrap();
         assert_eq!(fixed.to_raw(), built.to_raw());
         assert_eq!(fixed.model().finger, crate::config::FINGER);
+        let th = pts::fixed::Fx32::from_bits(-(1 << 30));
+        assert_eq!(fixed.free_torque(th), built.free_torque(th));
+    }
+
+    /// The board's build-time path-fit table is the one init builds for the build's finger
+    /// at the board's period (bit for bit), so the board estimates as before.
+    #[test]
+    fn the_build_time_path_table_is_the_board_s_table() {
+        let dt_ns = (DriveConfig::DEFAULT.dt_s * 1e9) as u32;
+        let built = grasp::path_table(&crate::config::FINGER, dt_ns).unwrap();
+        let fixed = crate::config::PATH_TABLE.as_ref().unwrap();
+        assert_eq!(fixed.to_raw(), built.to_raw());
+        assert_eq!(file_drive().dt_s, DriveConfig::DEFAULT.dt_s);
         let th = pts::fixed::Fx32::from_bits(-(1 << 30));
         assert_eq!(fixed.free_torque(th), built.free_torque(th));
     }

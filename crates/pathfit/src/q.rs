@@ -34,11 +34,12 @@
 
 use super::path::{PathFail, ACCEPT_STEP, FREE_TOL, MAX_DELTA, MAX_PATH_NEWTON};
 use super::{
-    run_fit, Eval, FitConsts, Kernel, PathFit, PathFitConfig, PathFitError, Work, MAX_BINS,
-    MIN_BINS, NP, RAD, TC, TF,
+    run_fit, Eval, FitConsts, Kernel, ObjectModel, PathFit, PathFitConfig, PathFitError, Work,
+    MAX_BINS, MIN_BINS, NP, RAD, TC, TF,
 };
 use core::num::NonZeroU32;
 use pts::fixed::{recip_q31, Fx32};
+use pts::model::MODEL_RAW_WORDS;
 use pts::table::{TABLE_TA_MAX_NM, TABLE_TA_MIN_NM};
 use pts::{Config, Finger, Model, PtsError, Real};
 
@@ -233,7 +234,7 @@ fn sin_cos_wide(x: i32) -> (i32, i32) {
 
 /// Fields of one table segment: cubics in t ∈ [0, 1) for γ, x2, sin θ2, cos θ2
 /// (4 coefficients each, Q28).
-const FIELDS: usize = 16;
+pub const FIELDS: usize = 16;
 
 /// A free-motion equilibrium (Q28 angles, Q24 torque) with its closure.
 #[derive(Clone, Copy, Debug)]
@@ -301,6 +302,42 @@ struct SampleConsts {
     inertia_q16: i64,
     envelope_urad: i32,
     drop_plateaus: bool,
+}
+
+/// A [`PathTable`] as plain data ([`PathTable::to_raw`], [`PathTable::from_raw`]): what a
+/// build script writes out so that the firmware holds the table as a constant in flash.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PathTableRaw {
+    /// The finger.
+    pub finger: Finger,
+    /// The model's constants ([`Model::to_raw`]).
+    pub model: [i64; MODEL_RAW_WORDS],
+    /// The fit configuration's Q32.32 constants (bits), in the order of [`PathTable::to_raw`].
+    pub consts: [i64; 11],
+    /// The fit configuration's contact-angle switch.
+    pub fit_contact_angle: bool,
+    /// The fit configuration's object model.
+    pub object: ObjectModel,
+    /// θ2 of the first node (Q28 rad).
+    pub theta2_0: i32,
+    /// Segments in use.
+    pub segs: usize,
+    /// Per segment, the cubics' coefficients (Q28).
+    pub seg: [[i32; FIELDS]; MAX_SEGMENTS],
+    /// Free-motion θa at each node (Q28 rad).
+    pub theta_a_free: [i32; MAX_SEGMENTS + 1],
+    /// K1, K2 (Q24), φ2, θ01, θ02, l2/l1, l1 (Q28), μ (Q28), 1/l1 (Q24).
+    pub q: [i32; 9],
+    /// The sample pass: bins, dead band, minimum travel, skip, inertia (Q16), envelope (µrad).
+    pub samples: [i64; 6],
+    /// The approach span (µrad, Q16) when the approach samples are used.
+    pub approach_urad_q16: Option<i64>,
+    /// The sample pass drops plateaus.
+    pub drop_plateaus: bool,
+    /// The tick period (s) as f64 bits.
+    pub tick_s_bits: u64,
+    /// The tick period (ns).
+    pub tick_ns: u32,
 }
 
 impl PathTable {
@@ -437,6 +474,111 @@ impl PathTable {
             tick_s,
             tick_ns: libm::round(tick_s * 1e9) as u32,
         })
+    }
+
+    /// The table as plain data ([`PathTable::from_raw`] rebuilds it bit for bit).
+    pub fn to_raw(&self) -> PathTableRaw {
+        let c = &self.consts;
+        let sm = &self.samples;
+        PathTableRaw {
+            finger: self.model.finger,
+            model: self.model.to_raw(),
+            consts: [
+                c.lead,
+                c.noise_floor,
+                c.friction_prior_sigma,
+                c.contact_angle_sigma,
+                c.max_radius,
+                c.inflation,
+                c.sigma_floor,
+                c.max_chi2,
+                c.max_sigma_frac,
+                c.tip_margin,
+                c.radius_rel_sigma,
+            ]
+            .map(|v| v.to_bits()),
+            fit_contact_angle: c.fit_contact_angle,
+            object: c.object,
+            theta2_0: self.theta2_0,
+            segs: self.segs,
+            seg: self.seg,
+            theta_a_free: self.theta_a_free,
+            q: [
+                self.k1,
+                self.k2,
+                self.phi2,
+                self.theta01,
+                self.theta02,
+                self.l2_l1,
+                self.l1,
+                self.mu,
+                self.inv_l1,
+            ],
+            samples: [
+                i64::from(sm.nbins),
+                sm.dead_urad_q16,
+                sm.min_travel_urad_q16,
+                sm.skip_q16,
+                sm.inertia_q16,
+                i64::from(sm.envelope_urad),
+            ],
+            approach_urad_q16: sm.approach_urad_q16,
+            drop_plateaus: sm.drop_plateaus,
+            tick_s_bits: self.tick_s.to_bits(),
+            tick_ns: self.tick_ns,
+        }
+    }
+
+    /// The table from [`PathTable::to_raw`]'s data: a constant expression (no floating-point
+    /// arithmetic), so a table generated at build time lives in flash and the firmware links
+    /// no table builder.
+    pub const fn from_raw(r: &PathTableRaw) -> Self {
+        const fn fx(r: &PathTableRaw, i: usize) -> Fx32 {
+            Fx32::from_bits(r.consts[i])
+        }
+        PathTable {
+            model: Model::from_raw(r.finger, &r.model),
+            consts: FitConsts {
+                lead: fx(r, 0),
+                noise_floor: fx(r, 1),
+                friction_prior_sigma: fx(r, 2),
+                contact_angle_sigma: fx(r, 3),
+                fit_contact_angle: r.fit_contact_angle,
+                object: r.object,
+                max_radius: fx(r, 4),
+                inflation: fx(r, 5),
+                sigma_floor: fx(r, 6),
+                max_chi2: fx(r, 7),
+                max_sigma_frac: fx(r, 8),
+                tip_margin: fx(r, 9),
+                radius_rel_sigma: fx(r, 10),
+            },
+            theta2_0: r.theta2_0,
+            segs: r.segs,
+            seg: r.seg,
+            theta_a_free: r.theta_a_free,
+            k1: r.q[0],
+            k2: r.q[1],
+            phi2: r.q[2],
+            theta01: r.q[3],
+            theta02: r.q[4],
+            l2_l1: r.q[5],
+            l1: r.q[6],
+            mu: r.q[7],
+            inv_l1: r.q[8],
+            samples: SampleConsts {
+                nbins: r.samples[0] as u32,
+                dead_urad_q16: r.samples[1],
+                min_travel_urad_q16: r.samples[2],
+                skip_q16: r.samples[3],
+                approach_urad_q16: r.approach_urad_q16,
+                inertia_q16: r.samples[4],
+                envelope_urad: r.samples[5] as i32,
+                drop_plateaus: r.drop_plateaus,
+            },
+            tick_s: f64::from_bits(r.tick_s_bits),
+            tick_ns: r.tick_ns,
+        }
     }
 
     /// The model the fit inverts its initial guess with.
@@ -1603,6 +1745,21 @@ mod tests {
                 _ => 0,
             };
             assert_eq!(node_fraction(x, d), reference(x, d), "x {x} d {d}");
+        }
+    }
+
+    /// A table rebuilt from its raw data is the same table: the same data and the same
+    /// answers (a build-time table in flash is the one init would build).
+    #[test]
+    fn raw_round_trip_keeps_the_table() {
+        let t = PathTable::new(&Finger::PAPER, &PathFitConfig::DEFAULT, 1e-4).unwrap();
+        let raw = t.to_raw();
+        let back = PathTable::from_raw(&raw);
+        assert_eq!(back.to_raw(), raw);
+        assert_eq!(back.tick_s().to_bits(), t.tick_s().to_bits());
+        for i in 0..40 {
+            let x = Fx32::from_f64(-1.2 + 0.08 * f64::from(i));
+            assert_eq!(back.free_torque(x), t.free_torque(x));
         }
     }
 
