@@ -142,6 +142,74 @@ fn scene_check(
     scene_check_frames(scene, expect_fault, work).map(|_| ())
 }
 
+/// A fault scene's end: a Fault event, exit status 2, the Fault state, the bridge off.
+fn fault_end_errors(ev_q: &[String], status: i32, end: &Frame) -> Vec<String> {
+    let mut errs = Vec::new();
+    if !ev_q.iter().any(|e| e == "Fault") {
+        errs.push(format!("fault scene without a Fault event: {ev_q:?}"));
+    }
+    if status != 2 {
+        errs.push(format!("fault scene exited {status} (expected 2)"));
+    }
+    if !word(&end.msg, "state").unwrap_or("").starts_with("Fault") {
+        errs.push(format!(
+            "fault scene did not end in the Fault state: {}",
+            end.msg
+        ));
+    }
+    if word(&end.msg, "bridge_safe") != Some("true") {
+        errs.push(format!("fault scene ended with the bridge on: {}", end.msg));
+    }
+    errs
+}
+
+/// An estimate scene's end: the controller's events in order, exit status 0, and the QEMU
+/// estimate equal to the host's within 1e-4·l2.
+fn estimate_errors(
+    scene: &str,
+    ev_q: &[String],
+    status: i32,
+    end: &Frame,
+    q: &[Frame],
+    host: &[Frame],
+) -> Res<Vec<String>> {
+    let mut errs = Vec::new();
+    let mut it = ev_q.iter();
+    for want in ESTIMATE_SEQUENCE {
+        if !it.any(|e| e == want) {
+            errs.push(format!(
+                "event {want} missing or out of order; got {ev_q:?} (expected {ESTIMATE_SEQUENCE:?} in order)"
+            ));
+            break;
+        }
+    }
+    if status != 0 {
+        errs.push(format!("exit status {status} (expected 0): {}", end.msg));
+    }
+    let l2_um = log::first(q, "BOOT")
+        .and_then(|b| int(&b.msg, "l2_um"))
+        .ok_or("no l2_um in the BOOT line")? as f64;
+    let k2 = |frames: &[Frame]| log::last(frames, "E Estimated").and_then(|e| int(&e.msg, "k2_um"));
+    match (k2(q), k2(host)) {
+        (Some(kq), Some(kh)) => {
+            let d = (kq - kh).abs() as f64;
+            let tol = K2_TOL_REL_L2 * l2_um;
+            println!(
+                "{scene}: k2 qemu {kq} µm, host {kh} µm, |Δ| = {d} µm (tolerance {tol:.1} µm = 1e-4·l2)"
+            );
+            if d > tol {
+                errs.push(format!(
+                    "k2 differs between QEMU ({kq} µm) and host ({kh} µm) by more than 1e-4·l2"
+                ));
+            }
+        }
+        other => errs.push(format!(
+            "no k2 estimate in both logs (qemu, host) = {other:?}"
+        )),
+    }
+    Ok(errs)
+}
+
 /// [`scene_check`], returning the QEMU run's log.
 fn scene_check_frames(
     scene: &str,
@@ -174,59 +242,9 @@ fn scene_check_frames(
         ));
     }
     if expect_fault {
-        if !ev_q.iter().any(|e| e == "Fault") {
-            errs.push(format!("fault scene without a Fault event: {ev_q:?}"));
-        }
-        if run.status != 2 {
-            errs.push(format!("fault scene exited {} (expected 2)", run.status));
-        }
-        if !word(&end.msg, "state").unwrap_or("").starts_with("Fault") {
-            errs.push(format!(
-                "fault scene did not end in the Fault state: {}",
-                end.msg
-            ));
-        }
-        if word(&end.msg, "bridge_safe") != Some("true") {
-            errs.push(format!("fault scene ended with the bridge on: {}", end.msg));
-        }
+        errs.extend(fault_end_errors(&ev_q, run.status, end));
     } else {
-        let mut it = ev_q.iter();
-        for want in ESTIMATE_SEQUENCE {
-            if !it.any(|e| e == want) {
-                errs.push(format!(
-                    "event {want} missing or out of order; got {ev_q:?} (expected {ESTIMATE_SEQUENCE:?} in order)"
-                ));
-                break;
-            }
-        }
-        if run.status != 0 {
-            errs.push(format!(
-                "exit status {} (expected 0): {}",
-                run.status, end.msg
-            ));
-        }
-        let l2_um = log::first(q, "BOOT")
-            .and_then(|b| int(&b.msg, "l2_um"))
-            .ok_or("no l2_um in the BOOT line")? as f64;
-        let k2 =
-            |frames: &[Frame]| log::last(frames, "E Estimated").and_then(|e| int(&e.msg, "k2_um"));
-        match (k2(q), k2(&host)) {
-            (Some(kq), Some(kh)) => {
-                let d = (kq - kh).abs() as f64;
-                let tol = K2_TOL_REL_L2 * l2_um;
-                println!(
-                    "{scene}: k2 qemu {kq} µm, host {kh} µm, |Δ| = {d} µm (tolerance {tol:.1} µm = 1e-4·l2)"
-                );
-                if d > tol {
-                    errs.push(format!(
-                        "k2 differs between QEMU ({kq} µm) and host ({kh} µm) by more than 1e-4·l2"
-                    ));
-                }
-            }
-            other => errs.push(format!(
-                "no k2 estimate in both logs (qemu, host) = {other:?}"
-            )),
-        }
+        errs.extend(estimate_errors(scene, &ev_q, run.status, end, q, &host)?);
     }
     for key in ["work_max", "est_work_max", "sup_work_max"] {
         if int(&end.msg, key).is_none() {
