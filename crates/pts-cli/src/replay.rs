@@ -609,18 +609,18 @@ fn segment_rows(
     let mut scratch = vec![Block::default(); 1 << 16];
     let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch)
         .map_err(|e| format!("segmenting the trace: {} ({e:?})", e.kind()))?;
+    // The recording's encoder step: its smallest θa change between rows.
+    let quantum_rad = rows
+        .windows(2)
+        .map(|w| (w[1].theta_a_rad - w[0].theta_a_rad).abs())
+        .filter(|d| *d > 1e-12)
+        .fold(f64::INFINITY, f64::min);
+    let quantum_rad = if quantum_rad.is_finite() {
+        quantum_rad
+    } else {
+        0.0
+    };
     if method == crate::method::Method::Pathfit {
-        // The recording's encoder step: its smallest θa change between rows.
-        let quantum_rad = rows
-            .windows(2)
-            .map(|w| (w[1].theta_a_rad - w[0].theta_a_rad).abs())
-            .filter(|d| *d > 1e-12)
-            .fold(f64::INFINITY, f64::min);
-        let quantum_rad = if quantum_rad.is_finite() {
-            quantum_rad
-        } else {
-            0.0
-        };
         dynamics_corrected_residual(&m64, &cfg, &mut scratch[..nb], block_s, finger, quantum_rad);
     }
     let blocks = &scratch[..nb];
@@ -646,7 +646,7 @@ fn segment_rows(
                 let (est, two_point, drive) = match method {
                     crate::method::Method::TwoPoint => (fw(&seg.request), None, None),
                     crate::method::Method::Pathfit => {
-                        let fit = foreign_path_fit(&m64, &cfg, blocks, seg, finger);
+                        let fit = foreign_path_fit(&m64, &cfg, blocks, seg, finger, quantum_rad);
                         if let Some((_, c)) = &fit.1 {
                             (t_s, theta_a_c, ta_c) = *c;
                         }
@@ -770,6 +770,70 @@ fn dynamics_corrected_residual(
 /// inertia the fit is only told.
 const IDENTIFIED_ENVELOPE_TOL_RAD: f64 = 0.02;
 
+/// The largest Coulomb friction coefficient at the object the estimate allows for: dry
+/// contacts of hard pads on everyday objects (0.2–0.4); a rubber pad needs its own value.
+const CONTACT_MU_MAX: f64 = 0.4;
+
+/// σ(k2,c) of a distal answer widened by the contact friction the recording cannot show.
+/// Friction at the object resists the contact's outward slide while loading and reads as a
+/// contact further out (MODEL.md §7); one loading path cannot tell µ from k2,c (χ² is flat
+/// over µ), and the fit assumes µ = 0. So the same request is fitted again with
+/// µ = [`CONTACT_MU_MAX`]: over a µ anywhere in 0..µmax the true k2,c lies between the two
+/// answers, and the spread δ between them enters σ as a uniform one, δ/√3 from the end the
+/// answer reports. A request the second fit refuses keeps its σ.
+fn widen_for_contact_friction(
+    finger: &FingerFile,
+    pcfg: &pathfit::PathFitConfig,
+    dt: f64,
+    req: &grasp::EstimateRequest,
+    contact: (f64, f64, f64),
+    mut r: EstimateResult,
+    sigma: Option<f64>,
+) -> (EstimateResult, Option<f64>) {
+    let (Some(s0), Some(k0), grasp::Located::Distal) = (sigma, r.k2_um, r.located) else {
+        return (r, sigma);
+    };
+    let cfg_mu = pathfit::PathFitConfig {
+        contact_mu: CONTACT_MU_MAX,
+        ..*pcfg
+    };
+    let k_mu = pathfit::q::PathTable::new(&finger.finger, &cfg_mu, dt)
+        .ok()
+        .and_then(|t| crate::offline::path_fit_with(&t, req, contact.0, contact.1).ok())
+        .filter(|(x, _)| x.located == grasp::Located::Distal)
+        .and_then(|(x, _)| x.k2_um);
+    let Some(k_mu) = k_mu else {
+        return (r, sigma);
+    };
+    let delta = f64::from(k0 - k_mu) * 1e-6;
+    let s = (s0 * s0 + delta * delta / 3.0).sqrt();
+    r.k2_sigma_um = Some(grasp::estimate::to_micro(s));
+    (r, Some(s))
+}
+
+/// A swing back of the crank after the contact (rad) beyond which the path is rebuilt from
+/// the loading rows (`crate::offline::loading_path`): the fit's envelope
+/// ([`IDENTIFIED_ENVELOPE_TOL_RAD`]) would drop whatever lies that far above a later sample,
+/// which on a drive oscillating on the contact is most of the path.
+const LOADING_MIN_SWING_RAD: f64 = 0.03;
+
+/// The fit's envelope tolerance (rad) on a loading path rebuilt by
+/// `crate::offline::loading_path`: its samples are in order of θa, with the inertia already
+/// removed, so there is no overshoot left to drop.
+const LOADING_ENVELOPE_TOL_RAD: f64 = 1.0;
+
+/// Half-width (blocks) of the differences for θ̇a and θ̈a on the loading path: the shortest
+/// (the most faithful to an oscillation) that keeps the encoder's quantisation noise on
+/// inertia·θ̈a, about inertia·q/(span·block)², within the detection threshold; 1 to 8.
+fn loading_span(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_nm: f64) -> usize {
+    let s = (inertia_kgm2 * quantum_rad / noise_nm).sqrt() / block_s;
+    if s.is_finite() {
+        s.round().clamp(1.0, 8.0) as usize
+    } else {
+        1
+    }
+}
+
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
 /// term and friction offset identified from this contact's approach
 /// (`crate::offline::identify_drive`, the finger file's inertia as the prior), the contact
@@ -783,6 +847,7 @@ fn foreign_path_fit(
     blocks: &[crate::offline::Block],
     seg: &crate::offline::Segment,
     finger: &FingerFile,
+    quantum_rad: f64,
 ) -> (
     Result<(EstimateResult, Option<f64>), crate::sim::EstError>,
     Option<(crate::offline::DriveId, (f64, f64, f64))>,
@@ -819,13 +884,41 @@ fn foreign_path_fit(
         },
         ..pathfit::PathFitConfig::DEFAULT
     };
+    // With the drive identified, the path is the loading rows with its dynamics removed
+    // here (`crate::offline::loading_path`), and the fit is told neither inertia nor envelope.
+    let loading = id.as_ref().and_then(|d| {
+        let block_s = f64::from(seg.request.dt_ns) * 1e-9;
+        let span = loading_span(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
+        crate::offline::loading_path(
+            &seg.request,
+            blocks,
+            seg.knee,
+            seg.end.1,
+            (d.inertia_kgm2, d.viscous_nm_s_per_rad),
+            span,
+            LOADING_MIN_SWING_RAD,
+        )
+    });
+    let (pcfg, req) = match loading {
+        Some(req) => (
+            pathfit::PathFitConfig {
+                inertia_kgm2: 0.0,
+                envelope_tol_rad: LOADING_ENVELOPE_TOL_RAD,
+                ..pcfg
+            },
+            req,
+        ),
+        None => (pcfg, seg.request.clone()),
+    };
     let dt = f64::from(seg.request.dt_ns) * 1e-9;
     let res = pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
         .map_err(|e| err(grasp::EstimateError::Model(e)))
         .and_then(|table| {
-            path_fit_with(&table, &seg.request, contact.0, contact.1)
+            path_fit_with(&table, &req, contact.0, contact.1)
                 .map_err(|e| err(grasp::EstimateError::PathFit(e)))
         });
+    let res = res
+        .map(|(r, sigma)| widen_for_contact_friction(finger, &pcfg, dt, &req, contact, r, sigma));
     (res, id.map(|i| (i, (contact.2, contact.0, contact.1))))
 }
 

@@ -322,8 +322,9 @@ fn engine_grid_default_method() {
         return;
     }
     // The CI slice, measured (release, 2 cores shared): 14/16 distal positives answered, mean
-    // 1.57 %, max 4.38 % of l2, all within 3σ; none answered as proximal; 6/8 negatives right
-    // (the proximal contacts at 5e-3 kg·m²). Short of the targets, which are printed
+    // 1.57 %, max 4.38 % of l2, all within 3σ; none answered as proximal; 8/8 negatives right
+    // (the proximal contacts at 5e-3 kg·m² since the heavy drive's swings are left out of the
+    // loading path; 6/8 before). Short of the targets, which are printed
     // above; the bounds below are what holds with a margin, so that a regression shows.
     assert!(all.answered >= 13, "answered {}/{}", all.answered, all.n);
     assert!(
@@ -333,17 +334,13 @@ fn engine_grid_default_method() {
         all.max
     );
     assert!(
-        all.within3 + 1 >= all.answered,
+        all.within3 == all.answered,
         "within 3σ {}/{}",
         all.within3,
         all.answered
     );
     let neg: Vec<&Outcome> = rows.iter().filter(|o| o.expected != "distal").collect();
     let right = neg.iter().filter(|o| o.negative_right()).count();
-    assert!(
-        right + 2 >= neg.len(),
-        "negatives right {right}/{}",
-        neg.len()
-    );
-    assert!(wrong_phalanx(&rows) <= 1, "distal answered as proximal");
+    assert!(right == neg.len(), "negatives right {right}/{}", neg.len());
+    assert!(wrong_phalanx(&rows) == 0, "distal answered as proximal");
 }

@@ -14,7 +14,7 @@ const L2: f64 = 0.075;
 /// Bounds asserted on the path fit's error (% of l2). The issue asks for a mean ≤ 1.5 and a
 /// max ≤ 4 with every distal positive answered; these are what the estimator reaches today,
 /// with a margin (measured: 23/24 answered, mean 1.39, max 4.93, true error within 3σ in
-/// 22/23).
+/// 23/23 since σ carries the contact friction the path cannot show).
 const MEAN_BOUND: f64 = 1.7;
 const MAX_BOUND: f64 = 5.5;
 /// Distal positives the path fit must answer. One short of all: `qs08` (harsh friction) moves
@@ -22,7 +22,15 @@ const MAX_BOUND: f64 = 5.5;
 /// refusal limit of 0.1 l2 at three of the four block phases.
 const MIN_ANSWERED: usize = 23;
 
+/// Another directory of recordings with the same truth files (e.g. the engine grid written by
+/// `cargo run -p dynsim --release -- --out DIR --grid full`): its table is printed, the
+/// bounds below are not asserted.
+const DIR_ENV: &str = "FOREIGN_TRACES_DIR";
+
 fn dir() -> PathBuf {
+    if let Ok(d) = std::env::var(DIR_ENV) {
+        return PathBuf::from(d);
+    }
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces")
 }
 
@@ -32,7 +40,7 @@ fn ids() -> Vec<String> {
         .filter_map(|e| {
             let p = e.ok()?.path();
             let stem = p.file_stem()?.to_string_lossy().into_owned();
-            (p.extension()? == "csv").then_some(stem)
+            (p.extension()? == "csv" && p.with_extension("json").exists()).then_some(stem)
         })
         .collect();
     v.sort();
@@ -183,6 +191,9 @@ fn foreign_traces_default_method() {
         "two-point: {}/{positives} answered, mean {tmean:.2} %, max {tmax:.2} % of l2",
         tp_errs.len()
     );
+    if std::env::var(DIR_ENV).is_ok() {
+        return;
+    }
     // Negatives: no object → no contact; proximal → proximal.
     for r in rows.iter().filter(|r| r.expected != "distal") {
         match r.expected.as_str() {
@@ -202,7 +213,7 @@ fn foreign_traces_default_method() {
         errs.len()
     );
     assert!(
-        within3 + 1 >= errs.len(),
+        within3 == errs.len(),
         "true error within 3σ: {within3}/{}",
         errs.len()
     );

@@ -61,7 +61,7 @@ pub use blocks::make_blocks;
 pub use contact::refine_contact;
 pub use drive::{identify_drive, DriveId, DrivePrior};
 pub use estimate::path_fit_with;
-pub use segment::{find_contact, for_each_contact};
+pub use segment::{find_contact, for_each_contact, loading_path};
 
 use grasp::estimate::EstimateRequest;
 use grasp::Estimator;

@@ -370,6 +370,112 @@ fn build_request(
     }
 }
 
+/// The path of a request rebuilt from the blocks for a drive identified on this recording
+/// (its inertia and viscous term, [`DriveId`](super::DriveId)): the quasi-static torque of
+/// each moving block after the contact block `knee`, T_a − inertia·θ̈a − viscous·θ̇a, kept only
+/// while the crank turns in the loading direction (θ̇a > 0). Contact and drive friction both
+/// resist the motion: on a swing back (a heavy drive oscillating on the contact, a bounce)
+/// they change sign, and those samples lie off the loading path by twice the friction, which
+/// no constant offset carries. With the inertia removed here, from the continuous record of
+/// blocks, the oscillation about the path is on it, the swing up with its turning points
+/// (whose inertial torques have opposite signs, so an inertia error largely cancels): the
+/// request is for a fit told no inertia and no envelope. The samples are handed in order of
+/// θa (the fit's bins run from the contact to the last sample), stamped with consecutive
+/// ticks after the contact's; `pre` keeps the approach up to the contact. `span` is the
+/// half-width (blocks) of the differences for θ̇a and θ̈a, at least 1. `None` unless the
+/// crank swings back after the contact by more than `min_swing_rad` (block means): below
+/// that the fit's own envelope keeps the whole path and the request stays as it is.
+pub fn loading_path(
+    req: &EstimateRequest,
+    blocks: &[Block],
+    knee: usize,
+    hi: usize,
+    (inertia_kgm2, viscous_nm_s_per_rad): (f64, f64),
+    span: usize,
+    min_swing_rad: f64,
+) -> Option<EstimateRequest> {
+    let after = blocks.get(knee + 1..hi.min(blocks.len()))?;
+    let (_, swing) = after
+        .iter()
+        .fold((f64::NEG_INFINITY, 0.0f64), |(top, sw), b| {
+            let top = top.max(b.theta_a_rad);
+            (top, sw.max(top - b.theta_a_rad))
+        });
+    if !(swing > min_swing_rad) {
+        return None;
+    }
+    let span = span.max(1);
+    let kin = |k: usize| -> Option<(f64, f64)> {
+        let a = blocks.get(k.checked_sub(span)?)?;
+        let b = blocks.get(k)?;
+        let c = blocks.get(k + span)?;
+        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
+        if !(d1 > 0.0 && d2 > 0.0) {
+            return None;
+        }
+        let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
+        let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
+        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
+        let acc = 2.0 * (v2 - v1) / (d1 + d2);
+        (w.is_finite() && acc.is_finite()).then_some((w, acc))
+    };
+    // (θa, quasi-static T_a) of each usable block, in time order.
+    let mut pts: std::vec::Vec<(f64, f64)> = std::vec::Vec::new();
+    for k in knee + 1..hi.min(blocks.len()) {
+        let Some(b) = blocks.get(k) else { break };
+        if b.moving_rows == 0 {
+            continue;
+        }
+        // The loading direction across the block's neighbours (the block itself moved).
+        let (Some(p), Some(n)) = (
+            k.checked_sub(1).and_then(|i| blocks.get(i)),
+            blocks.get(k + 1),
+        ) else {
+            continue;
+        };
+        if !(n.theta_a_rad > p.theta_a_rad) {
+            continue;
+        }
+        // The ends of the record have no centred difference: the raw torque (no inertia
+        // seen there is better than none removed where it is).
+        let (w, acc) = kin(k).unwrap_or((0.0, 0.0));
+        let t = b.moving_torque_nm - inertia_kgm2 * acc - viscous_nm_s_per_rad * w.max(0.0);
+        if t.is_finite() && b.moving_theta_a_rad.is_finite() {
+            pts.push((b.moving_theta_a_rad, t));
+        }
+    }
+    let mut stride = 1usize;
+    while pts.len().div_ceil(stride) > PATH_CAPACITY {
+        stride *= 2;
+    }
+    let mut groups: std::vec::Vec<(f64, f64)> = pts
+        .chunks(stride)
+        .map(|c| {
+            let n = c.len() as f64;
+            (
+                c.iter().map(|x| x.0).sum::<f64>() / n,
+                c.iter().map(|x| x.1).sum::<f64>() / n,
+            )
+        })
+        .collect();
+    groups.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut out = req.clone();
+    let kt = req.contact.tick;
+    out.pre.retain(|s| s.tick <= kt);
+    out.path.clear();
+    for (i, (th, t)) in groups.into_iter().enumerate() {
+        let tm = micro(t);
+        let _ = out.path.push(Sample {
+            tick: kt.saturating_add(1 + i as u32),
+            theta_a_urad: micro(th),
+            torque_unm: tm,
+            torque_ref_unm: tm,
+        });
+    }
+    out.path_stride = stride as u32;
+    Some(out)
+}
+
 /// Every contact in the blocks, in order: calls `each` with each result (a contact's
 /// [`Segment`], or the error that ended the search; the first `NoContact`/`NoFreeMotion`
 /// after a contact is not reported). Returns the number of segments found.
@@ -473,6 +579,51 @@ mod tests {
         let got: std::vec::Vec<(u32, i32)> =
             req.path.iter().map(|s| (s.tick, s.torque_unm)).collect();
         assert_eq!(got, want);
+    }
+
+    #[test]
+    fn a_loading_path_is_the_swing_up_with_the_inertia_removed() {
+        // A crank oscillating (20 mrad, 6 Hz) on a contact of 7 N·m/rad with an inertia of
+        // 5e-3 kg·m² and 0.02 N·m of friction that resists the motion: the measured torque is
+        // K (θ − θ0) + J θ̈ + F sgn θ̇.
+        let (k, j, f, w) = (7.0, 5e-3, 0.02, 2.0 * core::f64::consts::PI * 6.0);
+        let th = |t: f64| -0.2 + 0.02 * (w * t).sin();
+        let b: std::vec::Vec<Block> = (0..150)
+            .map(|i| {
+                let t = 0.004 * i as f64;
+                let acc = -w * w * 0.02 * (w * t).sin();
+                let v = w * 0.02 * (w * t).cos();
+                let tq = k * (th(t) + 0.2) + j * acc + f * v.signum();
+                Block {
+                    index: i as u32,
+                    t_s: t,
+                    theta_a_rad: th(t),
+                    torque_nm: tq,
+                    moving_rows: 4,
+                    moving_theta_a_rad: th(t),
+                    moving_torque_nm: tq,
+                    ..Block::default()
+                }
+            })
+            .collect();
+        let pts = [Sample::ZERO; 4];
+        let req = build_request(&CFG, &b, (0, 1, 150), 0.004, pts, 0.3);
+        let out = loading_path(&req, &b, 1, 150, (j, 0.0), 1, 0.03).expect("a 40 mrad swing");
+        assert!(out.path.len() > 40, "{}", out.path.len());
+        let mut last = i32::MIN;
+        for s in &out.path {
+            // In order of θa, on the loading side of the path (friction +F), the inertial
+            // torque (up to 0.14 N·m here) removed to within the differences' error.
+            assert!(s.theta_a_urad >= last);
+            last = s.theta_a_urad;
+            let want = k * (f64::from(s.theta_a_urad) * 1e-6 + 0.2) + f;
+            assert!(
+                (f64::from(s.torque_unm) * 1e-6 - want).abs() < 0.01,
+                "{s:?} vs {want}"
+            );
+        }
+        // No swing back beyond the limit: the request stays as it is.
+        assert!(loading_path(&req, &b, 1, 150, (j, 0.0), 1, 0.05).is_none());
     }
 
     #[test]
