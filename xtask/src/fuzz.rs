@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-const TARGETS: [&str; 4] = ["solver", "parsers", "settings", "proto"];
+pub(crate) const TARGETS: [&str; 4] = ["solver", "parsers", "settings", "proto"];
 
 fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -189,16 +189,17 @@ within σ/2 of the FPU fit, on every run; the estimate gates with --check) or a 
     },
     Cmd {
         name: "fuzz",
-        args: "[--seconds N] [--target solver|parsers]",
+        args: "[--seconds N] [--target solver|parsers|settings|proto]",
         summary: "the cargo-fuzz targets (nightly, libFuzzer), N seconds each",
         help: "\
 Runs the cargo-fuzz targets of fuzz/ (the solver on arbitrary inputs; the parsers of scene TOML,
-finger TOML and trace CSV) and reports, per target, how long it ran clean and how many inputs
+finger TOML and trace CSV; the settings store's load on arbitrary flash contents; the host
+protocol's frame decoder on arbitrary byte streams) and reports, per target, how long it ran clean and how many inputs
 it executed. Installs the nightly toolchain and cargo-fuzz when missing (host only).
 
 options:
   --seconds N           how long each target runs (default 60)
-  --target NAME         only this target: solver or parsers
+  --target NAME         only this target: solver, parsers, settings or proto
   -h, --help            print this help and exit
 
 exit status: 0 when no target found anything; 1 on a finding (the input that triggered it is
@@ -354,6 +355,15 @@ mod tests {
 
     fn args(v: &[&str]) -> Vec<String> {
         v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn fuzz_help_names_every_fuzz_target() {
+        let c = COMMANDS.iter().find(|c| c.name == "fuzz").unwrap();
+        for t in fuzz::TARGETS {
+            assert!(c.args.contains(t), "usage omits the {t} target: {}", c.args);
+            assert!(c.help.contains(t), "help omits the {t} target");
+        }
     }
 
     #[test]
