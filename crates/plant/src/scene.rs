@@ -118,13 +118,14 @@ pub struct Scene {
     pub drive: DriveParams,
     /// Encoder and current sensor.
     pub sensors: SensorParams,
-    /// Open-loop command.
+    /// Open-loop command (`Plant::step_scene`); closed-loop runners drive the plant with the
+    /// controller and do not read it.
     pub command: CommandProfile,
     /// Scheduled faults.
     pub faults: FaultSpec,
     /// Control period (s); `Plant::step` advances by this.
     pub dt_s: f64,
-    /// Suggested run length (s).
+    /// Run length of an open-loop run (s); closed-loop runners have their own limit.
     pub duration_s: f64,
     /// Start the finger in free motion at this θa (rad) instead of at rest — an approach
     /// shortcut for slow (QEMU, soft-float) runs. The encoder still counts from the rest pose

@@ -4,7 +4,7 @@
 //! ```toml
 //! name = "table2"
 //! dt_s = 1e-4            # control period (s)
-//! duration_s = 5.0       # suggested run length (s)
+//! duration_s = 5.0       # open-loop run length (s); closed-loop runners have their own limit
 //! ideal = false          # true: friction, backlash, gear losses and sensor errors off
 //! start_theta_a_rad = -0.3  # optional: start in free motion there (approach shortcut)
 //!
@@ -15,7 +15,8 @@
 //! k_m = 0.02927          # ... at k2 (m) ...
 //! theta1_c_rad = 1.2797  # ... when θ1 = 1.2797 rad (or give x_m, y_m instead)
 //!
-//! [command]              # mode = "external" | "duty" | "current"
+//! [command]              # open-loop drive: mode = "external" | "duty" | "current"; the
+//!                        # closed-loop runners (pts sim, the firmware) drive with the controller
 //! mode = "duty"
 //! from = 0.0
 //! to = 0.8

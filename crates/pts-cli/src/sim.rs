@@ -198,6 +198,25 @@ fn ctl_event(e: &grasp::Event, dt: f64) -> TimedEvent {
                 f64::from(target_unm) / 1e6
             ),
         ),
+        E::Seated {
+            tick,
+            stage,
+            theta_a_urad,
+            torque_unm,
+        } => (
+            tick,
+            "seated",
+            format!(
+                "{}: θa = {:.5} rad, T_a = {:.4} N·m",
+                match stage {
+                    0 => "the impact at rest (not used by the estimate)",
+                    1 => "first loading point",
+                    _ => "second loading point",
+                },
+                f64::from(theta_a_urad) / 1e6,
+                f64::from(torque_unm) / 1e6
+            ),
+        ),
         E::StepDone { tick } => (tick, "step_done", String::new()),
         E::Settled {
             tick,

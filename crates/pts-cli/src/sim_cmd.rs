@@ -104,6 +104,12 @@ fn check_dta(dta: &[f64]) -> Result<(), String> {
     Ok(())
 }
 
+/// What a scene's `[command]` and `duration_s` are for, since `pts sim` does not use them.
+pub const OPEN_LOOP_NOTE: &str =
+    "A scene's [command] (a duty or current profile) and duration_s drive \
+open-loop plant runs (`cargo run -p plant --example run_scene -- NAME`); pts sim runs the grasp \
+controller instead, which drives the finger itself until it holds, faults or --max-s passes.";
+
 /// A scene in words, from its data: the object and where it is touched, the drive, the faults.
 pub fn scene_summary(sc: &plant::Scene) -> String {
     use plant::scene::ObjectSpec;
@@ -181,6 +187,7 @@ pub fn run(a: &Args) -> Result<(), String> {
             let what = plant::scenes::by_name(n).map_or(String::new(), |sc| scene_summary(&sc));
             crate::outln!("{n:<width$}  {what}");
         }
+        crate::outln!("\n{OPEN_LOOP_NOTE}");
         return Ok(());
     }
     check_dta(&a.dta)?;
@@ -198,6 +205,9 @@ pub fn run(a: &Args) -> Result<(), String> {
         _ => return Err("--step-ramp takes one value without --sweep".into()),
     };
     let (scene, overcurrent_a) = with_finger(a, sim::load_scene(&a.scene)?)?;
+    if scene.command.mode != plant::scene::CommandMode::External {
+        eprintln!("note: {OPEN_LOOP_NOTE}");
+    }
     let t0 = Instant::now();
     let rep = sim::run(&SimOptions {
         scene,

@@ -20,6 +20,9 @@ fn plain_pts_sim_ends_with_an_estimate_and_exit_0() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(text.contains("estimate: distal, k2 ="), "{text}");
+    // Every event in words and SI units, none in the controller's Debug form.
+    assert!(text.contains("first loading point: θa ="), "{text}");
+    assert!(!text.contains("{ tick"), "{text}");
 }
 
 #[test]
@@ -30,6 +33,24 @@ fn a_fault_is_reported_and_exits_non_zero() {
     assert!(
         err.contains("fault") && err.contains("no estimate"),
         "{err}"
+    );
+}
+
+/// A scene's open-loop `[command]` and `duration_s` are not silently dropped: `pts sim` says
+/// that the controller drives the grasp instead, and `--list` says what they are for.
+#[test]
+fn the_scenes_open_loop_command_is_named_not_silently_ignored() {
+    let out = pts(&["sim", "--scene", "large_cyl_second_contact"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("note: A scene's [command]") && err.contains("run_scene"),
+        "{err}"
+    );
+    let list = pts(&["sim", "--list"]);
+    let text = String::from_utf8_lossy(&list.stdout);
+    assert!(
+        text.contains("[command]") && text.contains("duration_s"),
+        "{text}"
     );
 }
 
