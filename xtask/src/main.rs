@@ -194,8 +194,9 @@ within σ/2 of the FPU fit, on every run; the estimate gates with --check) or a 
         help: "\
 Runs the cargo-fuzz targets of fuzz/ (the solver on arbitrary inputs; the parsers of scene TOML,
 finger TOML and trace CSV; the settings store's load on arbitrary flash contents; the host
-protocol's frame decoder on arbitrary byte streams) and reports, per target, how long it ran clean and how many inputs
-it executed. Installs the nightly toolchain and cargo-fuzz when missing (host only).
+protocol's frame decoder on arbitrary byte streams) and reports, per target, how long it ran
+clean and how many inputs it executed. Installs the nightly toolchain and cargo-fuzz when
+missing (host only).
 
 options:
   --seconds N           how long each target runs (default 60)
