@@ -126,6 +126,14 @@ pub struct Tracker {
     slope: f64,
 }
 
+/// The event of constraint `c` letting go: a lost contact (at `k_m`) or a released limit.
+fn released(c: Constraint, k_m: f64) -> EventKind {
+    match c {
+        Constraint::Contact(ph) => EventKind::LossOfContact { phalanx: ph, k_m },
+        other => EventKind::LimitReleased { constraint: other },
+    }
+}
+
 /// What a new constraint did to a pass of [`Tracker::advance`].
 enum Hit {
     /// The tracker moved to the event's pose: solve again from there.
@@ -295,14 +303,7 @@ impl Tracker {
                 });
                 match free {
                     Ok(f) if clear => {
-                        let kind = match c {
-                            Constraint::Contact(ph) => EventKind::LossOfContact {
-                                phalanx: ph,
-                                k_m: at.k_m,
-                            },
-                            other => EventKind::LimitReleased { constraint: other },
-                        };
-                        emit(ev(&at, kind));
+                        emit(ev(&at, released(c, at.k_m)));
                         self.pose = f;
                         self.slope = 0.0;
                         self.rearm();
@@ -340,14 +341,7 @@ impl Tracker {
                     self.jam(at, c, theta_a_rad, emit);
                     return Ok(true);
                 }
-                let kind = match c {
-                    Constraint::Contact(ph) => EventKind::LossOfContact {
-                        phalanx: ph,
-                        k_m: at.k_m,
-                    },
-                    other => EventKind::LimitReleased { constraint: other },
-                };
-                emit(ev(&at, kind));
+                emit(ev(&at, released(c, at.k_m)));
                 self.pose = self
                     .kin
                     .solve(at.theta_a_rad, Active::None, at.theta2_rad)?;
