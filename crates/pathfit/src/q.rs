@@ -376,8 +376,9 @@ impl PathTable {
             Ok(model.free_from_torque(ta)?.theta2.to_f64())
         };
         let lo = theta2_free(TABLE_TA_MIN_NM)? - BELOW;
-        let hi = theta2_free(TABLE_TA_MAX_NM)? + ABOVE;
-        let segs = (libm::ceil((hi - lo) / SEG_STEP) as usize).min(MAX_SEGMENTS);
+        let top_free = theta2_free(TABLE_TA_MAX_NM)?;
+        let hi = top_free + ABOVE;
+        let mut segs = (libm::ceil((hi - lo) / SEG_STEP) as usize).min(MAX_SEGMENTS);
         if !(lo > -7.0 && lo + segs as f64 * SEG_STEP < 7.0) || segs < 2 {
             return Err(oor);
         }
@@ -409,11 +410,27 @@ impl PathTable {
         let mut a = node(0)?;
         theta_a_free[0] = free_q(a[8])?;
         for i in 0..segs {
-            let b = node(i + 1)?;
-            if !(b[8] > a[8]) || b[0].abs() > 7.5 || b[2].abs() > 4.0 || b[3].abs() > 4.0 {
+            let b = node(i + 1).and_then(|b| {
+                let fits =
+                    b[8] > a[8] && b[0].abs() <= 7.5 && b[2].abs() <= 4.0 && b[3].abs() <= 4.0;
                 // Free motion must be monotone in θ2 for the contact solve's start.
-                return Err(oor);
-            }
+                if fits {
+                    Ok(b)
+                } else {
+                    Err(oor)
+                }
+            });
+            let b = match b {
+                Ok(b) => b,
+                // A soft distal spring takes the path's excursion band past the toggle, where
+                // the actuator no longer drives θ2 and no contact path can go: the table ends
+                // at the last node before it, above the whole free motion it must cover.
+                Err(_) if lo + i as f64 * SEG_STEP > top_free + SEG_STEP && i >= 2 => {
+                    segs = i;
+                    break;
+                }
+                Err(e) => return Err(e),
+            };
             theta_a_free[i + 1] = free_q(b[8])?;
             let s = seg.get_mut(i).ok_or(oor)?;
             for (fld, out) in s.chunks_exact_mut(4).enumerate() {
@@ -1765,7 +1782,40 @@ mod tests {
 
     #[test]
     fn free_torque_matches_the_model() {
-        let f = Finger::PAPER;
+        free_torque_matches_the_model_for(&Finger::PAPER);
+    }
+
+    /// A soft distal spring (K2 × 0.75, K1 × 1.25): the excursion band above the free motion
+    /// reaches the toggle (θ2 = 2.3557 rad), so the table is cut below it; the free motion it
+    /// must cover is still whole.
+    #[test]
+    fn a_soft_distal_spring_cuts_the_table_at_the_toggle() {
+        let f = soft_distal_finger();
+        let table = PathTable::new(&f, &PathFitConfig::DEFAULT, 1e-4).unwrap();
+        let raw = table.to_raw();
+        let m64 = Model::<f64>::new(&f).unwrap();
+        let top = m64.free_from_torque(TABLE_TA_MAX_NM).unwrap().theta2;
+        let uncut = libm::ceil((top + ABOVE - raw.theta2_0 as f64 / ONE as f64) / SEG_STEP);
+        assert!(
+            (raw.segs as f64) < uncut,
+            "table not cut: {} segments",
+            raw.segs
+        );
+        let end = raw.theta2_0 as f64 / ONE as f64 + raw.segs as f64 * SEG_STEP;
+        assert!(end > top && end < 2.3557, "table ends at θ2 = {end} rad");
+        free_torque_matches_the_model_for(&f);
+    }
+
+    fn soft_distal_finger() -> Finger {
+        Finger {
+            k1: Finger::PAPER.k1 * 1.25,
+            k2: Finger::PAPER.k2 * 0.75,
+            ..Finger::PAPER
+        }
+    }
+
+    fn free_torque_matches_the_model_for(f: &Finger) {
+        let f = *f;
         let table = PathTable::new(&f, &PathFitConfig::DEFAULT, 1e-4).unwrap();
         let m64 = Model::<f64>::new(&f).unwrap();
         let mut worst = 0.0f64;
