@@ -11,8 +11,10 @@
 //! ([`Model::invert_cos`], the closed-form quadratic) needs no trigonometry at all.
 //!
 //! The grid spans the free motion for T_a from [`TABLE_TA_MIN_NM`] to [`TABLE_TA_MAX_NM`]
-//! (θa ≈ −1.40 … 1.98 rad for the paper's finger); outside it the lookup falls back to the
-//! model's Newton solve, so the answers are the same function of the inputs everywhere.
+//! (θa ≈ −1.40 … 1.98 rad for the paper's finger; lower at the top for a finger so soft that
+//! the free motion at that torque turns the crank off the model's branch, past π); outside it
+//! the lookup falls back to the model's Newton solve, so the answers are the same function of
+//! the inputs everywhere.
 
 use crate::fixed::Fx32;
 use crate::model::{Config, Estimate, Model, MODEL_RAW_WORDS};
@@ -161,6 +163,36 @@ fn fields(m: &Model<f64>, theta_a: f64) -> Result<[f64; FIELDS], PtsError> {
     Ok([c.theta2, c.theta1, c.x2, c.dx2, cos2, cos2 * m.cos_scale()])
 }
 
+/// Torque step (N·m) by which the table's top comes down for a finger that has no free
+/// motion up to [`TABLE_TA_MAX_NM`].
+const TOP_STEP_NM: f64 = 0.05;
+
+/// The θa (rad) of the table's top: the free motion at [`TABLE_TA_MAX_NM`]. Soft springs let
+/// the free motion at that torque turn the crank past π, where the model's solution leaves
+/// its branch (θa jumps by 2π, or the solve fails): such a finger's table ends at the highest
+/// torque [`TOP_STEP_NM`] lower whose free motion is on the branch (θa below π and rising with
+/// the torque), far above any contact it grasps; lookups above it fall back to the model.
+/// No such torque 0.3 N·m above [`TABLE_TA_MIN_NM`]: refused as the model refuses.
+fn top_theta_a(m64: &Model<f64>, lo: f64) -> Result<f64, PtsError> {
+    let mut ta = TABLE_TA_MAX_NM;
+    loop {
+        let top = m64.free_from_torque(ta).and_then(|c| {
+            let below = m64.free_from_torque(ta - TOP_STEP_NM)?.theta_a;
+            let on_branch = c.theta_a < core::f64::consts::PI && c.theta_a > below && below > lo;
+            if on_branch {
+                Ok(c.theta_a)
+            } else {
+                Err(PtsError::NoConvergence)
+            }
+        });
+        match top {
+            Ok(t) => return Ok(t),
+            Err(e) if ta - TOP_STEP_NM < TABLE_TA_MIN_NM + 0.3 => return Err(e),
+            Err(_) => ta -= TOP_STEP_NM,
+        }
+    }
+}
+
 impl<R: TableReal> FreeTable<R> {
     /// Builds the table from the f64 model of `finger` (about 100 free-motion solves).
     ///
@@ -173,7 +205,7 @@ impl<R: TableReal> FreeTable<R> {
             return Err(PtsError::OutOfRange);
         }
         let lo = m64.free_from_torque(TABLE_TA_MIN_NM)?.theta_a;
-        let hi = m64.free_from_torque(TABLE_TA_MAX_NM)?.theta_a;
+        let hi = top_theta_a(&m64, lo)?;
         if !(hi > lo) {
             return Err(PtsError::OutOfRange);
         }
