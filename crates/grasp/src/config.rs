@@ -519,7 +519,8 @@ impl ControllerConfig {
     /// springs, drive, motor, encoder and current sense; the over-current limit from
     /// `motor.max_current_a`; the encoder zeroed at the finger's own rest angle; everything else
     /// from `self`. Checked by [`ControllerConfig::params`], so a file accepted here is accepted
-    /// by the firmware built from it. Errors name the file's key and what is allowed.
+    /// by the firmware built from it, and both estimators' tables are built for the finger, so
+    /// that firmware can estimate. Errors name the file's key and what is allowed.
     pub fn with_finger_file(
         self,
         file: &pts::config::FingerFile,
@@ -561,6 +562,22 @@ impl ControllerConfig {
                 ),
             ));
         }
+        // Both estimators run on tables built from the finger (the board's with its firmware):
+        // a file whose tables cannot be built would give a controller that never estimates.
+        let max_k = pathfit::q::MAX_SPRING_NM_PER_RAD;
+        for (key, k) in [
+            ("springs.k1_nm_per_rad", file.finger.k1),
+            ("springs.k2_nm_per_rad", file.finger.k2),
+        ] {
+            if !(k > 0.0 && k < max_k) {
+                return Err(invalid(
+                    key,
+                    format!(
+                        "{k} N·m/rad: the estimators' tables hold springs in (0, {max_k}) N·m/rad"
+                    ),
+                ));
+            }
+        }
         let theta_a_rest_rad = finger_rest_theta_a_rad(&file.finger).map_err(|e| {
             invalid(
                 "geometry",
@@ -585,20 +602,48 @@ impl ControllerConfig {
             ..self
         };
         match cfg.params() {
-            Ok(_) => Ok(cfg),
-            Err(ConfigError::Finger(e)) => Err(invalid(
-                "geometry",
-                format!("not a valid linkage for the model: {e:?}"),
-            )),
-            Err(e) => Err(invalid(
-                "drive",
-                format!(
-                    "the drive, motor, encoder and current-sense values together are outside \
-                     what the controller's integer parameters can hold ({e:?}): e.g. a gear ratio \
-                     or counts per turn so large that one count is below 1 µrad"
-                ),
-            )),
+            Ok(_) => {}
+            Err(ConfigError::Finger(e)) => {
+                return Err(invalid(
+                    "geometry",
+                    format!("not a valid linkage for the model: {e:?}"),
+                ))
+            }
+            Err(e) => {
+                return Err(invalid(
+                    "drive",
+                    format!(
+                        "the drive, motor, encoder and current-sense values together are \
+                         outside what the controller's integer parameters can hold ({e:?}): e.g. \
+                         a gear ratio or counts per turn so large that one count is below 1 µrad"
+                    ),
+                ))
+            }
         }
+        let table = |which: &str, r: Result<(), PtsError>| {
+            r.map_err(|e| {
+                invalid(
+                    "geometry",
+                    format!(
+                        "the {which} table cannot be built for this finger ({e}): its formats \
+                         hold the linkage's free motion over T_a {} … {} N·m, l2 plus a \
+                         {} m object within 4·l1 and |x2|, |dx2/dθ2| ≤ 4",
+                        pts::table::TABLE_TA_MIN_NM,
+                        pts::table::TABLE_TA_MAX_NM,
+                        pathfit::PathFitConfig::DEFAULT.max_radius_m,
+                    ),
+                )
+            })
+        };
+        table(
+            "two-point estimate's free-motion",
+            crate::two_point_table(&file.finger).map(|_| ()),
+        )?;
+        table(
+            "path fit's",
+            crate::path_table(&file.finger, (dt_s * 1e9) as u32).map(|_| ()),
+        )?;
+        Ok(cfg)
     }
 }
 

@@ -67,6 +67,9 @@ pub const MAX_SEGMENTS: usize = 48;
 const BELOW: f64 = 0.25;
 const ABOVE: f64 = MAX_DELTA + 0.125;
 
+/// Springs the table holds: K1 and K2 below this (N·m/rad), and above 0.
+pub const MAX_SPRING_NM_PER_RAD: f64 = 100.0;
+
 /// Rounded conversion to a Q format, `None` outside i32.
 fn to_q(v: f64, q: u32) -> Option<i32> {
     let y = v * (1u64 << q) as f64;
@@ -355,7 +358,8 @@ impl PathTable {
         })?;
         let f = finger;
         let oor = PtsError::OutOfRange;
-        if !(f.k1 > 0.0 && f.k1 < 100.0 && f.k2 > 0.0 && f.k2 < 100.0) {
+        let spring_ok = |k: f64| k > 0.0 && k < MAX_SPRING_NM_PER_RAD;
+        if !(spring_ok(f.k1) && spring_ok(f.k2)) {
             return Err(oor);
         }
         if !((f.l2 + cfg.max_radius_m) <= 4.0 * f.l1 && f.l1 > 1e-3 && f.l1 < 4.0) {

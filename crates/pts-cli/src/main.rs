@@ -901,7 +901,7 @@ fn main() -> ExitCode {
 }
 
 fn run_eval(finger: Option<PathBuf>, numeric: Numeric) -> Result<(), String> {
-    let file = pts_cli::load_finger(finger.as_deref())?;
+    let file = pts_cli::load_finger_model(finger.as_deref())?;
     let ev = Evaluator::new(file.finger, numeric);
     let mut stdin = std::io::stdin().lock();
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
@@ -929,7 +929,7 @@ fn run_plot(what: PlotCmd) -> Result<(), String> {
             out,
             size,
         } => {
-            let file = pts_cli::load_finger(finger.as_deref())?;
+            let file = pts_cli::load_finger_model(finger.as_deref())?;
             let model = pts::Model::<f64>::new(&file.finger).map_err(|e| e.to_string())?;
             let curves = theta1_c
                 .iter()

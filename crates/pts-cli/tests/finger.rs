@@ -44,3 +44,31 @@ fn the_shipped_finger_files_are_accepted() {
         );
     }
 }
+
+/// A finger whose springs or linkage the estimators' tables cannot hold is refused when the
+/// file is checked, naming the key and the range (it used to pass, and the firmware built from
+/// it never estimated).
+#[test]
+fn a_finger_the_estimators_cannot_model_is_refused_by_pts_finger() {
+    for (name, text, key, range) in [
+        (
+            "k2.toml",
+            "[springs]\nk2_nm_per_rad = 150.0\n",
+            "springs.k2_nm_per_rad",
+            "(0, 100)",
+        ),
+        (
+            "k1.toml",
+            "[springs]\nk1_nm_per_rad = 0.0\n",
+            "springs.k1_nm_per_rad",
+            "(0, 100)",
+        ),
+        ("long.toml", "[geometry]\nl2_m = 0.35\n", "geometry", "4·l1"),
+    ] {
+        let f = write(name, text);
+        let out = pts(&["finger", "--finger", f.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{name} accepted");
+        assert!(err.contains(key) && err.contains(range), "{name}: {err}");
+    }
+}
