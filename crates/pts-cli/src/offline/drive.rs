@@ -119,6 +119,21 @@ pub(super) fn kinematics(blocks: &[Block], k: usize, quantum_rad: f64) -> Option
     if (c.theta_a_rad - a.theta_a_rad).abs() <= 0.5 * quantum_rad.max(1e-9) {
         return None;
     }
+    let (speed, accel) = speed_accel(blocks, k, KIN_SPAN)?;
+    Some(Kinematics {
+        theta_a_rad: b.theta_a_rad,
+        torque_nm: b.torque_nm,
+        speed_rad_s: speed,
+        accel_rad_s2: accel,
+    })
+}
+
+/// Block `k`'s crank speed (rad/s) and acceleration (rad/s²) across ±`span` blocks; `None` at
+/// the ends, on a time that does not advance, or on a non-finite result.
+pub(super) fn speed_accel(blocks: &[Block], k: usize, span: usize) -> Option<(f64, f64)> {
+    let a = blocks.get(k.checked_sub(span)?)?;
+    let b = blocks.get(k)?;
+    let c = blocks.get(k + span)?;
     let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
     if !(d1 > 0.0 && d2 > 0.0) {
         return None;
@@ -127,12 +142,7 @@ pub(super) fn kinematics(blocks: &[Block], k: usize, quantum_rad: f64) -> Option
     let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
     let speed = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
     let accel = 2.0 * (v2 - v1) / (d1 + d2);
-    (speed.is_finite() && accel.is_finite()).then_some(Kinematics {
-        theta_a_rad: b.theta_a_rad,
-        torque_nm: b.torque_nm,
-        speed_rad_s: speed,
-        accel_rad_s2: accel,
-    })
+    (speed.is_finite() && accel.is_finite()).then_some((speed, accel))
 }
 
 /// The fit of r = offset + viscous·ω + inertia·α: parameters, noise scale, var(inertia).

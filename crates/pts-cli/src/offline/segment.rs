@@ -405,20 +405,7 @@ pub fn loading_path(
         return None;
     }
     let span = span.max(1);
-    let kin = |k: usize| -> Option<(f64, f64)> {
-        let a = blocks.get(k.checked_sub(span)?)?;
-        let b = blocks.get(k)?;
-        let c = blocks.get(k + span)?;
-        let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
-        if !(d1 > 0.0 && d2 > 0.0) {
-            return None;
-        }
-        let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
-        let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
-        let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
-        let acc = 2.0 * (v2 - v1) / (d1 + d2);
-        (w.is_finite() && acc.is_finite()).then_some((w, acc))
-    };
+    let kin = |k: usize| super::drive::speed_accel(blocks, k, span);
     // (θa, quasi-static T_a) of each usable block, in time order.
     let mut pts: std::vec::Vec<(f64, f64)> = std::vec::Vec::new();
     for k in knee + 1..hi.min(blocks.len()) {
