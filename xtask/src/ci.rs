@@ -414,7 +414,8 @@ fn finger_check() -> Res {
         let sim = util::output(util::cargo().args([
             "run",
             "-q",
-            "--release",
+            "--profile",
+            util::HOST_PROFILE,
             "-p",
             "pts-cli",
             "--",
@@ -432,7 +433,8 @@ fn finger_check() -> Res {
         let est = util::output(util::cargo().args([
             "run",
             "-q",
-            "--release",
+            "--profile",
+            util::HOST_PROFILE,
             "-p",
             "pts-cli",
             "--",

@@ -105,8 +105,7 @@ pub fn main() -> Res<i32> {
     qemu::ensure_qemu()?;
     println!("building the device-mode firmware (QEMU) and pts; the first run takes minutes");
     let elf = crate::device::build()?;
-    util::run(util::cargo().args(["build", "-q", "--release", "-p", "pts-cli"]))?;
-    let pts: PathBuf = util::root().join("target").join("release").join("pts");
+    let pts: PathBuf = util::build_pts()?;
     let port = crate::device::free_port()?;
     let addr = format!("127.0.0.1:{port}");
     let log_path = util::root().join("target").join("finger-fw-demo.defmt");

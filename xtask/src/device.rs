@@ -236,13 +236,13 @@ pub fn build() -> Res<PathBuf> {
 /// The stage.
 pub fn check() -> Res {
     let elf = build()?;
-    util::run(util::cargo().args(["build", "-q", "--release", "-p", "pts-cli"]))?;
+    let pts = util::build_pts()?;
     util::run(util::cargo().args(["build", "-q", "-p", "finger-fw"]))?;
     let port = free_port()?;
     let s = Session {
         elf,
         log: util::root().join("target").join("finger-fw-device.defmt"),
-        pts: util::root().join("target").join("release").join("pts"),
+        pts,
         addr: format!("127.0.0.1:{port}"),
     };
     let mut child = qemu::spawn_device(&s.elf, port, &s.log)?;

@@ -152,10 +152,9 @@ fn expand(step: &[&str], out: &Path, tmp: &Path) -> (Vec<String>, Option<PathBuf
     (args, stdout)
 }
 
-/// Draws every figure into `dir` with the release `pts` binary.
+/// Draws every figure into `dir` with the `pts` binary of xtask's host profile.
 fn draw_all(dir: &Path) -> Res {
-    util::run(util::cargo().args(["build", "--release", "-q", "-p", "pts-cli", "--bin", "pts"]))?;
-    let pts = util::root().join("target/release/pts");
+    let pts = util::build_pts()?;
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     for (i, fig) in FIGURES.iter().enumerate() {
         eprintln!("[{}/{}] {}", i + 1, FIGURES.len(), fig.file);

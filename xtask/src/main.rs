@@ -128,7 +128,7 @@ exit status: QEMU's when it ends; 1 when the build or QEMU cannot start.
         args: "[--check]",
         summary: "draw the docs' figures (docs/figures/) or check they are current",
         help: "\
-Builds the release `pts` and draws every figure the documentation shows (docs/figures/*.svg):
+Builds `pts` (profile `host`) and draws every figure the documentation shows (docs/figures/*.svg):
 K_c(k2), the Table 2 grasp with the two-point and the path-fit estimate, and the heat maps of
 the closed-loop sweeps. Each figure's recipe (the `pts` commands) is in xtask/src/figures.rs.
 

@@ -27,16 +27,21 @@ pub fn main(args: &[String]) -> Res<i32> {
     let port = port_from_args(args)?;
     qemu::ensure_qemu()?;
     let elf = device::build()?;
-    util::run(util::cargo().args(["build", "-q", "--release", "-p", "pts-cli"]))?;
+    let pts = util::build_pts()?;
     let log = util::root()
         .join("target")
         .join("finger-fw-device-serve.defmt");
     let mut child = qemu::spawn_device(&elf, port, &log)?;
+    let pts = pts
+        .strip_prefix(util::root())
+        .unwrap_or(&pts)
+        .display()
+        .to_string();
     println!(
         "device-mode firmware running in QEMU; its UART is 127.0.0.1:{port}. In another terminal:\n  \
-         target/release/pts board --connect 127.0.0.1:{port} hello\n  \
-         target/release/pts board --connect 127.0.0.1:{port} set scene cyl10_k2_20\n  \
-         target/release/pts board --connect 127.0.0.1:{port} grasp\n\
+         {pts} board --connect 127.0.0.1:{port} hello\n  \
+         {pts} board --connect 127.0.0.1:{port} set scene cyl10_k2_20\n  \
+         {pts} board --connect 127.0.0.1:{port} grasp\n\
          Ctrl-C stops QEMU.\n"
     );
     let mut view = View::default();

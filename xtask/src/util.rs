@@ -26,6 +26,24 @@ pub fn cargo() -> Command {
     c
 }
 
+/// Cargo profile of the host tools xtask builds and runs (Cargo.toml's `[profile.host]`).
+pub const HOST_PROFILE: &str = "host";
+
+/// Builds the `pts` host tool in [`HOST_PROFILE`]; returns the binary's path.
+pub fn build_pts() -> Res<PathBuf> {
+    run(cargo().args([
+        "build",
+        "-q",
+        "--profile",
+        HOST_PROFILE,
+        "-p",
+        "pts-cli",
+        "--bin",
+        "pts",
+    ]))?;
+    Ok(root().join("target").join(HOST_PROFILE).join("pts"))
+}
+
 /// `value` made absolute against the current directory when it names a relative `.toml` file;
 /// `None` when it is absolute, empty or not a file name (e.g. a built-in scene name).
 fn absolute_file(value: &std::ffi::OsStr) -> Option<PathBuf> {
