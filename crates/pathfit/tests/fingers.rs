@@ -1,5 +1,6 @@
-//! Every finger a user may plausibly build (the paper's, its springs off by −40/+60 %,
-//! its rest angles by ±5°, its links by ±5 %, its distal phalanx ±20 % long) gets both
+//! Every finger a user may plausibly build (the paper's, its springs off by −40/+60 %, the
+//! distal one down to −70 %, its rest angles by ±5°, its links by ±5 %, its distal phalanx
+//! ±20 % long) gets both
 //! estimators' tables: the model accepting a finger and a table refusing it would leave the
 //! firmware without an estimate for a file the finger check passed.
 
@@ -31,7 +32,7 @@ proptest! {
 
     #[test]
     fn a_plausible_finger_gets_both_tables(
-        k1 in 0.6f64..1.6, k2 in 0.6f64..1.6,
+        k1 in 0.6f64..1.6, k2 in 0.3f64..1.6,
         d01 in -5.0f64..5.0, d02 in -5.0f64..5.0,
         l1 in 0.95f64..1.05, l2 in 0.8f64..1.2,
         a in 0.95f64..1.05, b in 0.95f64..1.05, c in 0.95f64..1.05,
@@ -52,9 +53,6 @@ proptest! {
 /// toggle (the path-fit table once refused it); with K1 × 0.6 and K2 × 0.3 the free motion at
 /// the two-point table's top torque turns the crank past π, off the model's branch (that table
 /// once refused it), so the table ends lower, with the model's free motion where it has one.
-/// (Around K2 × 0.3 with a stiffer K1 the two-point table is still refused: the model's
-/// free-motion solve from θa does not converge at some θa inside the table although the free
-/// motion exists there, which is why the property above stops at K2 × 0.6.)
 #[test]
 fn the_softest_springs_get_both_tables() {
     for (k1, k2, d02) in [(1.6, 0.6, 0.0), (0.6, 0.3, 5.0)] {

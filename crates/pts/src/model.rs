@@ -376,9 +376,14 @@ impl<R: Real> Model<R> {
         }
         let offset = self.phi2_minus_pi + R::from_f64(core::f64::consts::PI);
         let mut theta2 = self.theta02;
+        // θ1 of the previous iterate: γ comes from atan2 and jumps by 2π where the linkage's
+        // angle crosses ±π, which θ1 (the proximal phalanx) does not. θ1 is kept continuous
+        // along the iterates, starting on γ's branch at θ02.
+        let mut theta1_prev: Option<R> = None;
         for _ in 0..MAX_NEWTON {
             let cl = self.closure(theta2)?;
-            let theta1 = theta_a - theta2 + offset + cl.gamma;
+            let theta1 = continuous(theta_a - theta2 + offset + cl.gamma, theta1_prev);
+            theta1_prev = Some(theta1);
             let ta = self.k1 * (theta1 - self.theta01);
             let g = self.k2 * (theta2 - self.theta02) - ta * cl.x2;
             let dg = self.k2_prime(ta, &cl) + self.k1 * cl.x2 * cl.x2;
@@ -389,7 +394,7 @@ impl<R: Real> Model<R> {
             theta2 = theta2 - step;
             if step.abs() <= R::from_f64(R::TOL) {
                 let cl = self.closure(theta2)?;
-                let theta1 = theta_a - theta2 + offset + cl.gamma;
+                let theta1 = continuous(theta_a - theta2 + offset + cl.gamma, theta1_prev);
                 let ta = self.k1 * (theta1 - self.theta01);
                 return Ok(Config {
                     theta1: ok_value(theta1)?,
@@ -741,6 +746,23 @@ fn times_const<R: Real>(x: R, k: f64) -> R {
         x + x
     } else {
         R::from_f64(k) * x
+    }
+}
+
+/// `angle` (rad) shifted by a whole turn to lie within π of `prev`, when there is one.
+fn continuous<R: Real>(angle: R, prev: Option<R>) -> R {
+    let Some(prev) = prev else { return angle };
+    let (pi, turn) = (
+        R::from_f64(core::f64::consts::PI),
+        R::from_f64(2.0 * core::f64::consts::PI),
+    );
+    let d = angle - prev;
+    if d > pi {
+        angle - turn
+    } else if d < -pi {
+        angle + turn
+    } else {
+        angle
     }
 }
 

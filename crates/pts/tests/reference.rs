@@ -80,3 +80,43 @@ fn leaving_g_out_is_detectably_different() {
     let without_g = m.kc_distal(cfg.theta2, 0.0, 0.02927).unwrap();
     assert!((with_g / without_g - 1.0).abs() > 0.01);
 }
+
+/// A soft distal spring (K2 × 0.31, θ02 + 4.4°, links a few % off): near the top of the
+/// free motion the solve from θa passes the θ2 where the linkage angle γ (an atan2) jumps by
+/// 2π. The solve from θa must still land where the solve from T_a (which needs no θ1 from
+/// γ) puts the finger, up to the torque where θa itself wraps.
+#[test]
+fn free_motion_from_theta_a_across_the_atan2_cut() {
+    let p = Finger::PAPER;
+    let f = Finger {
+        k1: p.k1 * 1.0435,
+        k2: p.k2 * 0.3099,
+        theta01: p.theta01 - 1.254f64.to_radians(),
+        theta02: p.theta02 + 4.370f64.to_radians(),
+        l1: p.l1 * 1.0387,
+        l2: p.l2 * 1.1926,
+        b: p.b * 0.9866,
+        c: p.c * 1.0378,
+        ..p
+    };
+    let m = Model::<f64>::new(&f).unwrap();
+    for i in 0..=60 {
+        let ta = 1.0 + 0.01 * f64::from(i);
+        let want = m.free_from_torque(ta).unwrap();
+        if want.theta_a > core::f64::consts::PI {
+            // θa wrapped: past the model's branch (FreeTable's top stops below it).
+            assert!(ta > 1.5, "θa wrapped already at {ta} N·m");
+            break;
+        }
+        let got = m
+            .free_from_theta_a(want.theta_a)
+            .unwrap_or_else(|e| panic!("T_a {ta} N·m, θa {}: {e:?}", want.theta_a));
+        assert!(
+            (got.theta2 - want.theta2).abs() < 1e-9 && (got.ta - ta).abs() < 1e-9,
+            "T_a {ta} N·m: θ2 {} vs {}, T_a {}",
+            got.theta2,
+            want.theta2,
+            got.ta
+        );
+    }
+}
