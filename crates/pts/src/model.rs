@@ -379,23 +379,21 @@ impl<R: Real> Model<R> {
         // θ1 of the previous iterate: γ comes from atan2 and jumps by 2π where the linkage's
         // angle crosses ±π, which θ1 (the proximal phalanx) does not. θ1 is kept continuous
         // along the iterates, starting on γ's branch at θ02.
-        let mut theta1_prev: Option<R> = None;
-        for _ in 0..MAX_NEWTON {
-            let cl = self.closure(theta2)?;
-            let theta1 = continuous(theta_a - theta2 + offset + cl.gamma, theta1_prev);
-            theta1_prev = Some(theta1);
-            let ta = self.k1 * (theta1 - self.theta01);
-            let g = self.k2 * (theta2 - self.theta02) - ta * cl.x2;
-            let dg = self.k2_prime(ta, &cl) + self.k1 * cl.x2 * cl.x2;
-            if !(dg > R::from_f64(1e-9)) {
-                return Err(PtsError::NoConvergence);
+        let mut theta1_prev = R::zero();
+        // The converged θ2's configuration is built at the top of the pass after the last step.
+        let mut converged = false;
+        for i in 0..=MAX_NEWTON {
+            if !converged && i == MAX_NEWTON {
+                break;
             }
-            let step = clamp_step(g / dg);
-            theta2 = theta2 - step;
-            if step.abs() <= R::from_f64(R::TOL) {
-                let cl = self.closure(theta2)?;
-                let theta1 = continuous(theta_a - theta2 + offset + cl.gamma, theta1_prev);
-                let ta = self.k1 * (theta1 - self.theta01);
+            let cl = self.closure(theta2)?;
+            let mut theta1 = theta_a - theta2 + offset + cl.gamma;
+            if i > 0 {
+                theta1 = continuous(theta1, theta1_prev);
+            }
+            theta1_prev = theta1;
+            let ta = self.k1 * (theta1 - self.theta01);
+            if converged {
                 return Ok(Config {
                     theta1: ok_value(theta1)?,
                     theta2,
@@ -405,6 +403,14 @@ impl<R: Real> Model<R> {
                     dx2: cl.dx2,
                 });
             }
+            let g = self.k2 * (theta2 - self.theta02) - ta * cl.x2;
+            let dg = self.k2_prime(ta, &cl) + self.k1 * cl.x2 * cl.x2;
+            if !(dg > R::from_f64(1e-9)) {
+                return Err(PtsError::NoConvergence);
+            }
+            let step = clamp_step(g / dg);
+            theta2 = theta2 - step;
+            converged = step.abs() <= R::from_f64(R::TOL);
         }
         Err(PtsError::NoConvergence)
     }
@@ -749,9 +755,8 @@ fn times_const<R: Real>(x: R, k: f64) -> R {
     }
 }
 
-/// `angle` (rad) shifted by a whole turn to lie within π of `prev`, when there is one.
-fn continuous<R: Real>(angle: R, prev: Option<R>) -> R {
-    let Some(prev) = prev else { return angle };
+/// `angle` (rad) shifted by a whole turn to lie within π of `prev`.
+fn continuous<R: Real>(angle: R, prev: R) -> R {
     let (pi, turn) = (
         R::from_f64(core::f64::consts::PI),
         R::from_f64(2.0 * core::f64::consts::PI),
