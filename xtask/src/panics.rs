@@ -122,8 +122,9 @@ fn matches_edge(chain: &[String], caller: &str, callee: &str) -> bool {
 
 /// Builds one firmware with `--emit=asm` (own target directory); returns the assembly path.
 pub fn build_asm(features: &[&str], estimator: &str) -> Res<PathBuf> {
-    // One target directory for every build: only the firmware crate differs between them.
-    let target_dir = util::root().join("target").join("fw-asm");
+    // The workspace's target directory: the flags after `--` reach the firmware crate only,
+    // so its dependencies are the ones the board builds (`cargo xtask size`) compile, once.
+    let target_dir = util::root().join("target");
     // The assembly is written only when the firmware compiles: a build that cargo finds fresh
     // (the same features as a previous run) would leave another build's file the newest. So
     // the old files go and the firmware is marked changed, and this build writes its own.
