@@ -411,40 +411,28 @@ fn finger_check() -> Res {
             .ok_or("no k2 estimate from the host runner")? as f64;
         let csv = util::root().join("target").join("finger_check.csv");
         let csv_s = csv.to_str().ok_or("path is not UTF-8")?;
-        let sim = util::output(util::cargo().args([
-            "run",
-            "-q",
-            "--profile",
-            util::HOST_PROFILE,
-            "-p",
-            "pts-cli",
-            "--",
-            "sim",
-            "--scene",
-            "table2",
-            "--dta",
-            FW_DELTA_TA,
-            "--finger",
-            &file_s,
-            "--csv",
-            csv_s,
-            "--json",
-        ]))?;
-        let est = util::output(util::cargo().args([
-            "run",
-            "-q",
-            "--profile",
-            util::HOST_PROFILE,
-            "-p",
-            "pts-cli",
-            "--",
-            "estimate",
-            "--trace",
-            csv_s,
-            "--finger",
-            &file_s,
-            "--json",
-        ]))?;
+        let pts = util::build_pts()?;
+        let sim = util::output(
+            std::process::Command::new(&pts)
+                .current_dir(util::root())
+                .args([
+                    "sim",
+                    "--scene",
+                    "table2",
+                    "--dta",
+                    FW_DELTA_TA,
+                    "--finger",
+                    &file_s,
+                    "--csv",
+                    csv_s,
+                    "--json",
+                ]),
+        )?;
+        let est = util::output(
+            std::process::Command::new(&pts)
+                .current_dir(util::root())
+                .args(["estimate", "--trace", csv_s, "--finger", &file_s, "--json"]),
+        )?;
         let k2_sim = json_number(&sim, &["estimate", "k2"]).ok_or("pts sim gave no k2")? * 1e6;
         let k2_est = json_number(&est, &["contacts", "k2"]).ok_or("pts estimate gave no k2")? * 1e6;
         let first = json_number(&sim, &["truth", "first_contact", "k"])

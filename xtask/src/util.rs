@@ -27,7 +27,7 @@ pub fn cargo() -> Command {
 }
 
 /// Cargo profile of the host tools xtask builds and runs (Cargo.toml's `[profile.host]`).
-pub const HOST_PROFILE: &str = "host";
+const HOST_PROFILE: &str = "host";
 
 /// Builds the `pts` host tool in [`HOST_PROFILE`]; returns the binary's path.
 pub fn build_pts() -> Res<PathBuf> {
