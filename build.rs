@@ -147,6 +147,12 @@ fn finger_consts(src: &mut String) {
          pub const FINGER_THETA_A_REST_RAD: f64 = {:?};",
         cfg.drive.theta_a_rest_rad
     );
+    let _ = writeln!(
+        src,
+        "/// The finger with its rest angle, checked here by the controller's own check.\n\
+         pub const FINGER_REST: grasp::FingerRest = \
+         grasp::FingerRest::checked_at_build(FINGER, FINGER_THETA_A_REST_RAD);"
+    );
     free_table_const(src, &f);
     path_table_const(src, &f);
 }

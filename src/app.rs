@@ -99,7 +99,7 @@ mod app {
             "CAL instructions=200002 stamps={=u32}",
             platform::stamp().wrapping_sub(c0)
         );
-        let ctrl = match Controller::new(cfg) {
+        let ctrl = match ctl::controller(cfg) {
             Ok(c) => c,
             Err(_) => {
                 defmt::error!("CONFIG rejected by grasp: bridge stays off");

@@ -89,7 +89,7 @@ mod app {
             (cfg.drive.dt_s * 1e6) as u32
         );
         crate::fault::latch::check_at_boot();
-        let ctrl = match Controller::new(cfg) {
+        let ctrl = match ctl::controller(cfg) {
             Ok(c) => c,
             Err(_) => {
                 defmt::error!("CONFIG rejected by grasp: bridge stays off");
@@ -854,10 +854,10 @@ mod app {
     /// fresh supervisor that only hears the loop's faults.
     fn start_sweep(sh: &mut Rx<'_>) -> Result<Reply, Error> {
         let (cfg, plant) = next_run(sh, true)?;
-        let params = cfg.params().map_err(|_| Error::ConfigRejected)?;
+        let params = ctl::params(&cfg).map_err(|_| Error::ConfigRejected)?;
         let sweep = grasp::calibrate::Sweep::new(grasp::calibrate::SweepConfig::DEFAULT)
             .map_err(|_| Error::ConfigRejected)?;
-        let (_, link, sup) = Controller::new(cfg)
+        let (_, link, sup) = ctl::controller(cfg)
             .map_err(|_| Error::ConfigRejected)?
             .into_parts();
         let lp = ControlLoop::for_sweep(&params, sweep);
@@ -878,7 +878,7 @@ mod app {
     fn start_grasp(sh: &mut Rx<'_>) -> Result<Reply, Error> {
         let settings = sh.dev.lock(|d| d.settings);
         let (cfg, plant) = next_run(sh, false)?;
-        let ctrl = Controller::new(cfg).map_err(|_| Error::ConfigRejected)?;
+        let ctrl = ctl::controller(cfg).map_err(|_| Error::ConfigRejected)?;
         let tick = install(sh, ctrl.into_parts(), plant, false);
         sh.dev.lock(|d| {
             d.grasps = d.grasps.wrapping_add(1);

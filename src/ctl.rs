@@ -137,9 +137,9 @@ pub const AVAILABLE: &[Estimator] = match ESTIMATOR {
 #[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
 /// The estimate with the estimator the request names (device mode: chosen per grasp): the
 /// build's own estimator on its table ([`run_estimate`]); in a path-fit build the two-point
-/// method too, from the fixed-point model (its table is not built in); a two-point build
-/// refuses the path fit (its table is not built in). A path-fit answer carries the two-point
-/// k2 beside it for reference.
+/// method too, on the path fit's table ([`two_point_on_path_table`]); a two-point build refuses
+/// the path fit (its table is not built in). A path-fit answer carries the two-point k2 beside
+/// it for reference.
 pub fn run_estimate_as(
     finger: &pts::Finger,
     req: &EstimateRequest,
@@ -151,10 +151,12 @@ pub fn run_estimate_as(
             let mut r = run_estimate(finger, req, table)?;
             // The paper's method beside the fit, for reference; its failure does not fail
             // the fit's answer.
-            r.two_point_k2_um = two_point_model(finger, req).ok().and_then(|t| t.k2_um);
+            r.two_point_k2_um = two_point_on_path_table(req, table)
+                .ok()
+                .and_then(|t| t.k2_um);
             Ok(r)
         }
-        (Estimator::TwoPoint, Estimator::PathFit) => two_point_model(finger, req),
+        (Estimator::TwoPoint, Estimator::PathFit) => two_point_on_path_table(req, table),
         (Estimator::PathFit, Estimator::TwoPoint) => Err(EstimateError::PathFit(
             PathFitError::Model(PtsError::OutOfRange),
         )),
@@ -162,14 +164,19 @@ pub fn run_estimate_as(
 }
 
 #[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
-/// The two-point estimate in a path-fit build, whose two-point table is not built in: from
-/// the fixed-point model's Newton solves.
-fn two_point_model(
-    finger: &pts::Finger,
+/// The two-point estimate in a path-fit build, whose two-point table is not built in: on the
+/// path fit's table (`grasp::estimate::two_point_q`: its free motion and its model, no model
+/// solve of its own). A two-point build answers from its own table ([`run_estimate`]).
+fn two_point_on_path_table(
     req: &EstimateRequest,
+    table: Option<&EstimatorTable>,
 ) -> Result<EstimateResult, EstimateError> {
-    let model = pts::Model::<grasp::EstReal>::new(finger)?;
-    grasp::estimate::two_point(&model, req).map_err(EstimateError::Model)
+    #[cfg(fw_path_fit)]
+    if let Some(t) = table {
+        return grasp::estimate::two_point_q(t, req).map_err(EstimateError::Model);
+    }
+    let _ = (req, table);
+    Err(EstimateError::Model(PtsError::OutOfRange))
 }
 
 #[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
@@ -215,6 +222,20 @@ pub fn config_with(drive: DriveConfig, s: &proto::Settings) -> ControllerConfig 
     c.approach_speed_max_rad_s = s.approach_speed_rad_s;
     c.approach_max_nm = s.approach_max_nm;
     c
+}
+
+/// The controller for a configuration of this build's finger (`cfg.finger` is
+/// `config::FINGER`): checked and converted by `grasp`, the finger's part of the check done at
+/// build time (`config::FINGER_REST`), so the firmware links no model for it.
+pub fn controller(cfg: ControllerConfig) -> Result<grasp::Controller, grasp::config::ConfigError> {
+    grasp::Controller::new_for(cfg, &crate::config::FINGER_REST)
+}
+
+#[cfg_attr(all(target_os = "none", not(feature = "device")), allow(dead_code))] // device mode
+#[cfg_attr(not(target_os = "none"), allow(dead_code))] // the calibration sweep is device mode's
+/// The integer parameters of a configuration of this build's finger (as [`controller`]).
+pub fn params(cfg: &ControllerConfig) -> Result<grasp::config::Params, grasp::config::ConfigError> {
+    cfg.params_for(&crate::config::FINGER_REST)
 }
 
 /// True once the grasp has nothing left to do: estimate delivered (holding or released) or

@@ -263,6 +263,48 @@ fn the_firmware_two_point_estimate_matches_the_f64_model() {
     assert!(distal >= 4, "only {distal} distal cases");
 }
 
+/// The two-point estimate a path-fit firmware reports (beside the fit, or when a grasp asks
+/// for the two-point method): on the path fit's table, against the f64 model's.
+#[test]
+fn the_two_point_estimate_on_the_path_table_matches_the_f64_model() {
+    let m64 = Model::<f64>::paper().unwrap();
+    let mut distal = 0;
+    for (name, req, _) in committed() {
+        let table = grasp::path_table(&pts::Finger::PAPER, req.dt_ns).unwrap();
+        let fw = grasp::estimate::two_point_q(&table, &req);
+        let reference = grasp::estimate::two_point(&m64, &req);
+        match (fw, reference) {
+            (Ok(a), Ok(b)) => {
+                assert_eq!(a.located, b.located, "{name}");
+                match (a.k2_um, b.k2_um) {
+                    (Some(x), Some(y)) => {
+                        distal += 1;
+                        let err = f64::from(x - y).abs() * 1e-6;
+                        assert!(err <= 1e-4 * L2, "{name}: k2 {x} µm vs f64 {y} µm");
+                    }
+                    (None, None) => {}
+                    other => panic!("{name}: {other:?}"),
+                }
+                assert!(
+                    (a.theta_a_c_urad - b.theta_a_c_urad).abs() <= 2,
+                    "{name}: θa,c {} vs {} µrad",
+                    a.theta_a_c_urad,
+                    b.theta_a_c_urad
+                );
+                assert!(
+                    (a.ta_c_unm - b.ta_c_unm).abs() <= 20,
+                    "{name}: T_a,c {} vs {} µN·m",
+                    a.ta_c_unm,
+                    b.ta_c_unm
+                );
+            }
+            (Err(a), Err(b)) => assert_eq!(a, b, "{name}"),
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+    assert!(distal >= 4, "only {distal} distal cases");
+}
+
 #[test]
 fn the_firmware_path_fit_lands_within_half_sigma_of_the_f64_fit() {
     let m64 = Model::<f64>::paper().unwrap();

@@ -57,14 +57,8 @@ pub fn build_board() -> Res<std::path::PathBuf> {
 /// store, the two-point estimator (what `cargo board --features device` flashes).
 pub const DEVICE_FEATURES: &str = "board,device";
 /// The same with both estimators at run time (`path-fit` builds in the path fit's table and
-/// keeps the two-point method): the largest board build, the one issue 18's budget names.
+/// keeps the two-point method): the largest board build, held to the same budgets.
 pub const DEVICE_BOTH_FEATURES: &str = "board,device,path-fit";
-
-/// Flash the both-estimators build ([`DEVICE_BOTH_FEATURES`]) is held to in `cargo xtask test`
-/// while it is over [`FLASH_BUDGET`] (bytes): its measured size rounded up to the next KiB, a
-/// regression guard, as `cargo xtask bench` guards a budget not met yet. Lower it as the build
-/// shrinks; once the build fits, the budget itself is the gate (see [`report_guarded`]).
-pub const DEVICE_BOTH_FLASH_GUARD: u64 = 142 * 1024;
 
 /// Builds the release board firmware in device mode with `features` (one of the two above);
 /// returns its ELF (kept apart: the next build overwrites the one in place).
@@ -136,25 +130,6 @@ pub fn report(label: &str, s: Sizes) -> Res {
         Ok(())
     } else {
         Err(errs.join("; "))
-    }
-}
-
-/// [`report`] for a build whose flash budget is not met yet: over [`FLASH_BUDGET`] it says so
-/// and passes while within `guard` (bytes), fails above it; the static RAM budget as in
-/// [`report`]. A guard at or below the budget leaves the budget as the gate.
-pub fn report_guarded(label: &str, s: Sizes, guard: u64) -> Res {
-    match report(label, s) {
-        Err(e) if s.flash > FLASH_BUDGET && s.flash <= guard && s.ram <= RAM_BUDGET => {
-            println!(
-                "flash budget NOT MET ({e}): within the regression guard of {guard} B ({:.1} KiB)",
-                guard as f64 / 1024.0
-            );
-            Ok(())
-        }
-        Err(e) if guard > FLASH_BUDGET && s.flash > guard => Err(format!(
-            "{e}; above the regression guard of {guard} B: the build grew"
-        )),
-        r => r,
     }
 }
 
@@ -236,34 +211,13 @@ pub fn main(_args: &[String]) -> Res {
 mod tests {
     use super::*;
 
-    const OVER: u64 = FLASH_BUDGET + 4096;
-
     #[test]
-    fn a_guarded_build_passes_within_its_guard_and_fails_above_it() {
-        let s = |flash| Sizes { flash, ram: 1024 };
-        assert!(report_guarded("t", s(FLASH_BUDGET - 1), OVER).is_ok());
-        assert!(report_guarded("t", s(FLASH_BUDGET), OVER).is_ok());
-        assert!(report_guarded("t", s(OVER), OVER).is_ok());
-        let e = report_guarded("t", s(OVER + 1), OVER).unwrap_err();
-        assert!(e.contains("regression guard"), "{e}");
-    }
-
-    #[test]
-    fn once_the_guard_is_the_budget_the_budget_is_the_gate() {
-        let s = |flash| Sizes { flash, ram: 1024 };
-        assert!(report_guarded("t", s(FLASH_BUDGET), FLASH_BUDGET).is_ok());
-        assert!(report_guarded("t", s(FLASH_BUDGET + 1), FLASH_BUDGET).is_err());
-        assert!(report_guarded("t", s(FLASH_BUDGET + 1), 0).is_err());
-        assert!(report("t", s(FLASH_BUDGET + 1)).is_err());
-    }
-
-    #[test]
-    fn the_guard_does_not_excuse_static_ram() {
-        let s = Sizes {
-            flash: FLASH_BUDGET + 1,
-            ram: RAM_BUDGET + 1,
-        };
-        let e = report_guarded("t", s, OVER).unwrap_err();
-        assert!(e.contains("static RAM"), "{e}");
+    fn a_build_over_either_budget_fails_and_says_which() {
+        let s = |flash, ram| Sizes { flash, ram };
+        assert!(report("t", s(FLASH_BUDGET, RAM_BUDGET)).is_ok());
+        let e = report("t", s(FLASH_BUDGET + 1, RAM_BUDGET)).unwrap_err();
+        assert!(e.contains("flash") && !e.contains("static RAM"), "{e}");
+        let e = report("t", s(FLASH_BUDGET, RAM_BUDGET + 1)).unwrap_err();
+        assert!(e.contains("static RAM") && !e.contains("flash"), "{e}");
     }
 }

@@ -287,14 +287,17 @@ impl ControllerConfig {
     }
 
     /// The checks on the configuration's values alone (before any conversion): finite, signs
-    /// and ranges, the finger's rest angle, and a current sensor that reads past the limit.
-    fn check_values(&self) -> Result<(), ConfigError> {
+    /// and ranges, the finger's rest angle (from `rest`, which must be this finger's), and a
+    /// current sensor that reads past the limit.
+    fn check_values(&self, rest: &FingerRest) -> Result<(), ConfigError> {
         let d = &self.drive;
         if !d.theta_a_rest_rad.is_finite() {
             return Err(ConfigError::NonFinite);
         }
-        let rest = finger_rest_theta_a_rad(&self.finger)?;
-        if (rest - d.theta_a_rest_rad).abs() > REST_ANGLE_TOL_RAD {
+        if rest.finger != self.finger {
+            return Err(ConfigError::RestAngle);
+        }
+        if (rest.theta_a_rest_rad - d.theta_a_rest_rad).abs() > REST_ANGLE_TOL_RAD {
             return Err(ConfigError::RestAngle);
         }
         let finite = [
@@ -401,7 +404,15 @@ impl ControllerConfig {
     /// [`DriveConfig::theta_a_rest_rad`] within [`REST_ANGLE_TOL_RAD`]), so the same verdict is
     /// given on the host (`pts finger`, build.rs) and on the board.
     pub fn params(&self) -> Result<Params, ConfigError> {
-        self.check_values()?;
+        self.params_for(&FingerRest::new(&self.finger)?)
+    }
+
+    /// [`ControllerConfig::params`] with the finger's part of the check already done: `rest`
+    /// (this configuration's finger, else [`ConfigError::RestAngle`]) carries its rest angle, so
+    /// the model is not solved again. For a firmware whose finger is fixed at build time and
+    /// checked there ([`FingerRest::checked_at_build`]): it links no model for the check.
+    pub fn params_for(&self, rest: &FingerRest) -> Result<Params, ConfigError> {
+        self.check_values(rest)?;
         let d = &self.drive;
         let secs = |s: f64| to_u32(s / d.dt_s);
         let calib_ticks = secs(self.calib_s);
@@ -679,6 +690,44 @@ pub enum ConfigError {
 /// Largest accepted difference between the drive's rest angle and the finger's (rad).
 pub const REST_ANGLE_TOL_RAD: f64 = 1e-3;
 
+/// A finger with its rest angle from the model: the finger's part of the controller's check
+/// ([`ControllerConfig::params`]), done once.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FingerRest {
+    finger: Finger,
+    theta_a_rest_rad: f64,
+}
+
+impl FingerRest {
+    /// Checks the finger (a valid linkage whose rest pose the model solves) and keeps its
+    /// rest angle ([`finger_rest_theta_a_rad`]).
+    pub fn new(finger: &Finger) -> Result<Self, ConfigError> {
+        Ok(Self {
+            finger: *finger,
+            theta_a_rest_rad: finger_rest_theta_a_rad(finger)?,
+        })
+    }
+
+    /// The result of [`FingerRest::new`] computed at build time (a build script's constant,
+    /// from the same finger): not checked again. Anything else goes through `new`.
+    pub const fn checked_at_build(finger: Finger, theta_a_rest_rad: f64) -> Self {
+        Self {
+            finger,
+            theta_a_rest_rad,
+        }
+    }
+
+    /// The finger.
+    pub fn finger(&self) -> &Finger {
+        &self.finger
+    }
+
+    /// θa at the finger's rest pose (rad).
+    pub fn theta_a_rest_rad(&self) -> f64 {
+        self.theta_a_rest_rad
+    }
+}
+
 /// The input-crank angle θa at the finger's rest pose (θ1 = θ0,1, θ2 = θ0,2), in rad: where the
 /// firmware zeroes its encoder.
 pub fn finger_rest_theta_a_rad(finger: &Finger) -> Result<f64, ConfigError> {
@@ -860,6 +909,25 @@ mod tests {
         assert_eq!(c.params().err(), Some(ConfigError::RestAngle));
         c.drive.theta_a_rest_rad = finger_rest_theta_a_rad(&c.finger).unwrap();
         assert!(c.params().is_ok());
+    }
+
+    /// The finger's part of the check done once (a firmware's build-time constant) gives the
+    /// same parameters, and is refused for another finger or another rest angle.
+    #[test]
+    fn a_finger_checked_once_gives_the_same_parameters_and_only_for_that_finger() {
+        let c = ControllerConfig::DEFAULT;
+        let rest = FingerRest::new(&c.finger).unwrap();
+        assert_eq!(c.params_for(&rest), c.params());
+        let built = FingerRest::checked_at_build(c.finger, c.drive.theta_a_rest_rad);
+        assert_eq!(c.params_for(&built), c.params());
+        let mut other = c;
+        other.finger.l2 = 0.09;
+        assert_eq!(other.params_for(&rest).err(), Some(ConfigError::RestAngle));
+        let off = FingerRest::checked_at_build(c.finger, c.drive.theta_a_rest_rad + 0.01);
+        assert_eq!(c.params_for(&off).err(), Some(ConfigError::RestAngle));
+        let mut bad = Finger::PAPER;
+        bad.b = 0.5;
+        assert!(matches!(FingerRest::new(&bad), Err(ConfigError::Finger(_))));
     }
 
     #[test]

@@ -21,7 +21,7 @@ use heapless::{Deque, Vec};
 use pathfit::PathFitError;
 use pts::PtsError;
 
-use crate::config::{AfterEstimate, ConfigError, ControllerConfig, Params, HISTORY};
+use crate::config::{AfterEstimate, ConfigError, ControllerConfig, FingerRest, Params, HISTORY};
 use crate::control_loop::{ControlLoop, Input, Link, Reference, SampleSums, Setpoint, TorqueQ16};
 use crate::estimate::{EstimateError, EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
 use crate::sensors::sat_i32;
@@ -103,6 +103,13 @@ impl Controller {
     /// (the only floating-point work of the crate outside the estimator).
     pub fn new(cfg: ControllerConfig) -> Result<Self, ConfigError> {
         let p = cfg.params()?;
+        Ok(Self::from_params(p))
+    }
+
+    /// [`Controller::new`] with the finger's part of the check already done
+    /// ([`ControllerConfig::params_for`]).
+    pub fn new_for(cfg: ControllerConfig, rest: &FingerRest) -> Result<Self, ConfigError> {
+        let p = cfg.params_for(rest)?;
         Ok(Self::from_params(p))
     }
 

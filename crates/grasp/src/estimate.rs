@@ -413,9 +413,17 @@ pub fn path_fit_q(
     if table.tick_ns() != req.dt_ns {
         return Err(PathFitError::Model(PtsError::OutOfRange));
     }
-    let (theta_c, ta_c) = contact_point_with(req, |th: Fx32| table.free_torque(th).ok())
-        .unwrap_or_else(|| contact_point(req));
+    let (theta_c, ta_c) = contact_point_q(table, req);
     path_fit_q_fx(table, req, theta_c, ta_c).map(|(r, _)| r)
+}
+
+/// The contact point (θa,c rad, T_a,c N·m) on the path fit's table: its free-motion torque
+/// ([`contact_point_with`]), else the static points ([`contact_point`]). One copy for the
+/// fit and the two-point method beside it.
+#[inline(never)]
+fn contact_point_q(table: &PathTable, req: &EstimateRequest) -> (Fx32, Fx32) {
+    contact_point_with(req, |th: Fx32| table.free_torque(th).ok())
+        .unwrap_or_else(|| contact_point(req))
 }
 
 /// The firmware's integer path fit with the contact point given (θa,c in rad, T_a,c in N·m),
@@ -522,6 +530,20 @@ pub fn two_point<R: EstNum>(
     let (theta_c, ta_c) = contact_point_model(model, req).unwrap_or_else(|| contact_point(req));
     let (theta_c, ta_c) = (conv(theta_c)?, conv(ta_c)?);
     let est = model.estimate_two_point(theta_c, ta_c, th2, t2)?;
+    two_point_result(&est, theta_c, ta_c)
+}
+
+/// The paper's two-point estimate on the path fit's table (`pathfit::q`): the contact point
+/// as the path fit finds it (the table's free-motion torque), the contact configuration from
+/// the table, the inversion on the table's model. What a path-fit firmware reports beside the
+/// fit, without a model solve (or its trigonometry) of its own.
+pub fn two_point_q(table: &PathTable, req: &EstimateRequest) -> Result<EstimateResult, PtsError> {
+    let (theta_c, ta_c) = contact_point_q(table, req);
+    let th2 = Fx32::from_micro(req.end.theta_a_urad);
+    let t2 = Fx32::from_micro(req.end.torque_unm);
+    let est = table
+        .model()
+        .estimate_two_point_shared(theta_c, ta_c, th2, t2, |t| table.free_config(t))?;
     two_point_result(&est, theta_c, ta_c)
 }
 

@@ -625,6 +625,24 @@ impl PathTable {
         Ok(Fx32::from_bits((f.ta as i64) << (32 - QT)))
     }
 
+    /// The free-motion configuration at θa (rad, the finger's frame) and its cos θ2, from the
+    /// table (its Newton solve, no trigonometry): the contact configuration a two-point
+    /// estimate inverts at (`Model::estimate_two_point_with` on [`PathTable::model`]).
+    pub fn free_config(&self, theta_a: Fx32) -> Result<(Config<Fx32>, Fx32), PtsError> {
+        let tha = i32::try_from(fx_to_q28(theta_a)).map_err(|_| PtsError::OutOfRange)?;
+        let f = self.free_motion(tha, None)?;
+        let angle = |v: i32| Fx32::from_bits(i64::from(v) << (32 - QA));
+        let cfg = Config {
+            theta1: angle(f.theta1),
+            theta2: angle(f.theta2),
+            theta_a,
+            ta: Fx32::from_bits(i64::from(f.ta) << (32 - QT)),
+            x2: angle(f.closure.x2),
+            dx2: angle(f.closure.dx2),
+        };
+        Ok((cfg, angle(f.closure.c2)))
+    }
+
     /// Free motion at θa (Q28): K2(θ2 − θ02) = K1(θ1 − θ01)·x2 with θ1 = θa − θ2 + φ2 + γ,
     /// Newton on θ2 from `start` or from the node table, the last step applied.
     fn free_motion(&self, tha: i32, start: Option<i32>) -> Result<FreeState, PtsError> {
@@ -1839,6 +1857,34 @@ mod tests {
         // Outside the table: a typed error, no panic.
         assert!(table.free_torque(Fx32::from_f64(7.9)).is_err());
         assert!(table.free_torque(Fx32::from_f64(-7.9)).is_err());
+        assert!(table.free_config(Fx32::from_f64(7.9)).is_err());
+        free_config_matches_the_model(&table, &m64);
+    }
+
+    /// The free-motion configuration the two-point estimate inverts at, against the f64
+    /// model's solve: angles, torque, transmission and its slope, cos θ2.
+    fn free_config_matches_the_model(table: &PathTable, m64: &Model<f64>) {
+        let mut checked = 0;
+        for i in 0..=60 {
+            let tha = -1.3 + 0.05 * i as f64;
+            let Ok(c) = m64.free_from_theta_a(tha) else {
+                continue;
+            };
+            if !(-0.3..=1.6).contains(&c.ta) {
+                continue;
+            }
+            let (q, cos2) = table.free_config(Fx32::from_f64(tha)).unwrap();
+            let d = |a: Fx32, b: f64| (a.to_f64() - b).abs();
+            assert!(d(q.theta_a, tha) < 1e-9, "θa at {tha}");
+            assert!(d(q.theta1, c.theta1) < 1e-6, "θ1 at {tha}: {q:?} vs {c:?}");
+            assert!(d(q.theta2, c.theta2) < 1e-6, "θ2 at {tha}: {q:?} vs {c:?}");
+            assert!(d(q.ta, c.ta) < 2e-7, "T_a at {tha}: {q:?} vs {c:?}");
+            assert!(d(q.x2, c.x2) < 1e-6, "x2 at {tha}: {q:?} vs {c:?}");
+            assert!(d(q.dx2, c.dx2) < 1e-5, "dx2 at {tha}: {q:?} vs {c:?}");
+            assert!(d(cos2, c.theta2.cos()) < 1e-6, "cos θ2 at {tha}");
+            checked += 1;
+        }
+        assert!(checked >= 20, "only {checked} points in the table's range");
     }
 
     #[test]

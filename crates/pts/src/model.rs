@@ -497,7 +497,20 @@ impl<R: Real> Model<R> {
     ) -> Result<Contact<R>, PtsError> {
         let kc = check(kc, MAX_STIFFNESS)?;
         let c = self.scaled_cos(cos_theta2)?;
-        self.invert_inner(cfg, c, kc, None)
+        self.invert_shared(cfg, c, kc, None)
+    }
+
+    /// [`Model::invert_inner`] as one function: the path fit's initial guess and the
+    /// two-point estimate beside it share one copy in a firmware that runs both.
+    #[inline(never)]
+    fn invert_shared(
+        &self,
+        cfg: &Config<R>,
+        c: R,
+        kc: R,
+        dtheta_a: Option<R>,
+    ) -> Result<Contact<R>, PtsError> {
+        self.invert_inner(cfg, c, kc, dtheta_a)
     }
 
     /// The inversion at a checked K_c and c = l1 cos θ2/(2 l2) ([`Model::scaled_cos`]);
@@ -645,6 +658,27 @@ impl<R: Real> Model<R> {
         })
     }
 
+    /// [`Model::estimate_two_point_with`] through the one out-of-line copy of the inversion
+    /// that [`Model::invert_cos`] (the path fit's initial guess) also calls, instead of a copy
+    /// inlined here: the same result, for a firmware that runs both and is short of flash
+    /// rather than of the call's instructions.
+    pub fn estimate_two_point_shared<F>(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+        contact_config: F,
+    ) -> Result<Estimate<R>, PtsError>
+    where
+        F: FnOnce(R) -> Result<(Config<R>, R), PtsError>,
+    {
+        self.estimate_scaled_by::<_, true>(theta_a_c, ta_c, theta_a, ta, |t| {
+            let (cfg, cos_theta2) = contact_config(t)?;
+            Ok((cfg, self.scaled_cos(cos_theta2)?))
+        })
+    }
+
     /// l1/(2 l2), the factor from cos θ2 to the inversion's c (for tables that store c).
     pub(crate) fn cos_scale(&self) -> R {
         self.cos_scale
@@ -654,6 +688,23 @@ impl<R: Real> Model<R> {
     /// with c = l1 cos θ2/(2 l2) (checked) instead of cos θ2; its torque is not used.
     #[inline(always)]
     pub(crate) fn estimate_scaled<F>(
+        &self,
+        theta_a_c: R,
+        ta_c: R,
+        theta_a: R,
+        ta: R,
+        contact_config: F,
+    ) -> Result<Estimate<R>, PtsError>
+    where
+        F: FnOnce(R) -> Result<(Config<R>, R), PtsError>,
+    {
+        self.estimate_scaled_by::<_, false>(theta_a_c, ta_c, theta_a, ta, contact_config)
+    }
+
+    /// [`Model::estimate_scaled`] with the inversion inlined here, or (`SHARED`) through its
+    /// one out-of-line copy ([`Model::invert_shared`]).
+    #[inline(always)]
+    fn estimate_scaled_by<F, const SHARED: bool>(
         &self,
         theta_a_c: R,
         ta_c: R,
@@ -684,7 +735,11 @@ impl<R: Real> Model<R> {
         let kc_hat = check(kc_hat, MAX_STIFFNESS)?;
         // The G term carries the torque actually applied at contact.
         cfg.ta = ta_c;
-        let contact = self.invert_inner(&cfg, c, kc_hat, Some(dtheta_a))?;
+        let contact = if SHARED {
+            self.invert_shared(&cfg, c, kc_hat, Some(dtheta_a))
+        } else {
+            self.invert_inner(&cfg, c, kc_hat, Some(dtheta_a))
+        }?;
         Ok(Estimate {
             kc_hat,
             dta,
