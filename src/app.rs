@@ -36,7 +36,7 @@
 mod app {
     use core::sync::atomic::Ordering;
 
-    use grasp::{ControlLoop, Controller, Link, State, Supervisor};
+    use grasp::{ControlLoop, Link, State, Supervisor};
     use rtic_sync::channel::{Receiver, Sender};
     use rtic_sync::make_channel;
 

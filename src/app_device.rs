@@ -33,7 +33,7 @@
 mod app {
     use core::sync::atomic::Ordering;
 
-    use grasp::{ControlLoop, Controller, Link, State, Supervisor};
+    use grasp::{ControlLoop, Link, State, Supervisor};
     use proto::{
         Command, DeviceMsg, DeviceState, Error, Event, EventKind, FrameError, ParamId, Reply,
         Request, StoreFailure, Unsupported, VERSION,
