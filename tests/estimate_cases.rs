@@ -230,6 +230,47 @@ fn the_host_lines_are_what_the_firmware_entries_compute_now() {
     }
 }
 
+/// A firmware two-point result against the f64 model's on one case: same classification,
+/// k2 within 1e-4·l2, the same contact point (θa,c within 2 µrad, T_a,c within 20 µN·m), or
+/// the same refusal. True when it located a distal contact.
+fn two_point_agrees(
+    name: &str,
+    fw: Result<EstimateResult, grasp::EstimateError>,
+    reference: Result<EstimateResult, pts::PtsError>,
+) -> bool {
+    match (fw, reference) {
+        (Ok(a), Ok(b)) => {
+            assert_eq!(a.located, b.located, "{name}");
+            assert!(
+                (a.theta_a_c_urad - b.theta_a_c_urad).abs() <= 2,
+                "{name}: θa,c {} vs {} µrad",
+                a.theta_a_c_urad,
+                b.theta_a_c_urad
+            );
+            assert!(
+                (a.ta_c_unm - b.ta_c_unm).abs() <= 20,
+                "{name}: T_a,c {} vs {} µN·m",
+                a.ta_c_unm,
+                b.ta_c_unm
+            );
+            match (a.k2_um, b.k2_um) {
+                (Some(x), Some(y)) => {
+                    let err = f64::from(x - y).abs() * 1e-6;
+                    assert!(err <= 1e-4 * L2, "{name}: k2 {x} µm vs f64 {y} µm");
+                    true
+                }
+                (None, None) => false,
+                other => panic!("{name}: {other:?}"),
+            }
+        }
+        (Err(a), Err(b)) => {
+            assert_eq!(a, grasp::EstimateError::Model(b), "{name}");
+            false
+        }
+        other => panic!("{name}: {other:?}"),
+    }
+}
+
 #[test]
 fn the_firmware_two_point_estimate_matches_the_f64_model() {
     let m64 = Model::<f64>::paper().unwrap();
@@ -238,27 +279,7 @@ fn the_firmware_two_point_estimate_matches_the_f64_model() {
     for (name, req, _) in committed() {
         let fw = grasp::two_point_fw(&tp, &req);
         let reference = grasp::estimate::two_point(&m64, &req);
-        match (fw, reference) {
-            (Ok(a), Ok(b)) => {
-                assert_eq!(a.located, b.located, "{name}");
-                match (a.k2_um, b.k2_um) {
-                    (Some(x), Some(y)) => {
-                        distal += 1;
-                        let err = f64::from(x - y).abs() * 1e-6;
-                        assert!(err <= 1e-4 * L2, "{name}: k2 {x} µm vs f64 {y} µm");
-                    }
-                    (None, None) => {}
-                    other => panic!("{name}: {other:?}"),
-                }
-                assert!(
-                    (a.theta_a_c_urad - b.theta_a_c_urad).abs() <= 2,
-                    "{name}: θa,c"
-                );
-                assert!((a.ta_c_unm - b.ta_c_unm).abs() <= 20, "{name}: T_a,c");
-            }
-            (Err(a), Err(b)) => assert_eq!(a, grasp::EstimateError::Model(b), "{name}"),
-            other => panic!("{name}: {other:?}"),
-        }
+        distal += usize::from(two_point_agrees(&name, fw, reference));
     }
     assert!(distal >= 4, "only {distal} distal cases");
 }
@@ -271,36 +292,9 @@ fn the_two_point_estimate_on_the_path_table_matches_the_f64_model() {
     let mut distal = 0;
     for (name, req, _) in committed() {
         let table = grasp::path_table(&pts::Finger::PAPER, req.dt_ns).unwrap();
-        let fw = grasp::estimate::two_point_q(&table, &req);
+        let fw = grasp::estimate::two_point_q(&table, &req).map_err(grasp::EstimateError::Model);
         let reference = grasp::estimate::two_point(&m64, &req);
-        match (fw, reference) {
-            (Ok(a), Ok(b)) => {
-                assert_eq!(a.located, b.located, "{name}");
-                match (a.k2_um, b.k2_um) {
-                    (Some(x), Some(y)) => {
-                        distal += 1;
-                        let err = f64::from(x - y).abs() * 1e-6;
-                        assert!(err <= 1e-4 * L2, "{name}: k2 {x} µm vs f64 {y} µm");
-                    }
-                    (None, None) => {}
-                    other => panic!("{name}: {other:?}"),
-                }
-                assert!(
-                    (a.theta_a_c_urad - b.theta_a_c_urad).abs() <= 2,
-                    "{name}: θa,c {} vs {} µrad",
-                    a.theta_a_c_urad,
-                    b.theta_a_c_urad
-                );
-                assert!(
-                    (a.ta_c_unm - b.ta_c_unm).abs() <= 20,
-                    "{name}: T_a,c {} vs {} µN·m",
-                    a.ta_c_unm,
-                    b.ta_c_unm
-                );
-            }
-            (Err(a), Err(b)) => assert_eq!(a, b, "{name}"),
-            other => panic!("{name}: {other:?}"),
-        }
+        distal += usize::from(two_point_agrees(&name, fw, reference));
     }
     assert!(distal >= 4, "only {distal} distal cases");
 }

@@ -1836,34 +1836,15 @@ mod tests {
         }
     }
 
+    /// The table's free motion against the f64 model's solve over the table's range
+    /// (T_a ≈ −0.3 … 1.6 N·m): the torque the contact-point search reads, and the
+    /// configuration the two-point estimate inverts at (angles, torque, transmission and its
+    /// slope, cos θ2).
     fn free_torque_matches_the_model_for(f: &Finger) {
         let f = *f;
         let table = PathTable::new(&f, &PathFitConfig::DEFAULT, 1e-4).unwrap();
         let m64 = Model::<f64>::new(&f).unwrap();
         let mut worst = 0.0f64;
-        for i in 0..=60 {
-            // θa over the table's free-motion range (T_a ≈ −0.3 … 1.6 N·m).
-            let tha = -1.3 + 0.05 * i as f64;
-            let Ok(c) = m64.free_from_theta_a(tha) else {
-                continue;
-            };
-            if !(-0.3..=1.6).contains(&c.ta) {
-                continue;
-            }
-            let t = table.free_torque(Fx32::from_f64(tha)).unwrap().to_f64();
-            worst = worst.max((t - c.ta).abs());
-        }
-        assert!(worst < 2e-7, "free-motion torque off by {worst} N·m");
-        // Outside the table: a typed error, no panic.
-        assert!(table.free_torque(Fx32::from_f64(7.9)).is_err());
-        assert!(table.free_torque(Fx32::from_f64(-7.9)).is_err());
-        assert!(table.free_config(Fx32::from_f64(7.9)).is_err());
-        free_config_matches_the_model(&table, &m64);
-    }
-
-    /// The free-motion configuration the two-point estimate inverts at, against the f64
-    /// model's solve: angles, torque, transmission and its slope, cos θ2.
-    fn free_config_matches_the_model(table: &PathTable, m64: &Model<f64>) {
         let mut checked = 0;
         for i in 0..=60 {
             let tha = -1.3 + 0.05 * i as f64;
@@ -1873,6 +1854,8 @@ mod tests {
             if !(-0.3..=1.6).contains(&c.ta) {
                 continue;
             }
+            let t = table.free_torque(Fx32::from_f64(tha)).unwrap().to_f64();
+            worst = worst.max((t - c.ta).abs());
             let (q, cos2) = table.free_config(Fx32::from_f64(tha)).unwrap();
             let d = |a: Fx32, b: f64| (a.to_f64() - b).abs();
             assert!(d(q.theta_a, tha) < 1e-9, "θa at {tha}");
@@ -1885,6 +1868,11 @@ mod tests {
             checked += 1;
         }
         assert!(checked >= 20, "only {checked} points in the table's range");
+        assert!(worst < 2e-7, "free-motion torque off by {worst} N·m");
+        // Outside the table: a typed error, no panic.
+        assert!(table.free_torque(Fx32::from_f64(7.9)).is_err());
+        assert!(table.free_torque(Fx32::from_f64(-7.9)).is_err());
+        assert!(table.free_config(Fx32::from_f64(7.9)).is_err());
     }
 
     #[test]
