@@ -716,16 +716,6 @@ impl FingerRest {
             theta_a_rest_rad,
         }
     }
-
-    /// The finger.
-    pub fn finger(&self) -> &Finger {
-        &self.finger
-    }
-
-    /// θa at the finger's rest pose (rad).
-    pub fn theta_a_rest_rad(&self) -> f64 {
-        self.theta_a_rest_rad
-    }
 }
 
 /// The input-crank angle θa at the finger's rest pose (θ1 = θ0,1, θ2 = θ0,2), in rad: where the

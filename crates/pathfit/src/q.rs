@@ -627,7 +627,7 @@ impl PathTable {
 
     /// The free-motion configuration at θa (rad, the finger's frame) and its cos θ2, from the
     /// table (its Newton solve, no trigonometry): the contact configuration a two-point
-    /// estimate inverts at (`Model::estimate_two_point_with` on [`PathTable::model`]).
+    /// estimate inverts at (`Model::estimate_two_point_shared` on [`PathTable::model`]).
     pub fn free_config(&self, theta_a: Fx32) -> Result<(Config<Fx32>, Fx32), PtsError> {
         let tha = i32::try_from(fx_to_q28(theta_a)).map_err(|_| PtsError::OutOfRange)?;
         let f = self.free_motion(tha, None)?;
