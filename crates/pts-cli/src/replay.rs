@@ -817,6 +817,14 @@ fn widen_for_contact_friction(
 /// which on a drive oscillating on the contact is most of the path.
 const LOADING_MIN_SWING_RAD: f64 = 0.03;
 
+/// An approach offset (N·m, [`crate::offline::DriveId::offset_nm`]) above which the drive has
+/// dry friction, and the path is rebuilt from the loading rows on any swing back: a crank that
+/// swings back or sticks leaves samples off the loading path by up to twice the friction, on
+/// either side, which the envelope does not sort out. A current sensor's offset or gain error
+/// alone stays below it. The engine grids and the sample recordings answer the same for any
+/// value from 0.005 to 0.015 N·m.
+const DRY_FRICTION_MIN_NM: f64 = 0.01;
+
 /// The fit's envelope tolerance (rad) on a loading path rebuilt by
 /// `crate::offline::loading_path`: its samples are in order of θa, with the inertia already
 /// removed, so there is no overshoot left to drop.
@@ -884,8 +892,10 @@ fn foreign_path_fit(
         },
         ..pathfit::PathFitConfig::DEFAULT
     };
-    // With the drive identified, the path is the loading rows with its dynamics removed
-    // here (`crate::offline::loading_path`), and the fit is told neither inertia nor envelope.
+    // With the drive identified and the crank swinging back (by any amount with dry friction,
+    // by more than the envelope keeps without), the path is the loading rows with its
+    // dynamics removed here (`crate::offline::loading_path`), and the fit is told neither
+    // inertia nor envelope.
     let loading = id.as_ref().and_then(|d| {
         let block_s = f64::from(seg.request.dt_ns) * 1e-9;
         let span = loading_span(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
@@ -896,7 +906,11 @@ fn foreign_path_fit(
             seg.end.1,
             (d.inertia_kgm2, d.viscous_nm_s_per_rad),
             span,
-            LOADING_MIN_SWING_RAD,
+            if d.offset_nm > DRY_FRICTION_MIN_NM {
+                0.0
+            } else {
+                LOADING_MIN_SWING_RAD
+            },
         )
     });
     let (pcfg, req) = match loading {

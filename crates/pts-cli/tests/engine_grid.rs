@@ -255,6 +255,13 @@ fn print_table(rows: &[Outcome]) -> Stats {
         ] {
             groups.entry(key).or_default().add(o);
         }
+        if o.err_pct().is_some() {
+            let grade = if o.good { "good" } else { "low signal" };
+            groups
+                .entry(format!("answers graded {grade}"))
+                .or_default()
+                .add(o);
+        }
     }
     println!();
     println!("| distal positives | n | answered % | mean % l2 | max % l2 | within 3σ % |");
@@ -321,17 +328,35 @@ fn engine_grid_default_method() {
     if name != "ci" {
         return;
     }
-    // The CI slice, measured (release, 2 cores shared): 14/16 distal positives answered, mean
-    // 1.57 %, max 4.38 % of l2, all within 3σ; none answered as proximal; 8/8 negatives right
-    // (the proximal contacts at 5e-3 kg·m² since the heavy drive's swings are left out of the
-    // loading path; 6/8 before). Short of the targets, which are printed
-    // above; the bounds below are what holds with a margin, so that a regression shows.
-    assert!(all.answered >= 13, "answered {}/{}", all.answered, all.n);
+    // The CI slice, measured (release, 2 cores shared): 16/16 distal positives answered, all
+    // within 3σ, mean 2.52 %, max 9.38 % of l2; the nine graded good mean 1.88 %, max 4.64 %;
+    // the two largest errors (k2,c 0.65 l2 on the heavy drive with friction, which bounces
+    // off the object and sticks; refused before) graded low signal; none answered as
+    // proximal; 8/8 negatives right.
+    // Short of the targets, which are printed above; the bounds below are what holds
+    // with a margin, so that a regression shows.
+    assert!(all.answered >= 15, "answered {}/{}", all.answered, all.n);
     assert!(
-        all.mean() <= 2.5 && all.max <= 7.0,
+        all.mean() <= 3.0 && all.max <= 12.0,
         "mean {:.2} % max {:.2} %",
         all.mean(),
         all.max
+    );
+    let mut good = Stats::default();
+    for o in rows.iter().filter(|o| o.expected == "distal" && o.good) {
+        good.add(o);
+    }
+    assert!(
+        good.answered >= 8,
+        "graded good {}/{}",
+        good.answered,
+        all.n
+    );
+    assert!(
+        good.mean() <= 2.5 && good.max <= 6.0,
+        "graded good: mean {:.2} % max {:.2} %",
+        good.mean(),
+        good.max
     );
     assert!(
         all.within3 == all.answered,
