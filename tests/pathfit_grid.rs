@@ -663,6 +663,26 @@ fn pathfit_grid_on_the_plant() {
         real_scene.sensors.seed = seed;
     }
     let real = run_grid(real_scene);
+    // The tables below score the integer kernel through this test's adapter; the firmware
+    // calls `run_estimate`. On the plant the firmware is built for (the realistic drive) the
+    // two must be one computation, so the tables measure what ships.
+    for c in &real {
+        if let (Some(Ok(q)), Some(fw)) = (&c.fit_q, &c.fw) {
+            let k = fw
+                .as_ref()
+                .ok()
+                .and_then(|r| r.k2_um)
+                .map(|k| f64::from(k) * 1e-6);
+            assert!(
+                k.is_some_and(|k| (k - q.k2).abs() <= 1e-4 * L2),
+                "R={} k2c={:.2} ΔT={}: run_estimate {fw:?}, integer kernel k2 {:.6} m",
+                c.radius,
+                c.k2c / L2,
+                c.dta,
+                q.k2
+            );
+        }
+    }
     let f64_fit: fn(&Case) -> &Option<Result<FitOut, PathFitError>> = |c| &c.fit;
     let q_fit: fn(&Case) -> &Option<Result<FitOut, PathFitError>> = |c| &c.fit_q;
     // Every summary and verdict first, then the guards (a failure still shows both back ends).
