@@ -283,8 +283,12 @@ pub fn back_date(
 /// ([`identify_drive`]), e = T_a − T_free(θa) − offset − viscous·θ̇a − inertia·θ̈a is noise in
 /// free motion and (K_c − K_free)(θa − θa,c) once the object is touched, whatever the crank's
 /// speed, its ringing before or its bounce after the impact. θa,c is the hinge of that line
-/// (least squares over a 0.1 mrad grid within 15 mrad before the detection), fitted on the
-/// moving blocks from a free-motion window before the knee up to 8 mrad past it.
+/// (least squares over a 0.1 mrad grid reaching back from the detection 15 mrad, or to where
+/// the crank was when the detection's latency began, whichever is further), fitted on the
+/// moving blocks from a free-motion window before the knee up to 8 mrad past it. The latency
+/// is the confirmation run ([`OfflineConfig::confirm`]) and the triangle's width: a crank
+/// reaching the object at 1 rad/s travels 4 mrad per 4 ms block, and a fixed 15 mrad would
+/// put the contact on the window's edge.
 ///
 /// θ̈a comes from a second difference across ±[`KIN_SPAN`] blocks, which is the true θ̈a
 /// averaged under a triangle of that half-width ([`SPAN_WEIGHTS`]): the impact's deceleration
@@ -310,7 +314,17 @@ pub fn refine_contact<R: pts::Real>(
     let wf = cfg.free_window.clamp(4, 64);
     let lo = seg.knee.saturating_sub(2 * wf).max(KIN_SPAN);
     let th_top = blocks.get(seg.detect)?.theta_a_rad.max(seg.theta_a_c_rad) + 8e-3;
-    let thc = hinge_theta(blocks, lo, seg.detect, th_top, id, quantum_rad, &t_free)?;
+    let latency = cfg.confirm + SPAN_WEIGHTS.len();
+    let thc = hinge_theta(
+        blocks,
+        lo,
+        seg.detect,
+        latency,
+        th_top,
+        id,
+        quantum_rad,
+        &t_free,
+    )?;
     let ta_c = t_free(thc)? + id.offset_nm;
     let t_c = blocks
         .iter()
@@ -321,12 +335,15 @@ pub fn refine_contact<R: pts::Real>(
 }
 
 /// θa,c of [`refine_contact`]: the hinge of the smoothed residual over the moving blocks from
-/// `lo` up to θa `th_top` (at most 200 blocks past `detect`), on a 0.1 mrad grid over the
-/// 15 mrad before the detection's θa; the first of equals. `None` with fewer than 8 blocks.
+/// `lo` up to θa `th_top` (at most 200 blocks past `detect`), on a 0.1 mrad grid from the
+/// detection's θa back over 15 mrad or to the θa `latency` blocks before it, whichever is
+/// further; the first of equals. `None` with fewer than 8 blocks.
+#[allow(clippy::too_many_arguments)]
 fn hinge_theta(
     blocks: &[Block],
     lo: usize,
     detect: usize,
+    latency: usize,
     th_top: f64,
     id: &DriveId,
     quantum_rad: f64,
@@ -362,9 +379,12 @@ fn hinge_theta(
         return None;
     }
     let scale = id.noise_nm.max(1e-4);
-    // θa,c on a 0.1 mrad grid over the 15 mrad before the detection; the first of equals.
+    // θa,c on a 0.1 mrad grid; the first of equals.
+    let th_latency = blocks
+        .get(detect.saturating_sub(latency))
+        .map_or(th_det, |b| b.theta_a_rad);
     let mut best = (f64::INFINITY, th_det);
-    let mut thc = th_det - 15e-3;
+    let mut thc = (th_det - 15e-3).min(th_latency);
     while thc <= th_det {
         let v = hinge_loss(&pts, thc, scale);
         if v < best.0 {
@@ -546,21 +566,15 @@ mod tests {
         assert!((ta_c - (theta_c + 1.0 + 0.05)).abs() < 2e-4, "T_a,c {ta_c}");
     }
 
-    /// A heavy crank (J = 5e-3 kg·m²) reaching the object at 0.9 rad/s, 3.6 mrad per 4 ms
-    /// block, the contact a 6 N·m/rad spring: past θa,c the crank swings on it,
-    /// θa = θa,c + (v/ω)·sin ω(t − t_c) with ω = √(K/J), while the drive holds T_free(θa); the
-    /// torque balance is exact (T_a − T_free − J θ̈a = K (θa − θa,c)). Rows at 1 kHz carry
-    /// torque noise (σ 5 mN·m, a fixed pseudo-random sequence per seed) and are averaged into
-    /// blocks. Over 32 seeds the hinge's RMS error stays within a third of a block's travel
-    /// and its worst within one: the residual taken through the same triangle as θ̈a averages
-    /// the torque noise over 7 blocks (RMS 0.75 mrad, worst 2.2; the residual of the block
-    /// alone gave RMS 2.0 mrad, worst 3.3).
-    #[test]
-    fn the_hinge_of_a_heavy_crank_on_noisy_torque_stays_on_the_contact() {
+    /// Blocks (4 ms, from 1 kHz rows) of a heavy crank (J = 5e-3 kg·m²) reaching the object at
+    /// `v` rad/s at θa,c = −0.22 rad, t = 0.4 s (block 100), the contact a 6 N·m/rad spring:
+    /// past θa,c the crank swings on it, θa = θa,c + (v/ω)·sin ω(t − t_c) with ω = √(K/J),
+    /// while the drive holds T_free(θa), so T_a − T_free − J θ̈a = K (θa − θa,c) exactly.
+    /// `noise` is added to each row's torque. Returns the blocks and the drive as identified.
+    fn heavy_crank(v: f64, mut noise: impl FnMut() -> f64) -> (std::vec::Vec<Block>, DriveId) {
         let model = pts::Model::<f64>::paper().unwrap();
-        let t_free = |th: f64| model.free_from_theta_a(th).ok().map(|c| c.ta);
-        let (j, k, v): (f64, f64, f64) = (5e-3, 6.0, 0.9);
-        let (th_c, t_c) = (-0.22, 0.4);
+        let t_free = |th: f64| model.free_from_theta_a(th).unwrap().ta;
+        let (j, k, th_c, t_c): (f64, f64, f64, f64) = (5e-3, 6.0, -0.22, 0.4);
         let w = (k / j).sqrt();
         let theta = |t: f64| {
             if t < t_c {
@@ -569,56 +583,90 @@ mod tests {
                 th_c + v / w * (w * (t - t_c)).sin()
             }
         };
+        let blocks = (0..150)
+            .map(|b| {
+                let (mut th, mut tq) = (0.0, 0.0);
+                for i in 0..4 {
+                    let x = theta(1e-3 * (4 * b + i) as f64);
+                    th += x / 4.0;
+                    tq += (t_free(x) + noise()) / 4.0;
+                }
+                Block {
+                    index: b as u32,
+                    t_s: 1e-3 * (4 * b) as f64 + 1.5e-3,
+                    theta_a_rad: th,
+                    torque_nm: tq,
+                    resid_nm: tq - t_free(th),
+                    moving_rows: 4,
+                    ..Block::default()
+                }
+            })
+            .collect();
+        let id = DriveId {
+            inertia_kgm2: j,
+            sigma_inertia_kgm2: 0.0,
+            viscous_nm_s_per_rad: 0.0,
+            offset_nm: 0.0,
+            noise_nm: 2.5e-3,
+            blocks: 100,
+            accel_span_rad_s2: 0.0,
+        };
+        (blocks, id)
+    }
+
+    /// θa,c from [`hinge_theta`] on `blocks` detected `after` blocks past the contact block.
+    fn hinge_of(blocks: &[Block], id: &DriveId, after: usize, latency: usize) -> f64 {
+        let model = pts::Model::<f64>::paper().unwrap();
+        let t_free = |th: f64| model.free_from_theta_a(th).ok().map(|c| c.ta);
+        let detect = 100 + after;
+        let top = blocks[detect].theta_a_rad + 8e-3;
+        hinge_theta(blocks, detect - 40, detect, latency, top, id, 1e-9, &t_free).unwrap()
+    }
+
+    /// The heavy crank at 0.9 rad/s (3.6 mrad per block) with 5 mN·m of torque noise per row
+    /// (a fixed pseudo-random sequence per seed), detected three blocks after the contact. Over
+    /// 32 seeds the hinge's RMS error stays within a third of a block's travel and its worst
+    /// within one: the residual taken through the same triangle as θ̈a averages the torque
+    /// noise over 7 blocks (RMS 0.75 mrad, worst 2.2; the residual of the block alone gave RMS
+    /// 2.0 mrad, worst 3.3).
+    #[test]
+    fn the_hinge_of_a_heavy_crank_on_noisy_torque_stays_on_the_contact() {
         let (mut sum_sq, mut worst) = (0.0, 0.0f64);
         let seeds = 32u64;
         for seed in 0..seeds {
             // xorshift: uniform on ±√3·σ has σ 5 mN·m.
             let mut x = 0x9E37_79B9_7F4A_7C15u64 ^ (seed + 1).wrapping_mul(0xA076_1D64_78BD_642F);
-            let mut noise = || {
+            let noise = || {
                 x ^= x << 13;
                 x ^= x >> 7;
                 x ^= x << 17;
                 5e-3 * 3f64.sqrt() * (2.0 * (x >> 11) as f64 / (1u64 << 53) as f64 - 1.0)
             };
-            let blocks: std::vec::Vec<Block> = (0..150)
-                .map(|b| {
-                    let (mut th, mut tq) = (0.0, 0.0);
-                    for i in 0..4 {
-                        let x = theta(1e-3 * (4 * b + i) as f64);
-                        th += x / 4.0;
-                        tq += (t_free(x).unwrap() + noise()) / 4.0;
-                    }
-                    Block {
-                        index: b as u32,
-                        t_s: 1e-3 * (4 * b) as f64 + 1.5e-3,
-                        theta_a_rad: th,
-                        torque_nm: tq,
-                        resid_nm: tq - t_free(th).unwrap(),
-                        moving_rows: 4,
-                        ..Block::default()
-                    }
-                })
-                .collect();
-            let id = DriveId {
-                inertia_kgm2: j,
-                sigma_inertia_kgm2: 0.0,
-                viscous_nm_s_per_rad: 0.0,
-                offset_nm: 0.0,
-                noise_nm: 2.5e-3,
-                blocks: 100,
-                accel_span_rad_s2: 0.0,
-            };
-            // Detected three blocks after the contact block.
-            let detect = (t_c / 4e-3) as usize + 3;
-            let top = blocks[detect].theta_a_rad + 8e-3;
-            let thc = hinge_theta(&blocks, detect - 40, detect, top, &id, 1e-9, &t_free).unwrap();
-            sum_sq += (thc - th_c) * (thc - th_c);
-            worst = worst.max((thc - th_c).abs());
+            let (blocks, id) = heavy_crank(0.9, noise);
+            let thc = hinge_of(&blocks, &id, 3, 12);
+            sum_sq += (thc + 0.22) * (thc + 0.22);
+            worst = worst.max((thc + 0.22).abs());
         }
         let rms = (sum_sq / seeds as f64).sqrt();
         assert!(
             rms < 1.2e-3 && worst < 3.0e-3,
             "θa,c error RMS {rms:.5} rad, worst {worst:.5} rad"
+        );
+    }
+
+    /// A faster crank (1.5 rad/s, 6 mrad per block), noise-free, confirmed six blocks after
+    /// the contact: the detection is 33 mrad past θa,c, so a search reaching back a fixed
+    /// 15 mrad ends before the contact (it answered near its edge, 19 mrad late). Reaching back
+    /// over the detection's latency in blocks, it lands on the contact (0.75 mrad late).
+    #[test]
+    fn a_fast_crank_is_searched_back_over_the_detection_latency() {
+        let (blocks, id) = heavy_crank(1.5, || 0.0);
+        let thc = hinge_of(&blocks, &id, 6, 12);
+        assert!((thc + 0.22).abs() < 1e-3, "θa,c {thc:.5} rad for -0.22");
+        let fixed = hinge_of(&blocks, &id, 6, 0);
+        assert!(
+            fixed > -0.22 + 2e-3,
+            "a 15 mrad search: θa,c {fixed:.5} rad"
         );
     }
 }
