@@ -38,9 +38,9 @@ pub struct DriveId {
 
 /// Identifies [`DriveId`] on the approach blocks `lo..hi` (free motion, moving: blocks where
 /// θa stands still are skipped, a stuck transmission's torque is anywhere in its stiction
-/// band). Speed and acceleration from differences across ±2 blocks (quantisation noise on θ̈a
-/// would otherwise bias the inertia low). Huber-weighted least squares, the inertia with its
-/// prior and kept ≥ 0. `None` with fewer than 8 usable blocks.
+/// band). Speed and acceleration from differences across ±`KIN_SPAN` blocks (a shorter
+/// span's quantisation noise on θ̈a would bias the inertia low). Huber-weighted least squares,
+/// the inertia with its prior and kept ≥ 0. `None` with fewer than 8 usable blocks.
 pub fn identify_drive<R: pts::Real>(
     model: &Model<R>,
     blocks: &[Block],

@@ -36,7 +36,7 @@
 //!    at contact) the midpoint of the chord to the end point.
 //!
 //! The request then carries the free-motion history before the detection (`pre`), the blocks
-//! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`: each the mean over
+//! from the detection to the end decimated into [`PATH_CAPACITY`](grasp::estimate::PATH_CAPACITY) (`path`: each the mean over
 //! the rows in which θa changed, since while the crank stands still the transmission's
 //! friction is anywhere in its stiction band; blocks in which it never moved are left out), the knee
 //! (`contact`), the static points and the measured ΔT_a; block ticks are block indices + 1
