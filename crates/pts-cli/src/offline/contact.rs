@@ -280,7 +280,7 @@ pub fn back_date(
 }
 
 /// The contact point on the dynamics-corrected residual: with the drive identified
-/// ([`identify_drive`](super::identify_drive)), e = T_a − T_free(θa) − offset − viscous·θ̇a − inertia·θ̈a is noise in
+/// ([`identify_drive`]), e = T_a − T_free(θa) − offset − viscous·θ̇a − inertia·θ̈a is noise in
 /// free motion and (K_c − K_free)(θa − θa,c) once the object is touched, whatever the crank's
 /// speed, its ringing before or its bounce after the impact. θa,c is the hinge of that line
 /// (least squares over a 0.1 mrad grid reaching back from the detection 15 mrad, or to where
@@ -295,6 +295,8 @@ pub fn back_date(
 /// goes through the same triangle (the residual, and the hinge it is compared with): every
 /// term then describes one window, and the torque noise is averaged over its 7 blocks.
 /// Returns (θa,c rad, T_a,c = T_free(θa,c) + offset N·m, trace time of θa,c s).
+///
+/// [`identify_drive`]: super::identify_drive
 pub fn refine_contact<R: pts::Real>(
     model: &Model<R>,
     cfg: &OfflineConfig,

@@ -36,7 +36,7 @@
 //!    at contact) the midpoint of the chord to the end point.
 //!
 //! The request then carries the free-motion history before the detection (`pre`), the blocks
-//! from the detection to the end decimated into [`PATH_CAPACITY`](grasp::estimate::PATH_CAPACITY) (`path`: each the mean over
+//! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`: each the mean over
 //! the rows in which θa changed, since while the crank stands still the transmission's
 //! friction is anywhere in its stiction band; blocks in which it never moved are left out), the knee
 //! (`contact`), the static points and the measured ΔT_a; block ticks are block indices + 1
@@ -47,6 +47,8 @@
 //! its back-dating), [`segment`] (segment end, end point, static points, the request) and
 //! [`estimate`] (the firmware's path fit on a segmented request). Host only (f64); no
 //! allocation (the caller provides the block scratch), no panics, typed [`OfflineError`]s.
+//!
+//! [`PATH_CAPACITY`]: grasp::estimate::PATH_CAPACITY
 
 // `!(x > y)` is the NaN guard: it is true for NaN, `x <= y` is not.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]

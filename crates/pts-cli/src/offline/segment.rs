@@ -318,7 +318,7 @@ impl PathWindows<'_> {
 
 /// The request as the controller builds it: the free-motion history up to the detection
 /// (`pre`, from `from`), the blocks after it up to the end window's last (`hi`) decimated into
-/// [`PATH_CAPACITY`](grasp::estimate::PATH_CAPACITY), the four points (contact, seat, seat2, end) and ΔT_a.
+/// [`PATH_CAPACITY`], the four points (contact, seat, seat2, end) and ΔT_a.
 fn build_request(
     cfg: &OfflineConfig,
     blocks: &[Block],
