@@ -179,7 +179,8 @@ pub struct ControllerConfig {
     /// Least θa travel over the late half of the step (rad); less is a `NoMotion` fault
     /// (a locked finger on the plant, 200 N·m/rad, still moves 0.25 mrad for 0.05 N·m).
     pub min_step_motion_rad: f64,
-    /// Second contact: the late half of the step this many times stiffer than the early one.
+    /// Second contact: the late half of the step this many times stiffer than the early one
+    /// (with seating; without, the whole step is held to the absolute limit alone).
     pub second_contact_ratio: u16,
     /// Loss of contact: |ω̂a| above this in contact (rad/s); in contact the step ramp moves
     /// the finger at most ramp/K_c,prox ≈ 0.4 rad/s.

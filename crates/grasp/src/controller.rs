@@ -1349,8 +1349,8 @@ impl Supervisor {
     /// contact instant (`seat`, on the free-motion curve: the back-dating returns it) and the
     /// path sample where θa first passed halfway from there to the end (`seat2`; halfway in θa,
     /// not in torque: at a fast step's start the current leads the motion while it
-    /// accelerates the drive). The early stiffness is then contact → halfway, the late one
-    /// halfway → end, as with seating.
+    /// accelerates the drive). The no-motion check reads halfway → end; the second-contact
+    /// check only the whole step (`check_settled`).
     fn unseated_points(&self, loaded: Loaded, end: &Sample) -> Loaded {
         let at = loaded.seat;
         let half = (i64::from(at.theta_a_urad) + i64::from(end.theta_a_urad)) / 2;
@@ -1407,9 +1407,19 @@ impl Supervisor {
         }
         // A second contact locks the finger: the late half of the step is far stiffer than
         // any single contact, or far stiffer than the early half (a proximal first contact,
-        // K ≈ K_c,prox, then the distal phalanx touching too).
-        let late = i64::from(loaded.kc_late_unm_per_rad(&end));
-        let early = i64::from(stiffness(&loaded.seat, &loaded.seat2));
+        // K ≈ K_c,prox, then the distal phalanx touching too). Without seating no static
+        // point lies between the contact and the end: the halfway sample is in the step's
+        // dynamics (the reference drops to T_a,c at the detection while the impact
+        // decelerates the drive, so the torque there can be below T_a,c), and only the whole
+        // step's secant is checked; the path fit judges the path's shape.
+        let (late, early) = if self.p.seating {
+            (
+                i64::from(loaded.kc_late_unm_per_rad(&end)),
+                i64::from(stiffness(&loaded.seat, &loaded.seat2)),
+            )
+        } else {
+            (i64::from(stiffness(&loaded.seat, &end)), i64::MAX)
+        };
         if late > self.p.second_k_unm_per_rad
             || late > early.saturating_mul(i64::from(self.p.second_ratio))
         {
