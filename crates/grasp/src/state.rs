@@ -52,8 +52,9 @@ pub enum FaultReason {
     SettleTimeout,
     /// The estimate was not delivered within the timeout.
     EstimateTimeout,
-    /// A second contact: the stiffness over the second half of the step (and K̂c beyond a
-    /// tip contact) is above that of any single contact: the finger is locked.
+    /// A second contact: the stiffness over the second half of the step (over the whole step
+    /// without seating; and K̂c beyond a tip contact) is above that of any single contact, or
+    /// far above the first half's: the finger is locked.
     SecondContact {
         /// The stiffness seen (µN·m/rad).
         kc_unm_per_rad: i32,

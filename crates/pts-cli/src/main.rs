@@ -289,7 +289,9 @@ struct SimArgs {
     step_ramp: Vec<f64>,
     /// Step at once from the contact's detection, without the seating stages (the two-point
     /// method's static points): the path fit reads the whole loading path, and the estimate
-    /// is known sooner.
+    /// is known sooner (about 0.5 s after contact instead of 2 s at 4 N·m/s) but less
+    /// accurately (on the realistic plant's grid about 1.7× the seated mean error; see
+    /// docs/RESULTS.md, "Time to know").
     #[arg(long)]
     no_seating: bool,
 }
