@@ -559,39 +559,6 @@ fn residuals(
     Ok(r)
 }
 
-fn solve(mut a: Vec<Vec<f64>>) -> Option<Vec<Vec<f64>>> {
-    // Gauss–Jordan inverse with partial pivoting.
-    let n = a.len();
-    let mut inv: Vec<Vec<f64>> = (0..n)
-        .map(|i| (0..n).map(|j| f64::from(u8::from(i == j))).collect())
-        .collect();
-    for c in 0..n {
-        let piv = (c..n).max_by(|&x, &y| a[x][c].abs().total_cmp(&a[y][c].abs()))?;
-        if a[piv][c].abs() < 1e-300 {
-            return None;
-        }
-        a.swap(c, piv);
-        inv.swap(c, piv);
-        let d = a[c][c];
-        for k in 0..n {
-            a[c][k] /= d;
-            inv[c][k] /= d;
-        }
-        for r in 0..n {
-            if r != c {
-                let f = a[r][c];
-                if f != 0.0 {
-                    for k in 0..n {
-                        a[r][k] -= f * a[c][k];
-                        inv[r][k] -= f * inv[c][k];
-                    }
-                }
-            }
-        }
-    }
-    Some(inv)
-}
-
 fn fit(
     recs: &[Prepared],
     base: &Finger,
@@ -648,7 +615,8 @@ fn fit(
             }
             jtr[a] = jac[a].iter().zip(&r).map(|(x, y)| x * y).sum();
         }
-        let inv = solve(jtj).ok_or_else(|| CalibError::NoFit("singular normal matrix".into()))?;
+        let inv = crate::linalg::invert(jtj)
+            .ok_or_else(|| CalibError::NoFit("singular normal matrix".into()))?;
         let delta: Vec<f64> = (0..k)
             .map(|a| (0..k).map(|b| inv[a][b] * jtr[b]).sum())
             .collect();
@@ -708,7 +676,8 @@ fn finish(
             jtj[a][b] = jac[a].iter().zip(&jac[b]).map(|(x, y)| x * y).sum();
         }
     }
-    let inv = solve(jtj).ok_or_else(|| CalibError::NoFit("singular normal matrix".into()))?;
+    let inv = crate::linalg::invert(jtj)
+        .ok_or_else(|| CalibError::NoFit("singular normal matrix".into()))?;
     let mut cov = [[0.0; 9]; 9];
     for (a, &i) in idx.iter().enumerate() {
         for (b, &j) in idx.iter().enumerate() {

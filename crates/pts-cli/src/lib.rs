@@ -17,6 +17,7 @@ pub mod board;
 pub mod calibrate;
 pub mod estimate_cmd;
 pub mod eval;
+pub mod linalg;
 pub mod method;
 pub mod offline;
 pub mod path;

@@ -687,8 +687,10 @@ fn segment_rows(
 /// approach up to the first static detection — free motion whether that detection is the
 /// contact or the ringing — and each block's residual becomes
 /// T_a − T_free(θa) − viscous·θ̇a − inertia·θ̈a, which is noise in free motion whatever the
-/// crank's speed and rises at the contact only. The torques themselves are left as recorded: the path fit
-/// carries the identified inertia on its own.
+/// crank's speed and rises at the contact only, with θ̇a and θ̈a from a local quartic in time
+/// (`crate::offline::drive::poly_speed_accel`), which follows the ringing where a second
+/// difference of the same noise reads it several percent low. The torques themselves are left
+/// as recorded: the path fit carries the identified inertia on its own.
 fn dynamics_corrected_residual(
     m64: &pts::Model<f64>,
     cfg: &crate::offline::OfflineConfig,
@@ -709,55 +711,22 @@ fn dynamics_corrected_residual(
     let Some(id) = identify_drive(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior) else {
         return;
     };
-    // The correction across ±s blocks. A short span follows the ringing; a long one keeps the
-    // encoder's quantisation (`quantum_rad`, the recording's smallest θa step) out of θ̈a.
-    let corr_with = |s: usize| -> Vec<f64> {
-        (0..blocks.len())
-            .map(|k| {
-                let (Some(a), Some(b), Some(c)) = (
-                    k.checked_sub(s).and_then(|i| blocks.get(i)),
-                    blocks.get(k),
-                    blocks.get(k + s),
-                ) else {
-                    return 0.0;
-                };
-                let (d1, d2) = (b.t_s - a.t_s, c.t_s - b.t_s);
-                if !(d1 > 0.0 && d2 > 0.0) {
-                    return 0.0;
-                }
-                let v1 = (b.theta_a_rad - a.theta_a_rad) / d1;
-                let v2 = (c.theta_a_rad - b.theta_a_rad) / d2;
-                let w = (c.theta_a_rad - a.theta_a_rad) / (d1 + d2);
-                let acc = 2.0 * (v2 - v1) / (d1 + d2);
-                let v = id.viscous_nm_s_per_rad * w + id.inertia_kgm2 * acc;
-                if v.is_finite() {
-                    v
-                } else {
-                    0.0
-                }
-            })
-            .collect()
-    };
-    // The quantisation noise on inertia·θ̈a across ±s blocks is about inertia·q/(s·block)²:
-    // the span that keeps it at a quarter of the detection threshold, from 2 to 12 blocks,
-    // interpolated between whole spans (the answer must not jump with the identified inertia).
-    let span = (id.inertia_kgm2 * quantum_rad / (0.25 * cfg.detect_excess_nm)).sqrt() / block_s;
-    let span = if span.is_finite() {
-        span.clamp(2.0, 12.0)
-    } else {
-        2.0
-    };
-    let lo = span.floor() as usize;
-    let f = span - lo as f64;
-    let c_lo = corr_with(lo);
-    let corr: Vec<f64> = if f > 0.0 {
-        c_lo.iter()
-            .zip(corr_with(lo + 1))
-            .map(|(a, b)| (1.0 - f) * a + f * b)
-            .collect()
-    } else {
-        c_lo
-    };
+    // θ̈a from the local quartic over the narrowest window that keeps the encoder's
+    // quantisation (`quantum_rad`, the recording's smallest θa step) on inertia·θ̈a at a
+    // quarter of the detection threshold.
+    let half = crate::offline::drive::poly_half_width(
+        block_s,
+        quantum_rad / 12f64.sqrt(),
+        0.25 * cfg.detect_excess_nm / id.inertia_kgm2,
+        LOADING_MAX_HALF_WIDTH,
+    );
+    let corr: Vec<f64> = (0..blocks.len())
+        .map(|k| {
+            crate::offline::drive::poly_speed_accel(blocks, k, half)
+                .map(|(w, acc)| id.viscous_nm_s_per_rad * w + id.inertia_kgm2 * acc)
+                .unwrap_or(0.0)
+        })
+        .collect();
     for (b, c) in blocks.iter_mut().zip(corr) {
         b.resid_nm -= c;
     }
@@ -830,17 +799,22 @@ const DRY_FRICTION_MIN_NM: f64 = 0.01;
 /// removed, so there is no overshoot left to drop.
 const LOADING_ENVELOPE_TOL_RAD: f64 = 1.0;
 
-/// Half-width (blocks) of the differences for θ̇a and θ̈a on the loading path: the shortest
+/// Half-width (blocks) of the local quartic for θ̇a and θ̈a on the loading path: the shortest
 /// (the most faithful to an oscillation) that keeps the encoder's quantisation noise on
-/// inertia·θ̈a, about inertia·q/(span·block)², within the detection threshold; 1 to 8.
-fn loading_span(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_nm: f64) -> usize {
-    let s = (inertia_kgm2 * quantum_rad / noise_nm).sqrt() / block_s;
-    if s.is_finite() {
-        s.round().clamp(1.0, 8.0) as usize
-    } else {
-        1
-    }
+/// inertia·θ̈a (a uniform error of a quantum `quantum_rad` on θa, standard deviation q/√12)
+/// within the detection threshold `noise_nm`; at most [`LOADING_MAX_HALF_WIDTH`].
+fn loading_half_width(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_nm: f64) -> usize {
+    crate::offline::drive::poly_half_width(
+        block_s,
+        quantum_rad / 12f64.sqrt(),
+        noise_nm / inertia_kgm2,
+        LOADING_MAX_HALF_WIDTH,
+    )
 }
+
+/// The widest quartic on the loading path (blocks): ±48 ms at 4 ms, a half period of a 10 Hz
+/// ring on the contact, which a quartic still follows to a percent.
+const LOADING_MAX_HALF_WIDTH: usize = 12;
 
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
 /// term and friction offset identified from this contact's approach
@@ -898,14 +872,14 @@ fn foreign_path_fit(
     // inertia nor envelope.
     let loading = id.as_ref().and_then(|d| {
         let block_s = f64::from(seg.request.dt_ns) * 1e-9;
-        let span = loading_span(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
+        let half = loading_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
         crate::offline::loading_path(
             &seg.request,
             blocks,
             seg.knee,
             seg.end.1,
             (d.inertia_kgm2, d.viscous_nm_s_per_rad),
-            span,
+            half,
             if d.offset_nm > DRY_FRICTION_MIN_NM {
                 0.0
             } else {

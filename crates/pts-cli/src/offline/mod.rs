@@ -45,8 +45,8 @@
 //! The phases live in their own modules: [`blocks`] (averaging the trace), [`drive`] (the
 //! drive's nuisance parameters on the approach), [`contact`] (arming, detection, the knee and
 //! its back-dating), [`segment`] (segment end, end point, static points, the request) and
-//! [`estimate`] (the firmware's path fit on a segmented request). Host only (f64); no
-//! allocation (the caller provides the block scratch), no panics, typed [`OfflineError`]s.
+//! [`estimate`] (the firmware's path fit on a segmented request). Host only (f64); the
+//! blocks live in the caller's scratch; no panics, typed [`OfflineError`]s.
 //!
 //! [`PATH_CAPACITY`]: grasp::estimate::PATH_CAPACITY
 

@@ -381,8 +381,9 @@ fn build_request(
 /// (whose inertial torques have opposite signs, so an inertia error largely cancels): the
 /// request is for a fit told no inertia and no envelope. The samples are handed in order of
 /// θa (the fit's bins run from the contact to the last sample), stamped with consecutive
-/// ticks after the contact's; `pre` keeps the approach up to the contact. `span` is the
-/// half-width (blocks) of the differences for θ̇a and θ̈a, at least 1. `None` unless the
+/// ticks after the contact's; `pre` keeps the approach up to the contact. `half_width` is the
+/// half-width (blocks) of the local quartic that gives θ̇a and θ̈a
+/// ([`poly_speed_accel`](super::drive::poly_speed_accel)). `None` unless the
 /// crank swings back after the contact by more than `min_swing_rad` (block means): below
 /// that the fit's own envelope keeps the whole path and the request stays as it is.
 pub fn loading_path(
@@ -391,7 +392,7 @@ pub fn loading_path(
     knee: usize,
     hi: usize,
     (inertia_kgm2, viscous_nm_s_per_rad): (f64, f64),
-    span: usize,
+    half_width: usize,
     min_swing_rad: f64,
 ) -> Option<EstimateRequest> {
     let after = blocks.get(knee + 1..hi.min(blocks.len()))?;
@@ -404,8 +405,7 @@ pub fn loading_path(
     if !(swing > min_swing_rad) {
         return None;
     }
-    let span = span.max(1);
-    let kin = |k: usize| super::drive::speed_accel(blocks, k, span);
+    let kin = |k: usize| super::drive::poly_speed_accel(blocks, k, half_width);
     // (θa, quasi-static T_a) of each usable block, in time order.
     let mut pts: std::vec::Vec<(f64, f64)> = std::vec::Vec::new();
     for k in knee + 1..hi.min(blocks.len()) {
@@ -595,7 +595,7 @@ mod tests {
             .collect();
         let pts = [Sample::ZERO; 4];
         let req = build_request(&CFG, &b, (0, 1, 150), 0.004, pts, 0.3);
-        let out = loading_path(&req, &b, 1, 150, (j, 0.0), 1, 0.03).expect("a 40 mrad swing");
+        let out = loading_path(&req, &b, 1, 150, (j, 0.0), 2, 0.03).expect("a 40 mrad swing");
         assert!(out.path.len() > 40, "{}", out.path.len());
         let mut last = i32::MIN;
         for s in &out.path {
@@ -610,7 +610,7 @@ mod tests {
             );
         }
         // No swing back beyond the limit: the request stays as it is.
-        assert!(loading_path(&req, &b, 1, 150, (j, 0.0), 1, 0.05).is_none());
+        assert!(loading_path(&req, &b, 1, 150, (j, 0.0), 2, 0.05).is_none());
     }
 
     #[test]
