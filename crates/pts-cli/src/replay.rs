@@ -711,14 +711,13 @@ fn dynamics_corrected_residual(
     let Some(id) = identify_drive(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior) else {
         return;
     };
-    // θ̈a from the local quartic over the narrowest window that keeps the encoder's
-    // quantisation (`quantum_rad`, the recording's smallest θa step) on inertia·θ̈a at a
-    // quarter of the detection threshold.
-    let half = crate::offline::drive::poly_half_width(
+    // The encoder's quantisation (`quantum_rad`, the recording's smallest θa step) on
+    // inertia·θ̈a held to a quarter of the detection threshold.
+    let half = quartic_half_width(
+        id.inertia_kgm2,
+        quantum_rad,
         block_s,
-        quantum_rad / 12f64.sqrt(),
-        0.25 * cfg.detect_excess_nm / id.inertia_kgm2,
-        LOADING_MAX_HALF_WIDTH,
+        0.25 * cfg.detect_excess_nm,
     );
     let corr: Vec<f64> = (0..blocks.len())
         .map(|k| {
@@ -799,22 +798,22 @@ const DRY_FRICTION_MIN_NM: f64 = 0.01;
 /// removed, so there is no overshoot left to drop.
 const LOADING_ENVELOPE_TOL_RAD: f64 = 1.0;
 
-/// Half-width (blocks) of the local quartic for θ̇a and θ̈a on the loading path: the shortest
-/// (the most faithful to an oscillation) that keeps the encoder's quantisation noise on
-/// inertia·θ̈a (a uniform error of a quantum `quantum_rad` on θa, standard deviation q/√12)
-/// within the detection threshold `noise_nm`; at most [`LOADING_MAX_HALF_WIDTH`].
-fn loading_half_width(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_nm: f64) -> usize {
+/// Half-width (blocks) of the local quartic for θ̇a and θ̈a (the detection's residual, the
+/// loading path): the shortest (the most faithful to an oscillation) that keeps the encoder's
+/// quantisation noise on inertia·θ̈a (a uniform error of a quantum `quantum_rad` on θa,
+/// standard deviation q/√12) within `noise_nm`; at most [`MAX_QUARTIC_HALF_WIDTH`].
+fn quartic_half_width(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_nm: f64) -> usize {
     crate::offline::drive::poly_half_width(
         block_s,
         quantum_rad / 12f64.sqrt(),
         noise_nm / inertia_kgm2,
-        LOADING_MAX_HALF_WIDTH,
+        MAX_QUARTIC_HALF_WIDTH,
     )
 }
 
-/// The widest quartic on the loading path (blocks): ±48 ms at 4 ms, a half period of a 10 Hz
-/// ring on the contact, which a quartic still follows to a percent.
-const LOADING_MAX_HALF_WIDTH: usize = 12;
+/// The widest quartic (blocks): ±48 ms at 4 ms, a half period of a 10 Hz ring on the contact,
+/// which a quartic still follows to a percent.
+const MAX_QUARTIC_HALF_WIDTH: usize = 12;
 
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
 /// term and friction offset identified from this contact's approach
@@ -872,7 +871,7 @@ fn foreign_path_fit(
     // inertia nor envelope.
     let loading = id.as_ref().and_then(|d| {
         let block_s = f64::from(seg.request.dt_ns) * 1e-9;
-        let half = loading_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
+        let half = quartic_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
         crate::offline::loading_path(
             &seg.request,
             blocks,

@@ -177,7 +177,12 @@ pub fn poly_speed_accel(blocks: &[Block], k: usize, half: usize) -> Option<(f64,
     for b in window {
         let x = (b.t_s - centre.t_s) / h;
         let y = b.theta_a_rad - centre.theta_a_rad;
-        let powers: std::vec::Vec<f64> = (0..n).map(|i| x.powi(i as i32)).collect();
+        let mut p = 1.0;
+        let powers: [f64; POLY_DEGREE + 1] = core::array::from_fn(|_| {
+            let v = p;
+            p *= x;
+            v
+        });
         for ((row, r), &pi) in ata.iter_mut().zip(atb.iter_mut()).zip(&powers) {
             for (a, &pj) in row.iter_mut().zip(&powers) {
                 *a += pi * pj;
