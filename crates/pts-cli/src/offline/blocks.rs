@@ -87,6 +87,7 @@ pub fn make_blocks<R: pts::Real>(
         }
     };
     let mut prev_theta = first.theta_a_rad;
+    let mut prev_t = first.t_s;
     for (i, r) in rows.iter().enumerate() {
         let idx = ((r.t_s - first.t_s) / block) as u32;
         if cur.is_some_and(|c| c.index != idx) {
@@ -103,12 +104,15 @@ pub fn make_blocks<R: pts::Real>(
         c.theta += r.theta_a_rad;
         c.torque += r.torque_nm;
         c.count = c.count.saturating_add(1);
-        if i > 0 && r.theta_a_rad != prev_theta {
+        // A crank creeping slower than a settled one stands still: an unquantised recording
+        // shows a stuck contact or drive as a drift of µrad, which an encoder would not see.
+        if i > 0 && (r.theta_a_rad - prev_theta).abs() > cfg.end_speed_rad_s * (r.t_s - prev_t) {
             c.moving = c.moving.saturating_add(1);
             c.moving_theta += r.theta_a_rad;
             c.moving_torque += r.torque_nm;
         }
         prev_theta = r.theta_a_rad;
+        prev_t = r.t_s;
     }
     if let Some(c) = cur {
         flush(c, &mut n);
@@ -265,13 +269,14 @@ mod tests {
     use super::*;
 
     /// 1 kHz rows: θa stuck for 10 ms while the torque climbs through the stiction band, a
-    /// slip of 2 mrad, stuck again; then crawling one row in two.
+    /// slip of 2 mrad, stuck again (drifting by 1 µrad a row, 1 mrad/s, as an unquantised
+    /// record of a stuck crank does); then crawling one row in two.
     fn stick_slip() -> std::vec::Vec<TraceSample> {
         (0..40)
             .map(|i| {
                 let theta = match i {
                     0..10 => -0.3,
-                    10..20 => -0.298,
+                    10..20 => -0.298 + 1e-6 * (i - 10) as f64,
                     _ => -0.298 + 1e-4 * ((i - 19) / 2) as f64,
                 };
                 TraceSample {
@@ -295,7 +300,9 @@ mod tests {
         // Blocks of 4 rows: 0..4 and 4..8 stuck, 8..12 holds the slip at row 10.
         assert_eq!((b[0].moving_rows, b[1].moving_rows), (0, 0));
         assert!(b[0].moving_torque_nm.is_nan() && b[1].moving_theta_a_rad.is_nan());
+        // The drift after the slip (rows 11..20) is slower than a settled crank: still.
         assert_eq!(b[2].moving_rows, 1);
+        assert_eq!((b[3].moving_rows, b[4].moving_rows), (0, 0));
         assert_eq!(b[2].moving_theta_a_rad, -0.298);
         assert!((b[2].moving_torque_nm - 0.41).abs() < 1e-12);
         // The plain means still average every row.

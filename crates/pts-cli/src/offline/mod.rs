@@ -37,8 +37,9 @@
 //!
 //! The request then carries the free-motion history before the detection (`pre`), the blocks
 //! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`: each the mean over
-//! the rows in which θa changed, since while the crank stands still the transmission's
-//! friction is anywhere in its stiction band; blocks in which it never moved are left out), the knee
+//! the rows in which θa moved faster than a settled crank, since while the crank stands still
+//! the transmission's friction is anywhere in its stiction band and a stuck contact's anywhere
+//! in its friction cone; blocks in which it never moved are left out), the knee
 //! (`contact`), the static points and the measured ΔT_a; block ticks are block indices + 1
 //! and `dt_ns` the block length.
 //!
@@ -95,7 +96,8 @@ pub struct Block {
     pub resid_nm: f64,
     /// Index of the first trace row in the block.
     pub first_row: u32,
-    /// The block's rows in which the crank moved: θa differs from the row before (rows).
+    /// The block's rows in which the crank moved: θa changed from the row before faster than
+    /// [`OfflineConfig::end_speed_rad_s`] (rows).
     pub moving_rows: u32,
     /// Mean θa over the moving rows (rad); NaN when none moved.
     pub moving_theta_a_rad: f64,
@@ -116,7 +118,8 @@ pub struct OfflineConfig {
     /// Free motion: largest change of the residual per radian of θa across a free-motion
     /// window (N·m/rad); a contact adds at least K_c,proximal − K_free ≈ 2.
     pub free_slope_nm_per_rad: f64,
-    /// End point: largest θa speed of the settled (or quasi-statically creeping) end (rad/s).
+    /// End point: largest θa speed of the settled (or quasi-statically creeping) end (rad/s);
+    /// a row slower than this does not count as moving ([`Block::moving_rows`]).
     pub end_speed_rad_s: f64,
     /// Least rise of the free-motion residual above the approach offset that counts as a
     /// contact (N·m); the threshold is the larger of this and 8 σ of the residual.
