@@ -1,7 +1,10 @@
 //! The estimate requests `cargo xtask bench --check` runs the firmware's estimate entries on
 //! (`crates/pts/benches/thumb/requests/*.req`): requests the real controller built closed
 //! loop against the plant, with the host's results of the same entries (the bench requires
-//! the target to reproduce them bit for bit) and the f64 reference.
+//! the target to reproduce them bit for bit) and the f64 reference. Besides the default
+//! (seated) controller's, the `*_unseated` cases are shaped like a recording no seating
+//! controller made: the step a 4 N·m/s ramp from T_a,c at the detection, the whole loading
+//! path in the request.
 //!
 //! Checked here on every committed case: the firmware's two-point estimate
 //! (`grasp::two_point_fw`, Q32.32 on the free-motion table) against the two-point method on
@@ -22,7 +25,7 @@ use grasp::{EstimateRequest, EstimateResult, Estimator, Located, Sample};
 use pts::fixed::Fx32;
 use pts::{Model, Real};
 
-use common::{config, run, L2};
+use common::{config, run, unseated, L2};
 
 /// The scenes of the committed cases (the plant's Table 2 case first), at ΔT_a = 0.8 N·m,
 /// the firmware's default step.
@@ -35,6 +38,9 @@ const SCENES: &[&str] = &[
     "cyl30_k2_40",
     "proximal_vertex_k1_50",
 ];
+
+/// The scenes of the unseated cases (`<scene>_unseated.req`), at ΔT_a = 0.8 N·m.
+const UNSEATED_SCENES: &[&str] = &["table2", "vertex_k2_30", "cyl10_k2_20", "cyl30_k2_40"];
 
 fn cases_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("crates/pts/benches/thumb/requests")
@@ -170,9 +176,15 @@ fn dump_cases_when_asked() {
         return;
     }
     std::fs::create_dir_all(cases_dir()).unwrap();
-    for name in SCENES {
+    let seated = SCENES.iter().map(|n| (*n, false));
+    for (name, fast) in seated.chain(UNSEATED_SCENES.iter().map(|n| (*n, true))) {
         let s = plant::scenes::by_name(name).expect("scene");
-        let o = run(&s, config(&s, 0.8), 30.0, 0.0, |_, _, _| {});
+        let cfg = if fast {
+            unseated(&s, 0.8)
+        } else {
+            config(&s, 0.8)
+        };
+        let o = run(&s, cfg, 30.0, 0.0, |_, _, _| {});
         let req = o.request.expect("the controller built a request");
         let mut text = String::new();
         let truth = o
@@ -180,13 +192,23 @@ fn dump_cases_when_asked() {
             .map_or(-1, |(_, k)| (k * 1e6).round() as i64);
         writeln!(
             text,
-            "# scene {name}, ΔT_a 0.8 N·m, the paper's finger: the request the controller built \
-             closed loop (tests/estimate_cases.rs); first contact at {truth} µm"
+            "# scene {name}, ΔT_a 0.8 N·m, the paper's finger: the request the {}controller built \
+             closed loop (tests/estimate_cases.rs); first contact at {truth} µm",
+            if fast {
+                "unseated (4 N·m/s ramp) "
+            } else {
+                ""
+            }
         )
         .unwrap();
         text += &request_text(&req);
         text += &host_results(&req);
-        let path = cases_dir().join(format!("{name}.req"));
+        let file = if fast {
+            format!("{name}_unseated.req")
+        } else {
+            format!("{name}.req")
+        };
+        let path = cases_dir().join(file);
         std::fs::write(&path, text).unwrap();
         println!("wrote {}", path.display());
     }

@@ -5,16 +5,7 @@
 mod common;
 
 use common::*;
-use grasp::{ControllerConfig, FaultReason, State, StepShape};
-
-/// The controller without seating, the step a 4 N·m/s ramp of ΔT_a (N·m).
-fn unseated(scene: &plant::Scene, dta: f64) -> ControllerConfig {
-    ControllerConfig {
-        seating: false,
-        step_shape: StepShape::Ramp(4.0),
-        ..config(scene, dta)
-    }
-}
+use grasp::{FaultReason, State};
 
 /// ΔT_a = 0.2 N·m on sound single contacts: the torque at the halfway sample dips below
 /// T_a,c (the reference drops to T_a,c at the detection while the impact decelerates the

@@ -29,6 +29,16 @@ pub fn config(scene: &Scene, delta_ta_nm: f64) -> ControllerConfig {
     .with_delta_ta(delta_ta_nm)
 }
 
+/// The controller without seating (the step starts from T_a,c at the detection), the step a
+/// 4 N·m/s ramp of ΔT_a (N·m): a grasp shaped like a recording that no seating controller made.
+pub fn unseated(scene: &Scene, delta_ta_nm: f64) -> ControllerConfig {
+    ControllerConfig {
+        seating: false,
+        step_shape: grasp::StepShape::Ramp(4.0),
+        ..config(scene, delta_ta_nm)
+    }
+}
+
 /// What one closed-loop grasp produced.
 #[derive(Debug, Clone)]
 pub struct Outcome {
