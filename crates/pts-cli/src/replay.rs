@@ -605,7 +605,9 @@ fn segment_rows(
     let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
     let mfw = pts::Model::<grasp::EstReal>::new(&finger.finger)
         .map_err(|e| format!("finger on the firmware back end: {e}"))?;
-    let cfg = OfflineConfig::DEFAULT.with_estimator(method.estimator());
+    let cfg = OfflineConfig::DEFAULT
+        .with_estimator(method.estimator())
+        .with_encoder_count(finger.rad_per_count());
     let mut scratch = vec![Block::default(); 1 << 16];
     let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch)
         .map_err(|e| format!("segmenting the trace: {} ({e:?})", e.kind()))?;

@@ -14,7 +14,8 @@ pub fn make_blocks<R: pts::Real>(
     rows: &[TraceSample],
     scratch: &mut [Block],
 ) -> Result<(usize, f64), OfflineError> {
-    if !(cfg.block_s.is_finite() && cfg.block_s > 0.0) || scratch.is_empty() {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !(positive(cfg.block_s) && positive(cfg.encoder_count_rad)) || scratch.is_empty() {
         return Err(OfflineError::BadConfig);
     }
     let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
@@ -104,9 +105,14 @@ pub fn make_blocks<R: pts::Real>(
         c.theta += r.theta_a_rad;
         c.torque += r.torque_nm;
         c.count = c.count.saturating_add(1);
-        // A crank creeping slower than a settled one stands still: an unquantised recording
-        // shows a stuck contact or drive as a drift of µrad, which an encoder would not see.
-        if i > 0 && (r.theta_a_rad - prev_theta).abs() > cfg.end_speed_rad_s * (r.t_s - prev_t) {
+        // A crank creeping slower than a settled one by less than half a count stands still:
+        // an unquantised recording shows a stuck contact or drive as a drift of µrad, which
+        // an encoder would not see.
+        let step = (r.theta_a_rad - prev_theta).abs();
+        if i > 0
+            && (step >= 0.5 * cfg.encoder_count_rad
+                || step > cfg.end_speed_rad_s * (r.t_s - prev_t))
+        {
             c.moving = c.moving.saturating_add(1);
             c.moving_theta += r.theta_a_rad;
             c.moving_torque += r.torque_nm;
@@ -309,6 +315,44 @@ mod tests {
         assert!((b[2].torque_nm - 0.4095).abs() < 1e-12);
         // Crawling (rows 21, 23, … move): two of each block's four rows.
         assert!(b[6..9].iter().all(|k| k.moving_rows == 2), "{:?}", &b[6..9]);
+    }
+
+    /// A quantised 250 Hz recording of a crank creeping one encoder count per row
+    /// (0.008 rad/s, slower than a settled crank): every count is a move, as at any rate.
+    #[test]
+    fn a_whole_count_is_a_move_at_any_sample_rate() {
+        let model = Model::<f64>::paper().unwrap();
+        let cfg = OfflineConfig::DEFAULT;
+        let q = cfg.encoder_count_rad;
+        let paper = pts::config::FingerFile::paper().rad_per_count();
+        assert!(
+            (q - paper).abs() < 1e-15 * paper,
+            "the default is the paper finger's count"
+        );
+        let rows: std::vec::Vec<TraceSample> = (0..40)
+            .map(|i| TraceSample {
+                t_s: 0.004 * i as f64,
+                theta_a_rad: -0.3 + q * i as f64,
+                torque_nm: 0.4,
+            })
+            .collect();
+        assert!(q / 0.004 < cfg.end_speed_rad_s);
+        let mut scratch = [Block::default(); 64];
+        let (n, _) = make_blocks(&model, &cfg, &rows, &mut scratch).unwrap();
+        // One row per 4 ms block; the first has no row before it.
+        assert!(
+            scratch[1..n].iter().all(|b| b.moving_rows == 1),
+            "{:?}",
+            &scratch[..n]
+        );
+        let bad = OfflineConfig {
+            encoder_count_rad: 0.0,
+            ..cfg
+        };
+        assert_eq!(
+            make_blocks(&model, &bad, &rows, &mut scratch),
+            Err(OfflineError::BadConfig)
+        );
     }
 
     #[test]

@@ -96,7 +96,8 @@ pub struct Block {
     pub resid_nm: f64,
     /// Index of the first trace row in the block.
     pub first_row: u32,
-    /// The block's rows in which the crank moved: θa changed from the row before faster than
+    /// The block's rows in which the crank moved: θa changed from the row before by half an
+    /// encoder count ([`OfflineConfig::encoder_count_rad`]) or more, or faster than
     /// [`OfflineConfig::end_speed_rad_s`] (rows).
     pub moving_rows: u32,
     /// Mean θa over the moving rows (rad); NaN when none moved.
@@ -119,8 +120,13 @@ pub struct OfflineConfig {
     /// window (N·m/rad); a contact adds at least K_c,proximal − K_free ≈ 2.
     pub free_slope_nm_per_rad: f64,
     /// End point: largest θa speed of the settled (or quasi-statically creeping) end (rad/s);
-    /// a row slower than this does not count as moving ([`Block::moving_rows`]).
+    /// a row slower than this, by less than half an encoder count, does not count as moving
+    /// ([`Block::moving_rows`]).
     pub end_speed_rad_s: f64,
+    /// The finger's encoder count at θa (rad, > 0): a row that changes θa by half of it or
+    /// more moved, whatever the sample rate (a quantised recording shows every move as whole
+    /// counts).
+    pub encoder_count_rad: f64,
     /// Least rise of the free-motion residual above the approach offset that counts as a
     /// contact (N·m); the threshold is the larger of this and 8 σ of the residual.
     pub detect_excess_nm: f64,
@@ -153,6 +159,8 @@ impl OfflineConfig {
         arm_rad: 5e-4,
         free_slope_nm_per_rad: 0.5,
         end_speed_rad_s: 0.015,
+        // The paper prototype's: 64 counts per motor turn through the 3072:1 gear.
+        encoder_count_rad: 2.0 * core::f64::consts::PI / (64.0 * 3072.0),
         detect_excess_nm: 0.012,
         confirm: 5,
         static_window: 25,
@@ -168,6 +176,12 @@ impl OfflineConfig {
     /// The defaults with another estimator.
     pub const fn with_estimator(mut self, estimator: Estimator) -> Self {
         self.estimator = estimator;
+        self
+    }
+
+    /// With another encoder count at θa (rad), e.g. a finger file's `rad_per_count()`.
+    pub const fn with_encoder_count(mut self, count_rad: f64) -> Self {
+        self.encoder_count_rad = count_rad;
         self
     }
 }
