@@ -37,9 +37,10 @@
 //!
 //! The request then carries the free-motion history before the detection (`pre`), the blocks
 //! from the detection to the end decimated into [`PATH_CAPACITY`] (`path`: each the mean over
-//! the rows in which θa moved faster than a settled crank, since while the crank stands still
-//! the transmission's friction is anywhere in its stiction band and a stuck contact's anywhere
-//! in its friction cone; blocks in which it never moved are left out), the knee
+//! the rows in which θa moved, by half an encoder count or faster than a settled crank, since
+//! while the crank stands still the transmission's friction is anywhere in its stiction band
+//! and a stuck contact's anywhere in its friction cone; blocks in which it never moved are left
+//! out), the knee
 //! (`contact`), the static points and the measured ΔT_a; block ticks are block indices + 1
 //! and `dt_ns` the block length.
 //!
