@@ -176,42 +176,54 @@ fn dump_cases_when_asked() {
         return;
     }
     std::fs::create_dir_all(cases_dir()).unwrap();
-    let seated = SCENES.iter().map(|n| (*n, false));
-    for (name, fast) in seated.chain(UNSEATED_SCENES.iter().map(|n| (*n, true))) {
-        let s = plant::scenes::by_name(name).expect("scene");
-        let cfg = if fast {
-            unseated(&s, 0.8)
-        } else {
-            config(&s, 0.8)
-        };
-        let o = run(&s, cfg, 30.0, 0.0, |_, _, _| {});
-        let req = o.request.expect("the controller built a request");
-        let mut text = String::new();
-        let truth = o
-            .first_contact
-            .map_or(-1, |(_, k)| (k * 1e6).round() as i64);
-        writeln!(
-            text,
-            "# scene {name}, ΔT_a 0.8 N·m, the paper's finger: the request the {}controller built \
-             closed loop (tests/estimate_cases.rs); first contact at {truth} µm",
-            if fast {
-                "unseated (4 N·m/s ramp) "
-            } else {
-                ""
-            }
-        )
-        .unwrap();
-        text += &request_text(&req);
-        text += &host_results(&req);
-        let file = if fast {
-            format!("{name}_unseated.req")
-        } else {
-            format!("{name}.req")
-        };
-        let path = cases_dir().join(file);
-        std::fs::write(&path, text).unwrap();
-        println!("wrote {}", path.display());
+    // (scenes, file suffix, the controller in the comment line, its configuration)
+    type Variant = (
+        &'static [&'static str],
+        &'static str,
+        &'static str,
+        fn(&plant::Scene, f64) -> grasp::ControllerConfig,
+    );
+    let variants: [Variant; 2] = [
+        (SCENES, "", "", config),
+        (
+            UNSEATED_SCENES,
+            "_unseated",
+            "unseated (4 N·m/s ramp) ",
+            unseated,
+        ),
+    ];
+    for (scenes, suffix, label, cfg) in variants {
+        for name in scenes {
+            dump_case(name, suffix, label, cfg);
+        }
     }
+}
+
+/// Runs one scene closed loop at ΔT_a = 0.8 N·m and writes its request case.
+fn dump_case(
+    name: &str,
+    suffix: &str,
+    label: &str,
+    cfg: fn(&plant::Scene, f64) -> grasp::ControllerConfig,
+) {
+    let s = plant::scenes::by_name(name).expect("scene");
+    let o = run(&s, cfg(&s, 0.8), 30.0, 0.0, |_, _, _| {});
+    let req = o.request.expect("the controller built a request");
+    let mut text = String::new();
+    let truth = o
+        .first_contact
+        .map_or(-1, |(_, k)| (k * 1e6).round() as i64);
+    writeln!(
+        text,
+        "# scene {name}, ΔT_a 0.8 N·m, the paper's finger: the request the {label}controller \
+             built closed loop (tests/estimate_cases.rs); first contact at {truth} µm"
+    )
+    .unwrap();
+    text += &request_text(&req);
+    text += &host_results(&req);
+    let path = cases_dir().join(format!("{name}{suffix}.req"));
+    std::fs::write(&path, text).unwrap();
+    println!("wrote {}", path.display());
 }
 
 fn committed() -> Vec<(String, EstimateRequest, Vec<String>)> {

@@ -56,7 +56,7 @@ impl DriveConfig {
     }
 
     /// Actuator angle per encoder count (rad/count).
-    pub fn rad_per_count(&self) -> f64 {
+    pub const fn rad_per_count(&self) -> f64 {
         2.0 * core::f64::consts::PI / (self.encoder_counts_per_rev * self.gear_ratio)
     }
 }

@@ -160,8 +160,8 @@ impl OfflineConfig {
         arm_rad: 5e-4,
         free_slope_nm_per_rad: 0.5,
         end_speed_rad_s: 0.015,
-        // The paper prototype's: 64 counts per motor turn through the 3072:1 gear.
-        encoder_count_rad: 2.0 * core::f64::consts::PI / (64.0 * 3072.0),
+        // The paper prototype's drive.
+        encoder_count_rad: grasp::DriveConfig::DEFAULT.rad_per_count(),
         detect_excess_nm: 0.012,
         confirm: 5,
         static_window: 25,
