@@ -202,8 +202,7 @@ pub fn bench_table(json: &Path) -> Result<String, String> {
          Request to result, contact point included (`crates/pts/benches/thumb/requests/`). The\n\
          `_unseated` requests come from the controller without seating (a 4 N·m/s ramp from\n\
          T_a,c, the whole loading path: a grasp shaped like a recording no seating controller\n\
-         made); the path fit is over its budget on some of them, which is open work, and\n\
-         guarded against regression at 112,000.\n\n\
+         made). Every count is a hard gate at its budget.\n\n\
          | entry | request | instructions | budget |\n|---|---|---|---|\n",
     );
     let entries = v["estimate_entries"]

@@ -473,7 +473,8 @@ trait Kernel<R: Real> {
     fn set_contact(&mut self, theta_a_c: R) -> Result<(), PtsError>;
     /// The path at every bin for p = (k2c, R, ·, θa,c) (m, m, ·, rad), with the normal
     /// equations (see [`Eval`]); counts one evaluation in `w`.
-    fn evaluate(&mut self, w: &mut Work<R>, p: &[R; NP]) -> Result<Eval<R>, PathFail>;
+    fn evaluate(&mut self, w: &mut Work<R>, p: &[R; NP], out: &mut Eval<R>)
+        -> Result<(), PathFail>;
     /// Chord stiffness (N·m/rad) from the first bin above θa,c to the middle of the rest
     /// (`None` when the bins do not span enough θa).
     fn chord_stiffness(&self, nb: usize) -> Option<R>;
@@ -509,6 +510,19 @@ struct Eval<R> {
     k_first: R,
     /// δφ, δ2 at the last bin (rad).
     last: (R, R),
+}
+
+impl<R: Real> Eval<R> {
+    /// An evaluation slot before its first use.
+    const ZERO: Self = Eval {
+        a: [[R::ZERO; NP]; NP],
+        g: [R::ZERO; NP],
+        sse: R::ZERO,
+        tf: R::ZERO,
+        k2_last: R::ZERO,
+        k_first: R::ZERO,
+        last: (R::ZERO, R::ZERO),
+    };
 }
 
 /// Converts a small count to the back end without going through f64 arithmetic at run time.
@@ -699,11 +713,13 @@ fn run_fit<R: Real, K: Kernel<R>>(
         // parameters (−L_RK).
         let (sigma_r_lin, var_kv, per_r) = match full {
             Some(f) => {
-                let (var_kv, per_r, c_rr) = f.last_two();
+                let (var_kv, per_r, c_rr) = f.all().last_two();
                 ((c_rr * s2v).max(zero).sqrt() * l2, var_kv, per_r)
             }
             None => {
-                let f = ldl(&e.a, &vset).ok_or(PathFitError::NotDetermined)?;
+                let mut own = None;
+                ldl(&e.a, &vset, &mut own);
+                let f = own.as_ref().ok_or(PathFitError::NotDetermined)?.all();
                 let mut col = [zero; NP];
                 for (j, on) in vset.iter().enumerate() {
                     if *on {
@@ -724,12 +740,13 @@ fn run_fit<R: Real, K: Kernel<R>>(
             ObjectModel::Auto => bias_pot > sigma_kv * R::from_f64(0.5),
         };
         let (dk_lin, dr_lin, dtc_lin) = match (full, matters) {
-            (Some(f), true) => {
+            (Some(full), true) => {
+                let f = full.all();
                 let d = f.solve(&e.g);
                 // The cylinder fit starts from this step; past the largest radius, from the
                 // step with R there and the others optimal for it (R is eliminated last:
                 // the leading block is the factorisation without it).
-                let lead = f.without_last().filter(|_| d[RAD] * l2 > rmax);
+                let lead = full.without_last().filter(|_| d[RAD] * l2 > rmax);
                 let (dk, dtc) = match lead {
                     Some(lead) => {
                         let dh = lead.solve_r_fixed(&e.a, &e.g, rmax / l2);
@@ -759,9 +776,22 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // vertex fit: as soon as it clearly matters, its Gauss–Newton step with R free starts
     // the cylinder fit (the vertex fit's remaining iterations would be spent on a model that
     // is then dropped); otherwise the vertex fit runs to convergence and decides there.
-    let first = lm(pm, w, &mut p, &vset, &cset, &bounds, 0, None, None)?;
-    let mut dec = decide(&first.0, &first.1)?;
-    let mut vertex = first;
+    let mut vertex: Factored<R> = (Eval::ZERO, None);
+    let mut spare = Eval::ZERO;
+    lm(
+        pm,
+        w,
+        &mut p,
+        &vset,
+        &cset,
+        &bounds,
+        0,
+        &mut vertex,
+        false,
+        &mut spare,
+        None,
+    )?;
+    let mut dec = decide(&vertex.0, &vertex.1)?;
     let mut vertex_converged = false;
     if !dec.want {
         let mut last = None;
@@ -772,7 +802,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
             }
             Err(_) => false,
         };
-        vertex = lm(
+        lm(
             pm,
             w,
             &mut p,
@@ -780,7 +810,9 @@ fn run_fit<R: Real, K: Kernel<R>>(
             &cset,
             &bounds,
             8,
-            Some(first),
+            &mut vertex,
+            true,
+            &mut spare,
             Some(&mut hook),
         )?;
         // The decision at the returned (last accepted) hypothesis.
@@ -791,12 +823,12 @@ fn run_fit<R: Real, K: Kernel<R>>(
         vertex_converged = !dec.want;
     }
     let p_vertex = p;
-    let mut fit = vertex;
     let mut pfit = p;
     let mut object = FittedObject::Vertex;
     let mut set = vset;
     let mut bias_k = dec.bias_pot;
     let mut cylinder = false;
+    let mut cyl: Factored<R> = (Eval::ZERO, None);
     if dec.want {
         let mut pc = p_vertex;
         pc[K] = (pc[K] + dec.dk_lin).max(bounds.k_lo).min(l2);
@@ -804,9 +836,10 @@ fn run_fit<R: Real, K: Kernel<R>>(
         if fit_contact {
             pc[TC] = (pc[TC] + dec.dtc_lin).max(bounds.tc_lo).min(bounds.tc_hi);
         }
-        match lm(pm, w, &mut pc, &cset, &cset, &bounds, 10, None, None) {
-            Ok(e) if e.0.sse <= vertex.0.sse => {
-                fit = e;
+        match lm(
+            pm, w, &mut pc, &cset, &cset, &bounds, 10, &mut cyl, false, &mut spare, None,
+        ) {
+            Ok(()) if cyl.0.sse <= vertex.0.sse => {
                 pfit = pc;
                 object = FittedObject::Cylinder;
                 set = cset;
@@ -824,12 +857,24 @@ fn run_fit<R: Real, K: Kernel<R>>(
     if !cylinder && !vertex_converged {
         // The cylinder fit was refused: the vertex fit to convergence after all.
         let mut pv = p_vertex;
-        vertex = lm(pm, w, &mut pv, &vset, &cset, &bounds, 8, Some(vertex), None)?;
+        lm(
+            pm,
+            w,
+            &mut pv,
+            &vset,
+            &cset,
+            &bounds,
+            8,
+            &mut vertex,
+            true,
+            &mut spare,
+            None,
+        )?;
         dec = decide(&vertex.0, &vertex.1)?;
-        fit = vertex;
         pfit = pv;
         bias_k = dec.bias_pot;
     }
+    let fit = if cylinder { &cyl } else { &vertex };
     let sigma_r_lin = dec.sigma_r_lin;
     let k2c = pfit[K];
     let radius = pfit[RAD];
@@ -850,10 +895,11 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // The covariance also carries θa,c's uncertainty (its prior) when it was not fitted.
     let mut cset_final = set;
     cset_final[TC] = has_tc;
-    let cov = factor_for(&fit.0.a, &cset_final, &cset, fit.1.as_ref())
+    let mut scratch = None;
+    let cov = factor_for(&fit.0.a, &cset_final, &cset, fit.1.as_ref(), &mut scratch)
         .map(|f| f.inverse())
         .ok_or(PathFitError::NotDetermined)?;
-    let fit = fit.0;
+    let fit = &fit.0;
     let var_k = cov[K][K] * s2;
     let var_r = if object == FittedObject::Cylinder {
         cov[RAD][RAD] * s2
@@ -1208,8 +1254,14 @@ impl<R: Real> Kernel<R> for GenericKernel<'_, R> {
         }
         Ok(())
     }
-    fn evaluate(&mut self, w: &mut Work<R>, p: &[R; NP]) -> Result<Eval<R>, PathFail> {
-        evaluate(self, w, p)
+    fn evaluate(
+        &mut self,
+        w: &mut Work<R>,
+        p: &[R; NP],
+        out: &mut Eval<R>,
+    ) -> Result<(), PathFail> {
+        *out = evaluate(self, w, p)?;
+        Ok(())
     }
     fn chord_stiffness(&self, nb: usize) -> Option<R> {
         chord_of(self.bins.get(..nb)?)
@@ -1401,6 +1453,10 @@ type StopHook<'a, R> = &'a mut dyn FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool;
 /// factorisation covers. Undamped (Gauss–Newton, from the kept factorisation) until a step
 /// fails; damped from then on until steps succeed again. Bounded: `iters` steps and the
 /// global [`MAX_EVALS`]; `stop` sees every accepted evaluation and may end the fit.
+///
+/// `fit` holds the evaluation at `p` when `evaluated` (else it is evaluated first) and
+/// receives the last accepted hypothesis; `spare` is the trial's slot. The evaluations and factorisations are written in
+/// place, never moved: on the Cortex-M4 each move of an evaluation is a 208-byte copy.
 /// One instance per back end (the hook is `dyn`, the function never inlined): four inlined
 /// copies cost the firmware ≈ 9 KB of flash for nothing measurable in time.
 #[allow(clippy::too_many_arguments)]
@@ -1413,153 +1469,186 @@ fn lm<R: Real, K: Kernel<R>>(
     full: &[bool; NP],
     b: &Bounds<R>,
     iters: usize,
-    start: Option<Factored<R>>,
+    fit: &mut Factored<R>,
+    evaluated: bool,
+    spare: &mut Eval<R>,
     mut stop: Option<StopHook<'_, R>>,
-) -> Result<Factored<R>, PathFitError> {
+) -> Result<(), PathFitError> {
     let z = R::zero();
-    // First evaluation (unless given: `start` is the evaluation at `p`); a hypothesis whose
-    // path leaves the phalanx moves k2c inward.
+    // First evaluation (unless given); a hypothesis whose path leaves the phalanx moves k2c
+    // inward.
     let mut tries = 0;
-    let (mut best, mut fact) = loop {
-        if let Some(s) = start {
-            break s;
+    if !evaluated {
+        loop {
+            match pm.evaluate(w, p, &mut fit.0) {
+                Ok(()) => {
+                    ldl(&fit.0.a, full, &mut fit.1);
+                    break;
+                }
+                Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
+                Err(PathFail::PastTip) => p[K] = (p[K] + b.k_lo) * R::from_f64(0.5),
+                Err(_) => p[K] = (p[K] + b.l2) * R::from_f64(0.5),
+            }
+            tries += 1;
+            if tries >= 4 || w.evals >= MAX_EVALS {
+                return Err(PathFitError::PastTip);
+            }
         }
-        match pm.evaluate(w, p) {
-            Ok(e) => break (e, ldl(&e.a, full)),
-            Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
-            Err(PathFail::PastTip) => p[K] = (p[K] + b.k_lo) * R::from_f64(0.5),
-            Err(_) => p[K] = (p[K] + b.l2) * R::from_f64(0.5),
-        }
-        tries += 1;
-        if tries >= 4 || w.evals >= MAX_EVALS {
-            return Err(PathFitError::PastTip);
-        }
-    };
+    }
     let step_tol = R::from_f64(STEP_TOL);
     let tc_tol = R::from_f64(1e-5);
-    // Damping: 0 (Gauss–Newton) until a step fails, then 1e-2, ×10 per failure and ×0.3
-    // per success, back to 0 below 1e-3 (where it changes the step by < 0.1 %).
-    let mut mu = z;
-    let mu_off = R::from_f64(1e-3);
-    let mut iter = 0usize;
-    while iter < iters && w.evals < MAX_EVALS {
-        iter += 1;
-        let factor = |set: &[bool; NP]| {
-            if mu == z {
-                factor_for(&best.a, set, full, fact.as_ref())
-            } else {
-                let mut a = best.a;
-                for (i, row) in a.iter_mut().enumerate() {
-                    if let Some(d) = row.get_mut(i) {
-                        *d = *d * (R::one() + mu);
+    // The accepted evaluation and the trial's: two slots (`fit`'s and `spare`) whose roles
+    // swap on acceptance.
+    let mut best_in_spare = false;
+    // The factorisation of a damped or reduced matrix, when the kept one does not serve.
+    let mut scratch: Option<Ldl<R>> = None;
+    {
+        let (best_slot, fact) = (&mut fit.0, &mut fit.1);
+        let (mut best, mut trial_e) = (best_slot, &mut *spare);
+        // Damping: 0 (Gauss–Newton) until a step fails, then 1e-2, ×10 per failure and ×0.3
+        // per success, back to 0 below 1e-3 (where it changes the step by < 0.1 %).
+        let mut mu = z;
+        let mu_off = R::from_f64(1e-3);
+        let mut iter = 0usize;
+        while iter < iters && w.evals < MAX_EVALS {
+            iter += 1;
+            let best_e: &Eval<R> = best;
+            // The Gauss–Newton (or damped) step on `set`; with R's step fixed at `r_fixed`
+            // (units of l2) when given.
+            let step = |set: &[bool; NP], scratch: &mut Option<Ldl<R>>, r_fixed: Option<R>| {
+                let f = if mu == z {
+                    factor_for(&best_e.a, set, full, fact.as_ref(), scratch)
+                } else {
+                    let mut a = best_e.a;
+                    for (i, row) in a.iter_mut().enumerate() {
+                        if let Some(d) = row.get_mut(i) {
+                            *d = *d * (R::one() + mu);
+                        }
+                    }
+                    ldl(&a, set, scratch);
+                    scratch.as_ref().map(Ldl::all)
+                }?;
+                Some(match r_fixed {
+                    None => f.solve(&best_e.g),
+                    Some(dr) => f.solve_r_fixed(&best_e.a, &best_e.g, dr),
+                })
+            };
+            let Some(mut d) = step(set, &mut scratch, None) else {
+                break;
+            };
+            // A step that takes the radius past a bound stops it there, and the other
+            // parameters take the step that is optimal with R's step so fixed (the active
+            // set), not the one that assumed it goes on (that projected step can raise χ²:
+            // a wasted path).
+            if set[RAD] {
+                let r = p[RAD] + d[RAD] * b.l2;
+                let r_to = if r > b.rmax {
+                    Some(b.rmax)
+                } else if r < z {
+                    Some(z)
+                } else {
+                    None
+                };
+                if let Some(r_to) = r_to {
+                    let mut held = *set;
+                    held[RAD] = false;
+                    match step(&held, &mut scratch, Some((r_to - p[RAD]) / b.l2)) {
+                        Some(dh) => d = dh,
+                        None => break,
                     }
                 }
-                ldl(&a, set)
             }
-        };
-        let Some(mut d) = factor(set).map(|f| f.solve(&best.g)) else {
-            break;
-        };
-        // A step that takes the radius past a bound stops it there, and the other parameters
-        // take the step that is optimal with R's step so fixed (the active set), not the one
-        // that assumed it goes on (that projected step can raise χ²: a wasted path).
-        if set[RAD] {
-            let r = p[RAD] + d[RAD] * b.l2;
-            let r_to = if r > b.rmax {
-                Some(b.rmax)
-            } else if r < z {
-                Some(z)
-            } else {
-                None
-            };
-            if let Some(r_to) = r_to {
-                let mut held = *set;
-                held[RAD] = false;
-                match factor(&held) {
-                    Some(f) => d = f.solve_r_fixed(&best.a, &best.g, (r_to - p[RAD]) / b.l2),
-                    None => break,
+            // k2c held on its lower bound by a step that pushes it further in: the contact
+            // is proximal there, which the fit refuses whatever T_f and θa,c become (the
+            // bound lies below the refusal threshold). The others' steps, computed as if k2c
+            // moved on, would only be spent, rejected one after another, on that refusal.
+            if set[K] && !(p[K] > b.k_lo) && d[K] < z {
+                break;
+            }
+            let mut trial = *p;
+            trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
+            trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
+            trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
+            // Converged when the step that would be taken (projected on the bounds: a radius
+            // pushed against its bound does not move) is below the tolerances.
+            let moved = |i: usize, tol: R| (trial[i] - p[i]).abs() >= tol;
+            if !moved(K, step_tol * b.l2) && !moved(RAD, step_tol * b.l2) && !moved(TC, tc_tol) {
+                break;
+            }
+            // The Gauss–Newton model's decrease of the objective, −gᵀd, against χ²'s scale.
+            let mut pred = z;
+            for (i, on) in set.iter().enumerate() {
+                if *on {
+                    pred = pred - best_e.g[i] * d[i];
                 }
             }
-        }
-        // k2c held on its lower bound by a step that pushes it further in: the contact is
-        // proximal there, which the fit refuses whatever T_f and θa,c become (the bound
-        // lies below the refusal threshold). The others' steps, computed as if k2c moved on,
-        // would only be spent, rejected one after another, on that refusal.
-        if set[K] && !(p[K] > b.k_lo) && d[K] < z {
-            break;
-        }
-        let mut trial = *p;
-        trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
-        trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
-        trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
-        // Converged when the step that would be taken (projected on the bounds: a radius
-        // pushed against its bound does not move) is below the tolerances.
-        let moved = |i: usize, tol: R| (trial[i] - p[i]).abs() >= tol;
-        if !moved(K, step_tol * b.l2) && !moved(RAD, step_tol * b.l2) && !moved(TC, tc_tol) {
-            break;
-        }
-        // The Gauss–Newton model's decrease of the objective, −gᵀd, against χ²'s scale.
-        let mut pred = z;
-        for (i, on) in set.iter().enumerate() {
-            if *on {
-                pred = pred - best.g[i] * d[i];
+            if pred < b.s2 * R::from_f64(CHI2_TOL) {
+                break;
             }
-        }
-        if pred < b.s2 * R::from_f64(CHI2_TOL) {
-            break;
-        }
-        match pm.evaluate(w, &trial) {
-            Ok(e) if e.sse <= best.sse => {
-                *p = trial;
-                let gain = best.sse - e.sse;
-                best = e;
-                fact = ldl(&best.a, full);
-                mu = mu * R::from_f64(0.3);
-                if mu < mu_off {
-                    mu = z;
+            match pm.evaluate(w, &trial, trial_e) {
+                Ok(()) if trial_e.sse <= best.sse => {
+                    *p = trial;
+                    let gain = best.sse - trial_e.sse;
+                    core::mem::swap(&mut best, &mut trial_e);
+                    best_in_spare = !best_in_spare;
+                    ldl(&best.a, full, fact);
+                    mu = mu * R::from_f64(0.3);
+                    if mu < mu_off {
+                        mu = z;
+                    }
+                    if stop.as_mut().is_some_and(|f| f(best, &*fact)) {
+                        break;
+                    }
+                    // A step that lowered χ² by less than the tolerance: the valley is flat
+                    // (the Gauss–Newton model over-promises there), more steps buy nothing.
+                    if gain < b.s2 * R::from_f64(CHI2_GAIN_TOL) {
+                        break;
+                    }
                 }
-                if stop.as_mut().is_some_and(|f| f(&best, &fact)) {
-                    break;
-                }
-                // A step that lowered χ² by less than the tolerance: the valley is flat
-                // (the Gauss–Newton model over-promises there), more steps buy nothing.
-                if gain < b.s2 * R::from_f64(CHI2_GAIN_TOL) {
-                    break;
-                }
-            }
-            Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
-            _ => {
-                mu = if mu == z {
-                    R::from_f64(1e-1)
-                } else {
-                    mu * R::from_f64(10.0)
-                };
-                if mu > R::from_f64(1e4) {
-                    break;
+                Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
+                _ => {
+                    mu = if mu == z {
+                        R::from_f64(1e-1)
+                    } else {
+                        mu * R::from_f64(10.0)
+                    };
+                    if mu > R::from_f64(1e4) {
+                        break;
+                    }
                 }
             }
         }
     }
+    if best_in_spare {
+        fit.0 = *spare;
+    }
     // Leave the path model at the accepted contact (a rejected trial may have moved it).
     pm.set_contact(p[TC])?;
-    Ok((best, fact))
+    Ok(())
 }
 
 /// The factorisation of `a` on `set`: `f` (of `a` on `full`) itself when the sets agree,
 /// its leading block when `set` is `full` without R (eliminated last, see [`ORDER`]),
-/// else a new one.
-fn factor_for<R: Real>(
+/// else a new one, written to `scratch`.
+fn factor_for<'a, R: Real>(
     a: &[[R; NP]; NP],
     set: &[bool; NP],
     full: &[bool; NP],
-    f: Option<&Ldl<R>>,
-) -> Option<Ldl<R>> {
+    f: Option<&'a Ldl<R>>,
+    scratch: &'a mut Option<Ldl<R>>,
+) -> Option<Factor<'a, R>> {
     let same_but_r = (0..NP).all(|i| i == RAD || set[i] == full[i]);
     match f {
-        Some(f) if same_but_r && set[RAD] == full[RAD] => Some(*f),
-        Some(f) if same_but_r && full[RAD] && !set[RAD] => f.without_last().or_else(|| ldl(a, set)),
-        _ => ldl(a, set),
+        Some(f) if same_but_r && set[RAD] == full[RAD] => return Some(f.all()),
+        Some(f) if same_but_r && full[RAD] && !set[RAD] => {
+            if let Some(lead) = f.without_last() {
+                return Some(lead);
+            }
+        }
+        _ => {}
     }
+    ldl(a, set, scratch);
+    scratch.as_ref().map(Ldl::all)
 }
 
 /// LDLᵀ of the active submatrix of A scaled by powers of two, B = D A D with
@@ -1575,8 +1664,26 @@ struct Ldl<R> {
     ip: [R; NP],
 }
 
+impl<R: Real> Ldl<R> {
+    const ZERO: Self = Ldl {
+        idx: [0; NP],
+        n: 0,
+        k: [0; NP],
+        l: [[R::ZERO; NP]; NP],
+        ip: [R::ZERO; NP],
+    };
+}
+
+/// A factorisation on its first `n` parameters (all of them, or its leading block): what
+/// the solves read, by reference.
+#[derive(Clone, Copy)]
+struct Factor<'a, R> {
+    f: &'a Ldl<R>,
+    n: usize,
+}
+
 /// The elimination order: R last and k2c just before it, so that their marginal
-/// (co)variances come from the last two pivots ([`Ldl::last_two`]).
+/// (co)variances come from the last two pivots ([`Factor::last_two`]).
 const ORDER: [usize; NP] = [TF, TC, K, RAD];
 
 /// `i` as an index into an `NP` array, without a bounds check (and so without a panic path
@@ -1588,57 +1695,82 @@ const fn ix(i: usize) -> usize {
 }
 const _: () = assert!(NP.is_power_of_two());
 
+/// The factorisation of `a` on `set` into `out` (`None` when a pivot is not positive),
+/// built in place.
 #[allow(clippy::needless_range_loop)]
-fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP]) -> Option<Ldl<R>> {
+fn ldl<R: Real>(a: &[[R; NP]; NP], set: &[bool; NP], out: &mut Option<Ldl<R>>) {
     let z = R::zero();
-    let mut idx = [0usize; NP];
+    // Every entry the solves read (the strict lower triangle, the first n pivots, indices
+    // and exponents) is written below: a slot is cleared only when first used.
+    let f = out.get_or_insert(Ldl::ZERO);
     let mut n = 0usize;
     for &i in ORDER.iter() {
         if set[ix(i)] {
             // n ≤ 3 here: one of the NP entries of ORDER not yet seen.
-            idx[ix(n)] = i;
+            f.idx[ix(n)] = i;
             n += 1;
         }
     }
     let n = n.min(NP);
-    let mut k = [0i32; NP];
+    f.n = n;
     for i in 0..n {
-        let d = ix(idx[i]);
-        k[i] = a[d][d].half_log2()?;
+        let d = ix(f.idx[i]);
+        match a[d][d].half_log2() {
+            Some(k) => f.k[i] = k,
+            None => {
+                *out = None;
+                return;
+            }
+        }
     }
-    let mut l = [[z; NP]; NP];
     // U = L P below the diagonal (the eliminated entries before their division by the
     // pivot): every inner product then costs one multiplication per term.
     let mut u = [[z; NP]; NP];
-    let mut ip = [z; NP];
     for j in 0..n {
-        let jj = ix(idx[j]);
-        let mut dj = a[jj][jj].ldexp(-2 * k[j]);
+        let jj = ix(f.idx[j]);
+        let mut dj = a[jj][jj].ldexp(-2 * f.k[j]);
         for m in 0..j {
-            dj = dj - l[j][m] * u[j][m];
+            dj = dj - f.l[j][m] * u[j][m];
         }
         if !(dj > R::from_f64(1e-7)) {
-            return None;
+            *out = None;
+            return;
         }
-        ip[j] = R::one() / dj;
+        f.ip[j] = R::one() / dj;
         for i in j + 1..n {
-            let mut v = a[ix(idx[i])][jj].ldexp(-k[i] - k[j]);
+            let mut v = a[ix(f.idx[i])][jj].ldexp(-f.k[i] - f.k[j]);
             for m in 0..j {
-                v = v - l[i][m] * u[j][m];
+                v = v - f.l[i][m] * u[j][m];
             }
             u[i][j] = v;
-            l[i][j] = v * ip[j];
+            f.l[i][j] = v * f.ip[j];
         }
     }
-    Some(Ldl { idx, n, k, l, ip })
 }
 
 impl<R: Real> Ldl<R> {
+    /// The factorisation on all its parameters.
+    fn all(&self) -> Factor<'_, R> {
+        Factor {
+            f: self,
+            n: self.n.min(NP),
+        }
+    }
+
+    /// The factorisation of the leading block: without the parameter eliminated last (R,
+    /// see [`ORDER`]). `None` when nothing is left.
+    fn without_last(&self) -> Option<Factor<'_, R>> {
+        let n = self.n.min(NP).checked_sub(1).filter(|&n| n > 0)?;
+        Some(Factor { f: self, n })
+    }
+}
+
+impl<R: Real> Factor<'_, R> {
     /// −A⁻¹ g on the active parameters (zero elsewhere): L y = −D g, Lᵀ x = y / P, D x.
     #[allow(clippy::needless_range_loop)]
     fn solve(&self, g: &[R; NP]) -> [R; NP] {
         let z = R::zero();
-        let (idx, n, k, l) = (&self.idx, self.n.min(NP), &self.k, &self.l);
+        let (idx, n, k, l) = (&self.f.idx, self.n.min(NP), &self.f.k, &self.f.l);
         let mut y = [z; NP];
         for i in 0..n {
             let mut v = -g[ix(idx[i])].ldexp(-k[i]);
@@ -1649,7 +1781,7 @@ impl<R: Real> Ldl<R> {
         }
         let mut x = [z; NP];
         for i in (0..n).rev() {
-            let mut v = y[i] * self.ip[i];
+            let mut v = y[i] * self.f.ip[i];
             for m in i + 1..n {
                 v = v - l[m][i] * x[m];
             }
@@ -1660,13 +1792,6 @@ impl<R: Real> Ldl<R> {
             out[ix(idx[i])] = x[i].ldexp(-k[i]);
         }
         out
-    }
-
-    /// The factorisation of the leading block: without the parameter eliminated last (R,
-    /// see [`ORDER`]). `None` when nothing is left.
-    fn without_last(&self) -> Option<Self> {
-        let n = self.n.checked_sub(1).filter(|&n| n > 0)?;
-        Some(Ldl { n, ..*self })
     }
 
     /// The Gauss–Newton step with R's step fixed at `dr` (units of l2), for a factorisation
@@ -1686,7 +1811,7 @@ impl<R: Real> Ldl<R> {
     /// (A⁻¹)_ii of the last parameter eliminated (its reciprocal pivot, unscaled).
     fn last_var(&self) -> R {
         let j = ix(self.n.saturating_sub(1));
-        self.ip[j].ldexp(-2 * self.k[j])
+        self.f.ip[j].ldexp(-2 * self.f.k[j])
     }
 
     /// For the last two parameters eliminated, a then b: (the variance of a with b held,
@@ -1694,21 +1819,21 @@ impl<R: Real> Ldl<R> {
     /// (1/P_a, −L_ba, (A⁻¹)_bb), unscaled.
     fn last_two(&self) -> (R, R, R) {
         let (a, b) = (ix(self.n.saturating_sub(2)), ix(self.n.saturating_sub(1)));
+        let f = self.f;
         (
-            self.ip[a].ldexp(-2 * self.k[a]),
-            -self.l[b][a].ldexp(self.k[b] - self.k[a]),
-            self.ip[b].ldexp(-2 * self.k[b]),
+            f.ip[a].ldexp(-2 * f.k[a]),
+            -f.l[b][a].ldexp(f.k[b] - f.k[a]),
+            f.ip[b].ldexp(-2 * f.k[b]),
         )
     }
-}
 
-impl<R: Real> Ldl<R> {
     /// Inverse of the factored matrix on its parameters (zero elsewhere):
     /// B⁻¹ = L⁻ᵀ P⁻¹ L⁻¹ with M = L⁻¹ by forward substitution, unscaled.
     #[allow(clippy::needless_range_loop)]
     fn inverse(&self) -> [[R; NP]; NP] {
         let z = R::zero();
-        let (n, l) = (self.n.min(NP), &self.l);
+        let (n, f) = (self.n.min(NP), self.f);
+        let l = &f.l;
         // M = L⁻¹ (unit lower): M[i][j] = −Σ_{m=j}^{i−1} L[i][m] M[m][j].
         let mut m = [[z; NP]; NP];
         for i in 0..n {
@@ -1726,10 +1851,10 @@ impl<R: Real> Ldl<R> {
             for j in i..n {
                 let mut v = z;
                 for q in j..n {
-                    v = v + m[q][i] * (m[q][j] * self.ip[q]);
+                    v = v + m[q][i] * (m[q][j] * f.ip[q]);
                 }
-                let v = v.ldexp(-self.k[i] - self.k[j]);
-                let (a, b) = (ix(self.idx[i]), ix(self.idx[j]));
+                let v = v.ldexp(-f.k[i] - f.k[j]);
+                let (a, b) = (ix(f.idx[i]), ix(f.idx[j]));
                 out[a][b] = v;
                 out[b][a] = v;
             }

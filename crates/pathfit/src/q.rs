@@ -778,6 +778,16 @@ struct QPrev {
     sens_r: (i32, i32),
 }
 
+/// The kernel's empty bins and warm starts, as constants: cleared in one block each, not
+/// element by element through a temporary.
+const NO_BINS: [QBin; MAX_BINS] = [QBin {
+    n: 0,
+    dta: 0,
+    t: 0,
+    w: 0,
+}; MAX_BINS];
+const NO_PREV: [Option<QPrev>; MAX_BINS] = [None; MAX_BINS];
+
 /// A solved path point (see [`super::path::PathPoint`]), in the kernel's formats.
 #[derive(Clone, Copy, Debug)]
 struct QPoint {
@@ -846,8 +856,8 @@ impl<'t> QKernel<'t> {
         let z = Fx32::zero();
         QKernel {
             tb,
-            bins: [QBin::default(); MAX_BINS],
-            prev: [None; MAX_BINS],
+            bins: NO_BINS,
+            prev: NO_PREV,
             theta_a_c: z,
             contact: Config {
                 theta1: z,
@@ -1146,7 +1156,12 @@ impl Kernel<Fx32> for QKernel<'_> {
         Ok(())
     }
 
-    fn evaluate(&mut self, w: &mut Work<Fx32>, p: &[Fx32; NP]) -> Result<Eval<Fx32>, PathFail> {
+    fn evaluate(
+        &mut self,
+        w: &mut Work<Fx32>,
+        p: &[Fx32; NP],
+        out: &mut Eval<Fx32>,
+    ) -> Result<(), PathFail> {
         w.evals += 1;
         self.set_contact(p[TC])?;
         let tb = self.tb;
@@ -1302,7 +1317,7 @@ impl Kernel<Fx32> for QKernel<'_> {
         a[TC][TC] = a[TC][TC] + wc;
         g[TC] = g[TC] - wc * dc;
         let fx = |v: i32, q: u32| Fx32::from_bits((v as i64) << (32 - q));
-        Ok(Eval {
+        *out = Eval {
             a,
             g,
             sse,
@@ -1310,7 +1325,8 @@ impl Kernel<Fx32> for QKernel<'_> {
             k2_last: Fx32::from_bits(wide(k2_last, tb.l1) >> (2 * QA - 32)),
             k_first: fx(k_first.unwrap_or(0), QD),
             last: (fx(last.0, QA), fx(last.1, QA)),
-        })
+        };
+        Ok(())
     }
 
     fn chord_stiffness(&self, nb: usize) -> Option<Fx32> {
@@ -1392,6 +1408,9 @@ where
     let lo = ((lo_q16 + 0xFFFF) >> 16)
         .min(hi as i64 - 1)
         .max(i32::MIN as i64) as i32;
+    // The bins live apart from the binner (which borrows them): zeroed once in place, not
+    // built in a temporary and copied (672 bytes on the Cortex-M4).
+    let mut bins = BinAcc::ZEROS;
     let mut acc = Binner {
         lo,
         // At least 1: a nonzero divisor by type (no division-by-zero path).
@@ -1402,7 +1421,7 @@ where
         min_th: hi,
         limit: hi.saturating_add(sc.envelope_urad),
         last_kept: hi,
-        bins: [BinAcc::default(); MAX_BINS],
+        bins: &mut bins,
     };
     acc.push(hi, n.torque_unm);
     if let Some(mut c) = it.next() {
@@ -1422,8 +1441,10 @@ where
     let mut nb = 0usize;
     let mut total = 0u32;
     // Centred moments of each used bin (µrad², µN·m², µrad·µN·m) and the means in µ units Q16.
-    let mut mom = [[0i64; 3]; MAX_BINS];
-    let mut mean = [(0i64, 0i64); MAX_BINS];
+    const NO_MOM: [[i64; 3]; MAX_BINS] = [[0; 3]; MAX_BINS];
+    const NO_MEAN: [(i64, i64); MAX_BINS] = [(0, 0); MAX_BINS];
+    let mut mom = NO_MOM;
+    let mut mean = NO_MEAN;
     for bin in acc.bins.iter().take(nbins) {
         let c = bin.n;
         if c == 0 {
@@ -1520,8 +1541,20 @@ struct BinAcc {
     s: [i64; 5],
 }
 
+impl BinAcc {
+    const ZERO: Self = BinAcc {
+        n: 0,
+        th0: 0,
+        t0: 0,
+        s: [0; 5],
+    };
+    /// All bins empty: one block clear (an array repeat expression clears element by
+    /// element).
+    const ZEROS: [Self; MAX_BINS] = [Self::ZERO; MAX_BINS];
+}
+
 /// The binning state of the sample pass.
-struct Binner {
+struct Binner<'a> {
     /// Bins from `lo` over `span` (µrad) in `nbins` equal parts.
     lo: i32,
     span: NonZeroU32,
@@ -1533,10 +1566,10 @@ struct Binner {
     /// θ of the sample kept last: from the start the latest sample's, which opens the pass
     /// (a later test compares it only with a θ below `limit`, so below it).
     last_kept: i32,
-    bins: [BinAcc; MAX_BINS],
+    bins: &'a mut [BinAcc; MAX_BINS],
 }
 
-impl Binner {
+impl Binner<'_> {
     /// Most samples a bin takes (keeps its sums within i64 with the clamps below, and
     /// its weight's numerator n·2^16 within u32).
     const MAX_COUNT: u32 = 1 << 15;

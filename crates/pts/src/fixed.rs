@@ -694,6 +694,7 @@ impl Div for Fx32 {
 impl Real for Fx32 {
     const TOL: f64 = 2e-8;
     const NAME: &'static str = "Fx32 (I32F32)";
+    const ZERO: Self = Self::from_bits(0);
     fn try_from_f64(x: f64) -> Option<Self> {
         if !x.is_finite() {
             return None;

@@ -21,6 +21,9 @@ pub trait Real:
     const TOL: f64;
     /// Human-readable name of the back end (for tables).
     const NAME: &'static str;
+    /// Zero, as a constant: arrays of it are built from read-only data in one copy
+    /// instead of element by element.
+    const ZERO: Self;
     /// Converts from `f64`; `None` when the value is non-finite or outside the range.
     fn try_from_f64(x: f64) -> Option<Self>;
     /// Converts from `f64`, saturating (NaN maps to zero). For constants known to fit.
@@ -90,6 +93,7 @@ pub trait Real:
 impl Real for f64 {
     const TOL: f64 = 1e-13;
     const NAME: &'static str = "f64";
+    const ZERO: Self = 0.0;
     fn try_from_f64(x: f64) -> Option<Self> {
         x.is_finite().then_some(x)
     }
@@ -135,6 +139,7 @@ impl Real for f64 {
 impl Real for f32 {
     const TOL: f64 = 2e-6;
     const NAME: &'static str = "f32";
+    const ZERO: Self = 0.0;
     fn try_from_f64(x: f64) -> Option<Self> {
         let y = x as f32;
         y.is_finite().then_some(y)

@@ -285,28 +285,13 @@ def measure(elf, m4, quick):
 # The firmware's estimate entries (grasp::estimate), counted on the request cases: (label,
 # op, symbol part, budget, guard in instructions, host result key in the case file). A count
 # above the budget but within the guard is printed as NOT MET; above the guard it fails. Both
-# are hard gates (guard = budget).
+# are hard gates (guard = budget) on every request, the unseated controller's included.
 ENTRIES = [
     ("two-point estimate task (grasp::estimate::two_point_fw)", 51, "5grasp8estimate12two_point_fw", 5_000,
      5_000, "host_two_point"),
     ("path-fit estimate task (grasp::estimate::path_fit_fw)", 52, "5grasp8estimate11path_fit_fw", 100_000,
      100_000, "host_path_fit"),
 ]
-
-# The unseated controller's requests (`*_unseated.req`: no seating, a 4 N·m/s ramp, the whole
-# loading path; shaped like a recording no seating controller made) are not the default
-# firmware's. The path fit's budget is not met on them yet (issue 16): per op, the regression
-# guard above their measured worst (109,871); the budget itself stays the hard gate on the
-# default controller's requests.
-UNSEATED_GUARDS = {52: 112_000}
-
-
-def case_guard(op, guard, case):
-    """The guard of an entry on one request case."""
-    if os.path.basename(case).endswith("_unseated.req"):
-        return max(guard, UNSEATED_GUARDS.get(op, guard))
-    return guard
-
 
 def load_case(path):
     """A request case (tests/estimate_cases.rs writes them): the input words for op 50 and
@@ -361,7 +346,7 @@ def measure_requests(elf, cases):
             rc, n, out = t.run_function(op, entry)
             got = decode_result(rc, out)
             rows.append({"entry": label, "symbol": name, "case": os.path.basename(c), "instructions": n,
-                         "budget": budget, "guard": case_guard(op, guard, c), "target": got,
+                         "budget": budget, "guard": guard, "target": got,
                          "host": host.get(key)})
     return rows
 

@@ -104,6 +104,7 @@ macro_rules! narrow_fixed {
         impl Real for $name {
             const TOL: f64 = $tol;
             const NAME: &'static str = $label;
+            const ZERO: Self = Self::from_bits(0);
             fn try_from_f64(x: f64) -> Option<Self> {
                 if !x.is_finite() {
                     return None;
