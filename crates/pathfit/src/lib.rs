@@ -896,17 +896,17 @@ fn run_fit<R: Real, K: Kernel<R>>(
     let mut cset_final = set;
     cset_final[TC] = has_tc;
     let mut scratch = None;
-    let cov = factor_for(&fit.0.a, &cset_final, &cset, fit.1.as_ref(), &mut scratch)
-        .map(|f| f.inverse())
+    let var = factor_for(&fit.0.a, &cset_final, &cset, fit.1.as_ref(), &mut scratch)
+        .map(|f| f.inverse_diagonal())
         .ok_or(PathFitError::NotDetermined)?;
     let fit = &fit.0;
-    let var_k = cov[K][K] * s2;
+    let var_k = var[K] * s2;
     let var_r = if object == FittedObject::Cylinder {
-        cov[RAD][RAD] * s2
+        var[RAD] * s2
     } else {
         sigma_r_lin * sigma_r_lin / (l2 * l2)
     };
-    let var_tc = if has_tc { cov[TC][TC] * s2 } else { zero };
+    let var_tc = if has_tc { var[TC] * s2 } else { zero };
     let infl = c.inflation;
     let floor = c.sigma_floor;
     let sig_stat = var_k.max(zero).sqrt() * l2 * infl;
@@ -1827,10 +1827,11 @@ impl<R: Real> Factor<'_, R> {
         )
     }
 
-    /// Inverse of the factored matrix on its parameters (zero elsewhere):
-    /// B⁻¹ = L⁻ᵀ P⁻¹ L⁻¹ with M = L⁻¹ by forward substitution, unscaled.
+    /// The diagonal of the factored matrix's inverse at its parameters (zero elsewhere):
+    /// (B⁻¹)_ii = Σ_q M_qi² / P_q with M = L⁻¹ by forward substitution, unscaled. The fit's
+    /// variances need no more of the covariance.
     #[allow(clippy::needless_range_loop)]
-    fn inverse(&self) -> [[R; NP]; NP] {
+    fn inverse_diagonal(&self) -> [R; NP] {
         let z = R::zero();
         let (n, f) = (self.n.min(NP), self.f);
         let l = &f.l;
@@ -1846,18 +1847,13 @@ impl<R: Real> Factor<'_, R> {
                 m[i][j] = v;
             }
         }
-        let mut out = [[z; NP]; NP];
+        let mut out = [z; NP];
         for i in 0..n {
-            for j in i..n {
-                let mut v = z;
-                for q in j..n {
-                    v = v + m[q][i] * (m[q][j] * f.ip[q]);
-                }
-                let v = v.ldexp(-f.k[i] - f.k[j]);
-                let (a, b) = (ix(f.idx[i]), ix(f.idx[j]));
-                out[a][b] = v;
-                out[b][a] = v;
+            let mut v = z;
+            for q in i..n {
+                v = v + m[q][i] * (m[q][i] * f.ip[q]);
             }
+            out[ix(f.idx[i])] = v.ldexp(-2 * f.k[i]);
         }
         out
     }
