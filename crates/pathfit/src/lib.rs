@@ -776,21 +776,15 @@ fn run_fit<R: Real, K: Kernel<R>>(
     // vertex fit: as soon as it clearly matters, its Gauss–Newton step with R free starts
     // the cylinder fit (the vertex fit's remaining iterations would be spent on a model that
     // is then dropped); otherwise the vertex fit runs to convergence and decides there.
+    let mut lm = Lm {
+        pm: &mut *pm,
+        w: &mut *w,
+        b: &bounds,
+        full: cset,
+        spare: Eval::ZERO,
+    };
     let mut vertex: Factored<R> = (Eval::ZERO, None);
-    let mut spare = Eval::ZERO;
-    lm(
-        pm,
-        w,
-        &mut p,
-        &vset,
-        &cset,
-        &bounds,
-        0,
-        &mut vertex,
-        false,
-        &mut spare,
-        None,
-    )?;
+    lm.start(&mut p, &mut vertex)?;
     let mut dec = decide(&vertex.0, &vertex.1)?;
     let mut vertex_converged = false;
     if !dec.want {
@@ -802,19 +796,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
             }
             Err(_) => false,
         };
-        lm(
-            pm,
-            w,
-            &mut p,
-            &vset,
-            &cset,
-            &bounds,
-            8,
-            &mut vertex,
-            true,
-            &mut spare,
-            Some(&mut hook),
-        )?;
+        lm.run(&mut p, &vset, 8, &mut vertex, Some(&mut hook))?;
         // The decision at the returned (last accepted) hypothesis.
         dec = match last {
             Some(d) => d,
@@ -836,9 +818,10 @@ fn run_fit<R: Real, K: Kernel<R>>(
         if fit_contact {
             pc[TC] = (pc[TC] + dec.dtc_lin).max(bounds.tc_lo).min(bounds.tc_hi);
         }
-        match lm(
-            pm, w, &mut pc, &cset, &cset, &bounds, 10, &mut cyl, false, &mut spare, None,
-        ) {
+        let cyl_fit = lm
+            .start(&mut pc, &mut cyl)
+            .and_then(|()| lm.run(&mut pc, &cset, 10, &mut cyl, None));
+        match cyl_fit {
             Ok(()) if cyl.0.sse <= vertex.0.sse => {
                 pfit = pc;
                 object = FittedObject::Cylinder;
@@ -849,7 +832,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
             // The cylinder fit failed or is no better: keep the vertex, with the bias.
             _ => {
                 if fit_contact {
-                    pm.set_contact(p_vertex[TC])?;
+                    lm.pm.set_contact(p_vertex[TC])?;
                 }
             }
         }
@@ -857,19 +840,7 @@ fn run_fit<R: Real, K: Kernel<R>>(
     if !cylinder && !vertex_converged {
         // The cylinder fit was refused: the vertex fit to convergence after all.
         let mut pv = p_vertex;
-        lm(
-            pm,
-            w,
-            &mut pv,
-            &vset,
-            &cset,
-            &bounds,
-            8,
-            &mut vertex,
-            true,
-            &mut spare,
-            None,
-        )?;
+        lm.run(&mut pv, &vset, 8, &mut vertex, None)?;
         dec = decide(&vertex.0, &vertex.1)?;
         pfit = pv;
         bias_k = dec.bias_pot;
@@ -1448,183 +1419,200 @@ type Factored<R> = (Eval<R>, Option<Ldl<R>>);
 /// LM's hook on every accepted hypothesis: `true` ends the fit (see `run_fit`).
 type StopHook<'a, R> = &'a mut dyn FnMut(&Eval<R>, &Option<Ldl<R>>) -> bool;
 
-/// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
-/// [`evaluate`] but kept in the normal matrix for its coupling), `full` the set the kept
-/// factorisation covers. Undamped (Gauss–Newton, from the kept factorisation) until a step
-/// fails; damped from then on until steps succeed again. Bounded: `iters` steps and the
-/// global [`MAX_EVALS`]; `stop` sees every accepted evaluation and may end the fit.
-///
-/// `fit` holds the evaluation at `p` when `evaluated` (else it is evaluated first) and
-/// receives the last accepted hypothesis; `spare` is the trial's slot. The evaluations and factorisations are written in
-/// place, never moved: on the Cortex-M4 each move of an evaluation is a 208-byte copy.
-/// One instance per back end (the hook is `dyn`, the function never inlined): four inlined
-/// copies cost the firmware ≈ 9 KB of flash for nothing measurable in time.
-#[allow(clippy::too_many_arguments)]
-#[inline(never)]
-fn lm<R: Real, K: Kernel<R>>(
-    pm: &mut K,
-    w: &mut Work<R>,
-    p: &mut [R; NP],
-    set: &[bool; NP],
-    full: &[bool; NP],
-    b: &Bounds<R>,
-    iters: usize,
-    fit: &mut Factored<R>,
-    evaluated: bool,
-    spare: &mut Eval<R>,
-    mut stop: Option<StopHook<'_, R>>,
-) -> Result<(), PathFitError> {
-    let z = R::zero();
-    // First evaluation (unless given); a hypothesis whose path leaves the phalanx moves k2c
-    // inward.
-    let mut tries = 0;
-    if !evaluated {
+/// What the Levenberg–Marquardt runs of one fit share: the path model, the work, the
+/// bounds, the full parameter set (the one the kept factorisations cover) and the trial
+/// evaluation's slot. The evaluations and factorisations are written in place, never moved:
+/// on the Cortex-M4 each move of an evaluation is a 208-byte copy.
+struct Lm<'a, R, K> {
+    pm: &'a mut K,
+    w: &'a mut Work<R>,
+    b: &'a Bounds<R>,
+    full: [bool; NP],
+    spare: Eval<R>,
+}
+
+impl<R: Real, K: Kernel<R>> Lm<'_, R, K> {
+    /// The evaluation at `p` into `fit`, with its factorisation; a hypothesis whose path
+    /// leaves the phalanx moves k2c inward (at most four tries).
+    #[inline(never)]
+    fn start(&mut self, p: &mut [R; NP], fit: &mut Factored<R>) -> Result<(), PathFitError> {
+        let b = self.b;
+        let mut tries = 0;
         loop {
-            match pm.evaluate(w, p, &mut fit.0) {
+            match self.pm.evaluate(self.w, p, &mut fit.0) {
                 Ok(()) => {
-                    ldl(&fit.0.a, full, &mut fit.1);
-                    break;
+                    ldl(&fit.0.a, &self.full, &mut fit.1);
+                    return Ok(());
                 }
                 Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
                 Err(PathFail::PastTip) => p[K] = (p[K] + b.k_lo) * R::from_f64(0.5),
                 Err(_) => p[K] = (p[K] + b.l2) * R::from_f64(0.5),
             }
             tries += 1;
-            if tries >= 4 || w.evals >= MAX_EVALS {
+            if tries >= 4 || self.w.evals >= MAX_EVALS {
                 return Err(PathFitError::PastTip);
             }
         }
     }
-    let step_tol = R::from_f64(STEP_TOL);
-    let tc_tol = R::from_f64(1e-5);
-    // The accepted evaluation and the trial's: two slots (`fit`'s and `spare`) whose roles
-    // swap on acceptance.
-    let mut best_in_spare = false;
-    // The factorisation of a damped or reduced matrix, when the kept one does not serve.
-    let mut scratch: Option<Ldl<R>> = None;
-    {
-        let (best_slot, fact) = (&mut fit.0, &mut fit.1);
-        let (mut best, mut trial_e) = (best_slot, &mut *spare);
-        // Damping: 0 (Gauss–Newton) until a step fails, then 1e-2, ×10 per failure and ×0.3
-        // per success, back to 0 below 1e-3 (where it changes the step by < 0.1 %).
-        let mut mu = z;
-        let mu_off = R::from_f64(1e-3);
-        let mut iter = 0usize;
-        while iter < iters && w.evals < MAX_EVALS {
-            iter += 1;
-            let best_e: &Eval<R> = best;
-            // The Gauss–Newton (or damped) step on `set`; with R's step fixed at `r_fixed`
-            // (units of l2) when given.
-            let step = |set: &[bool; NP], scratch: &mut Option<Ldl<R>>, r_fixed: Option<R>| {
-                let f = if mu == z {
-                    factor_for(&best_e.a, set, full, fact.as_ref(), scratch)
-                } else {
-                    let mut a = best_e.a;
-                    for (i, row) in a.iter_mut().enumerate() {
-                        if let Some(d) = row.get_mut(i) {
-                            *d = *d * (R::one() + mu);
+
+    /// Levenberg–Marquardt on the parameters marked in `set` (T_f is always eliminated inside
+    /// [`evaluate`] but kept in the normal matrix for its coupling), from `fit`, the
+    /// evaluation at `p`, which receives the last accepted hypothesis. Undamped
+    /// (Gauss–Newton, from the kept factorisation) until a step fails; damped from then on
+    /// until steps succeed again. Bounded: `iters` steps and the global [`MAX_EVALS`]; `stop`
+    /// sees every accepted evaluation and may end the fit.
+    /// One instance per back end (the hook is `dyn`, the function never inlined): four
+    /// inlined copies cost the firmware ≈ 9 KB of flash for nothing measurable in time.
+    #[inline(never)]
+    fn run(
+        &mut self,
+        p: &mut [R; NP],
+        set: &[bool; NP],
+        iters: usize,
+        fit: &mut Factored<R>,
+        mut stop: Option<StopHook<'_, R>>,
+    ) -> Result<(), PathFitError> {
+        let Lm {
+            pm,
+            w,
+            b,
+            full,
+            spare,
+        } = self;
+        let (b, full) = (*b, &*full);
+        let z = R::zero();
+        let step_tol = R::from_f64(STEP_TOL);
+        let tc_tol = R::from_f64(1e-5);
+        // The accepted evaluation and the trial's: two slots (`fit`'s and `spare`) whose roles
+        // swap on acceptance.
+        let mut best_in_spare = false;
+        // The factorisation of a damped or reduced matrix, when the kept one does not serve.
+        let mut scratch: Option<Ldl<R>> = None;
+        {
+            let (best_slot, fact) = (&mut fit.0, &mut fit.1);
+            let (mut best, mut trial_e) = (best_slot, &mut *spare);
+            // Damping: 0 (Gauss–Newton) until a step fails, then 1e-2, ×10 per failure and ×0.3
+            // per success, back to 0 below 1e-3 (where it changes the step by < 0.1 %).
+            let mut mu = z;
+            let mu_off = R::from_f64(1e-3);
+            let mut iter = 0usize;
+            while iter < iters && w.evals < MAX_EVALS {
+                iter += 1;
+                let best_e: &Eval<R> = best;
+                // The Gauss–Newton (or damped) step on `set`; with R's step fixed at `r_fixed`
+                // (units of l2) when given.
+                let step = |set: &[bool; NP], scratch: &mut Option<Ldl<R>>, r_fixed: Option<R>| {
+                    let f = if mu == z {
+                        factor_for(&best_e.a, set, full, fact.as_ref(), scratch)
+                    } else {
+                        let mut a = best_e.a;
+                        for (i, row) in a.iter_mut().enumerate() {
+                            if let Some(d) = row.get_mut(i) {
+                                *d = *d * (R::one() + mu);
+                            }
+                        }
+                        ldl(&a, set, scratch);
+                        scratch.as_ref().map(Ldl::all)
+                    }?;
+                    Some(match r_fixed {
+                        None => f.solve(&best_e.g),
+                        Some(dr) => f.solve_r_fixed(&best_e.a, &best_e.g, dr),
+                    })
+                };
+                let Some(mut d) = step(set, &mut scratch, None) else {
+                    break;
+                };
+                // A step that takes the radius past a bound stops it there, and the other
+                // parameters take the step that is optimal with R's step so fixed (the active
+                // set), not the one that assumed it goes on (that projected step can raise χ²:
+                // a wasted path).
+                if set[RAD] {
+                    let r = p[RAD] + d[RAD] * b.l2;
+                    let r_to = if r > b.rmax {
+                        Some(b.rmax)
+                    } else if r < z {
+                        Some(z)
+                    } else {
+                        None
+                    };
+                    if let Some(r_to) = r_to {
+                        let mut held = *set;
+                        held[RAD] = false;
+                        match step(&held, &mut scratch, Some((r_to - p[RAD]) / b.l2)) {
+                            Some(dh) => d = dh,
+                            None => break,
                         }
                     }
-                    ldl(&a, set, scratch);
-                    scratch.as_ref().map(Ldl::all)
-                }?;
-                Some(match r_fixed {
-                    None => f.solve(&best_e.g),
-                    Some(dr) => f.solve_r_fixed(&best_e.a, &best_e.g, dr),
-                })
-            };
-            let Some(mut d) = step(set, &mut scratch, None) else {
-                break;
-            };
-            // A step that takes the radius past a bound stops it there, and the other
-            // parameters take the step that is optimal with R's step so fixed (the active
-            // set), not the one that assumed it goes on (that projected step can raise χ²:
-            // a wasted path).
-            if set[RAD] {
-                let r = p[RAD] + d[RAD] * b.l2;
-                let r_to = if r > b.rmax {
-                    Some(b.rmax)
-                } else if r < z {
-                    Some(z)
-                } else {
-                    None
-                };
-                if let Some(r_to) = r_to {
-                    let mut held = *set;
-                    held[RAD] = false;
-                    match step(&held, &mut scratch, Some((r_to - p[RAD]) / b.l2)) {
-                        Some(dh) => d = dh,
-                        None => break,
+                }
+                // k2c held on its lower bound by a step that pushes it further in: the contact
+                // is proximal there, which the fit refuses whatever T_f and θa,c become (the
+                // bound lies below the refusal threshold). The others' steps, computed as if k2c
+                // moved on, would only be spent, rejected one after another, on that refusal.
+                if set[K] && !(p[K] > b.k_lo) && d[K] < z {
+                    break;
+                }
+                let mut trial = *p;
+                trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
+                trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
+                trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
+                // Converged when the step that would be taken (projected on the bounds: a radius
+                // pushed against its bound does not move) is below the tolerances.
+                let moved = |i: usize, tol: R| (trial[i] - p[i]).abs() >= tol;
+                if !moved(K, step_tol * b.l2) && !moved(RAD, step_tol * b.l2) && !moved(TC, tc_tol)
+                {
+                    break;
+                }
+                // The Gauss–Newton model's decrease of the objective, −gᵀd, against χ²'s scale.
+                let mut pred = z;
+                for (i, on) in set.iter().enumerate() {
+                    if *on {
+                        pred = pred - best_e.g[i] * d[i];
                     }
                 }
-            }
-            // k2c held on its lower bound by a step that pushes it further in: the contact
-            // is proximal there, which the fit refuses whatever T_f and θa,c become (the
-            // bound lies below the refusal threshold). The others' steps, computed as if k2c
-            // moved on, would only be spent, rejected one after another, on that refusal.
-            if set[K] && !(p[K] > b.k_lo) && d[K] < z {
-                break;
-            }
-            let mut trial = *p;
-            trial[K] = (p[K] + d[K] * b.l2).max(b.k_lo).min(b.l2);
-            trial[RAD] = (p[RAD] + d[RAD] * b.l2).max(z).min(b.rmax);
-            trial[TC] = (p[TC] + d[TC]).max(b.tc_lo).min(b.tc_hi);
-            // Converged when the step that would be taken (projected on the bounds: a radius
-            // pushed against its bound does not move) is below the tolerances.
-            let moved = |i: usize, tol: R| (trial[i] - p[i]).abs() >= tol;
-            if !moved(K, step_tol * b.l2) && !moved(RAD, step_tol * b.l2) && !moved(TC, tc_tol) {
-                break;
-            }
-            // The Gauss–Newton model's decrease of the objective, −gᵀd, against χ²'s scale.
-            let mut pred = z;
-            for (i, on) in set.iter().enumerate() {
-                if *on {
-                    pred = pred - best_e.g[i] * d[i];
+                if pred < b.s2 * R::from_f64(CHI2_TOL) {
+                    break;
                 }
-            }
-            if pred < b.s2 * R::from_f64(CHI2_TOL) {
-                break;
-            }
-            match pm.evaluate(w, &trial, trial_e) {
-                Ok(()) if trial_e.sse <= best.sse => {
-                    *p = trial;
-                    let gain = best.sse - trial_e.sse;
-                    core::mem::swap(&mut best, &mut trial_e);
-                    best_in_spare = !best_in_spare;
-                    ldl(&best.a, full, fact);
-                    mu = mu * R::from_f64(0.3);
-                    if mu < mu_off {
-                        mu = z;
+                match pm.evaluate(w, &trial, trial_e) {
+                    Ok(()) if trial_e.sse <= best.sse => {
+                        *p = trial;
+                        let gain = best.sse - trial_e.sse;
+                        core::mem::swap(&mut best, &mut trial_e);
+                        best_in_spare = !best_in_spare;
+                        ldl(&best.a, full, fact);
+                        mu = mu * R::from_f64(0.3);
+                        if mu < mu_off {
+                            mu = z;
+                        }
+                        if stop.as_mut().is_some_and(|f| f(best, &*fact)) {
+                            break;
+                        }
+                        // A step that lowered χ² by less than the tolerance: the valley is flat
+                        // (the Gauss–Newton model over-promises there), more steps buy nothing.
+                        if gain < b.s2 * R::from_f64(CHI2_GAIN_TOL) {
+                            break;
+                        }
                     }
-                    if stop.as_mut().is_some_and(|f| f(best, &*fact)) {
-                        break;
-                    }
-                    // A step that lowered χ² by less than the tolerance: the valley is flat
-                    // (the Gauss–Newton model over-promises there), more steps buy nothing.
-                    if gain < b.s2 * R::from_f64(CHI2_GAIN_TOL) {
-                        break;
-                    }
-                }
-                Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
-                _ => {
-                    mu = if mu == z {
-                        R::from_f64(1e-1)
-                    } else {
-                        mu * R::from_f64(10.0)
-                    };
-                    if mu > R::from_f64(1e4) {
-                        break;
+                    Err(PathFail::Model(e)) => return Err(PathFitError::Model(e)),
+                    _ => {
+                        mu = if mu == z {
+                            R::from_f64(1e-1)
+                        } else {
+                            mu * R::from_f64(10.0)
+                        };
+                        if mu > R::from_f64(1e4) {
+                            break;
+                        }
                     }
                 }
             }
         }
+        if best_in_spare {
+            fit.0 = *spare;
+        }
+        // Leave the path model at the accepted contact (a rejected trial may have moved it).
+        pm.set_contact(p[TC])?;
+        Ok(())
     }
-    if best_in_spare {
-        fit.0 = *spare;
-    }
-    // Leave the path model at the accepted contact (a rejected trial may have moved it).
-    pm.set_contact(p[TC])?;
-    Ok(())
 }
 
 /// The factorisation of `a` on `set`: `f` (of `a` on `full`) itself when the sets agree,
