@@ -102,7 +102,8 @@ fn finger_consts(src: &mut String) {
          #[derive(Clone, Copy, Debug)]\n\
          pub struct DriveConsts {{ pub gear_ratio: f64, pub efficiency: f64, pub kt_nm_per_a: f64, \
          pub resistance_ohm: f64, pub supply_v: f64, pub counts_per_rev: f64, \
-         pub amps_per_count: f64, pub zero_count: f64, pub max_current_a: f64 }}"
+         pub amps_per_count: f64, pub zero_count: f64, pub max_current_a: f64, \
+         pub inertia_kgm2: f64, pub backlash_rad: f64 }}"
     );
     if given.is_some() {
         let _ = writeln!(
@@ -110,7 +111,8 @@ fn finger_consts(src: &mut String) {
             "/// From the finger file given at build time.\n\
              pub const FINGER_DRIVE: Option<DriveConsts> = Some(DriveConsts {{ gear_ratio: {:?}, \
              efficiency: {:?}, kt_nm_per_a: {:?}, resistance_ohm: {:?}, supply_v: {:?}, \
-             counts_per_rev: {:?}, amps_per_count: {:?}, zero_count: {:?}, max_current_a: {:?} }});",
+             counts_per_rev: {:?}, amps_per_count: {:?}, zero_count: {:?}, max_current_a: {:?}, \
+             inertia_kgm2: {:?}, backlash_rad: {:?} }});",
             file.drive.gear_ratio,
             file.drive.efficiency,
             file.motor.kt_nm_per_a,
@@ -119,7 +121,9 @@ fn finger_consts(src: &mut String) {
             f64::from(file.encoder.counts_per_rev),
             file.current_sense.amps_per_count,
             f64::from(file.current_sense.zero_count),
-            file.motor.max_current_a
+            file.motor.max_current_a,
+            file.drive.inertia_kgm2,
+            file.drive.backlash_rad
         );
     } else {
         let _ = writeln!(
@@ -154,7 +158,7 @@ fn finger_consts(src: &mut String) {
          grasp::FingerRest::checked_at_build(FINGER, FINGER_THETA_A_REST_RAD);"
     );
     free_table_const(src, &f);
-    path_table_const(src, &f);
+    path_table_const(src, &f, &cfg.drive);
 }
 
 /// The two-point estimate's free-motion table for the finger (`pts::table::FreeTable`, Q32.32,
@@ -177,14 +181,15 @@ fn free_table_const(src: &mut String, f: &pts::Finger) {
     );
 }
 
-/// The path fit's table for the finger and the board's control period (`grasp::path_table`,
-/// what init would build with `DriveConfig::DEFAULT.dt_s`, the period of every board build) as
-/// a constant: in flash, and the board's firmware links no table builder. `None` when the
-/// finger is outside the table's formats. The simulated board (QEMU, the host runner) builds
-/// its table at init for its scene's period instead.
-fn path_table_const(src: &mut String, f: &pts::Finger) {
+/// The path fit's table for the finger, its drive's measurement model (inertia, backlash) and
+/// the board's control period (`grasp::path_table`, what init would build with
+/// `DriveConfig::DEFAULT.dt_s`, the period of every board build) as a constant: in flash, and
+/// the board's firmware links no table builder. `None` when the finger is outside the table's
+/// formats. The simulated board (QEMU, the host runner) builds its table at init for its
+/// scene's period instead.
+fn path_table_const(src: &mut String, f: &pts::Finger, drive: &grasp::DriveConfig) {
     let dt_ns = (grasp::DriveConfig::DEFAULT.dt_s * 1e9) as u32;
-    let expr = match grasp::path_table(f, dt_ns).ok().map(|t| t.to_raw()) {
+    let expr = match grasp::path_table(f, drive, dt_ns).ok().map(|t| t.to_raw()) {
         Some(r) => format!(
             "Some(pathfit::q::PathTable::from_raw(&pathfit::q::PathTableRaw {{ finger: FINGER, \
              model: {:?}, consts: {:?}, fit_contact_angle: {:?}, object: pathfit::ObjectModel::{:?}, \

@@ -109,7 +109,7 @@ mod app {
         };
         cx.local
             .table_store
-            .fill(ctl::estimator_table(&cfg.finger, cfg.drive.dt_s));
+            .fill(ctl::estimator_table(&cfg.finger, &cfg.drive));
         let table = cx.local.table_store.get();
         let (lp, link, sup) = ctrl.into_parts();
         telemetry::spawn(tel_rx).ok();

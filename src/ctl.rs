@@ -84,22 +84,24 @@ impl TableSlot {
 // The table and the estimator agree.
 const _: () = assert!(cfg!(fw_path_fit) == matches!(ESTIMATOR, Estimator::PathFit));
 
-/// The estimator's table for a finger and a control period `dt_s` (s): the path fit's, on
-/// the board the build-time table (`config::PATH_TABLE`: the build's finger at the board's
-/// period, `DriveConfig::DEFAULT.dt_s`; the init that built it in RAM linked 5.3 KB of builder),
-/// on the simulated board built at init (f64 arithmetic, once), or the build-time two-point
-/// table (the build's finger); `None` when the finger is outside the table's formats or, on
-/// the board, is not the table's finger or period (the estimate then reports that error).
-pub fn estimator_table(finger: &pts::Finger, dt_s: f64) -> Option<EstimatorTable> {
+/// The estimator's table for a finger and its drive (control period, measurement model): the
+/// path fit's, on the board the build-time table (`config::PATH_TABLE`: the build's finger and
+/// drive at the board's period, `DriveConfig::DEFAULT.dt_s`; the init that built it in RAM
+/// linked 5.3 KB of builder), on the simulated board built at init (f64 arithmetic, once), or
+/// the build-time two-point table (the build's finger); `None` when the finger is outside the
+/// table's formats or, on the board, is not the table's finger or period (the estimate then
+/// reports that error).
+pub fn estimator_table(finger: &pts::Finger, drive: &DriveConfig) -> Option<EstimatorTable> {
     #[cfg(all(fw_path_fit, target_os = "none", not(feature = "qemu")))]
+    // The board's drive is always the build's (`board_drive`), the table's.
     return crate::config::PATH_TABLE
         .as_ref()
-        .filter(|t| t.model().finger == *finger && t.tick_ns() == (dt_s * 1e9) as u32);
+        .filter(|t| t.model().finger == *finger && t.tick_ns() == (drive.dt_s * 1e9) as u32);
     #[cfg(all(fw_path_fit, any(not(target_os = "none"), feature = "qemu")))]
-    return grasp::path_table(finger, (dt_s * 1e9) as u32).ok();
+    return grasp::path_table(finger, drive, (drive.dt_s * 1e9) as u32).ok();
     #[cfg(not(fw_path_fit))]
     {
-        let _ = (finger, dt_s);
+        let _ = (finger, drive);
         crate::config::FREE_TABLE.as_ref()
     }
 }
@@ -265,6 +267,8 @@ pub fn file_drive() -> DriveConfig {
         d.encoder_counts_per_rev = f.counts_per_rev;
         d.amps_per_code = f.amps_per_count;
         d.adc_zero_code = f.zero_count;
+        d.inertia_kgm2 = f.inertia_kgm2;
+        d.backlash_rad = f.backlash_rad;
     }
     d.theta_a_rest_rad = crate::config::FINGER_THETA_A_REST_RAD;
     d
@@ -391,7 +395,7 @@ mod tests {
     #[test]
     fn the_build_time_path_table_is_the_board_s_table() {
         let dt_ns = (DriveConfig::DEFAULT.dt_s * 1e9) as u32;
-        let built = grasp::path_table(&crate::config::FINGER, dt_ns).unwrap();
+        let built = grasp::path_table(&crate::config::FINGER, &file_drive(), dt_ns).unwrap();
         let fixed = crate::config::PATH_TABLE.as_ref().unwrap();
         assert_eq!(fixed.to_raw(), built.to_raw());
         assert_eq!(file_drive().dt_s, DriveConfig::DEFAULT.dt_s);

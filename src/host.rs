@@ -160,7 +160,7 @@ pub fn simulate(args: &[String]) -> Result<i32, String> {
     );
     let decimation = ctl::decimation(&cfg.drive);
     // The build's table, as the firmware built with the same environment has it.
-    let table = ctl::estimator_table(&cfg.finger, cfg.drive.dt_s);
+    let table = ctl::estimator_table(&cfg.finger, &cfg.drive);
     let mut ctrl = ctl::controller(cfg).map_err(|e| format!("config: {e:?}"))?;
     // The same adapter as the QEMU board's, without the interrupt plumbing.
     let mut board = PlantBoard::new(plant);

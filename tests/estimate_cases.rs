@@ -165,7 +165,7 @@ fn parse(text: &str) -> (EstimateRequest, Vec<String>) {
 fn host_results(req: &EstimateRequest) -> String {
     let f = pts::Finger::PAPER;
     let tp = grasp::two_point_table(&f).expect("two-point table");
-    let pt = grasp::path_table(&f, req.dt_ns).expect("path table");
+    let pt = grasp::path_table(&f, &grasp::DriveConfig::DEFAULT, req.dt_ns).expect("path table");
     result_line("host_two_point", &grasp::two_point_fw(&tp, req))
         + &result_line("host_path_fit", &grasp::path_fit_fw(&pt, req))
 }
@@ -325,7 +325,8 @@ fn the_two_point_estimate_on_the_path_table_matches_the_f64_model() {
     let m64 = Model::<f64>::paper().unwrap();
     let mut distal = 0;
     for (name, req, _) in committed() {
-        let table = grasp::path_table(&pts::Finger::PAPER, req.dt_ns).unwrap();
+        let table = grasp::path_table(&pts::Finger::PAPER, &grasp::DriveConfig::DEFAULT, req.dt_ns)
+            .unwrap();
         let fw = grasp::estimate::two_point_q(&table, &req).map_err(grasp::EstimateError::Model);
         let reference = grasp::estimate::two_point(&m64, &req);
         distal += usize::from(two_point_agrees(&name, fw, reference));
@@ -339,9 +340,10 @@ fn the_firmware_path_fit_lands_within_half_sigma_of_the_f64_fit() {
     let mut located = 0;
     for (name, mut req, _) in committed() {
         req.estimator = Estimator::PathFit;
-        let table = grasp::path_table(&pts::Finger::PAPER, req.dt_ns).unwrap();
+        let table = grasp::path_table(&pts::Finger::PAPER, &grasp::DriveConfig::DEFAULT, req.dt_ns)
+            .unwrap();
         let fw = grasp::path_fit_fw(&table, &req);
-        let reference = grasp::estimate::path_fit(&m64, &req);
+        let reference = grasp::estimate::path_fit(&m64, &grasp::DriveConfig::DEFAULT, &req);
         let (th, tc) = contact_point_with(&req, |th: Fx32| table.free_torque(th).ok())
             .unwrap_or_else(|| contact_point(&req));
         let sigma = path_fit_q_at(&table, &req, th.to_f64(), tc.to_f64())

@@ -102,7 +102,7 @@ fn run_case(c: &Case) -> (Res, Pf) {
     let o = run(&s, cfg, 20.0, 0.0, |_, _, _| {});
     let pf = o.request.as_ref().map(|req| {
         let m = pts::Model::<f64>::paper().expect("paper model");
-        match grasp::estimate::path_fit(&m, req) {
+        match grasp::estimate::path_fit(&m, &cfg.drive, req) {
             Ok(r) => r.k2_um.map(|k| f64::from(k) * 1e-6).ok_or("proximal"),
             Err(e) => Err(e.kind()),
         }

@@ -179,9 +179,11 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         return case;
     };
     let mut hw = PlantHw::new(plant);
-    let mut c = Controller::new(grid_config(&scene, dta)).expect("config valid");
+    let ccfg = grid_config(&scene, dta);
+    let mut c = Controller::new(ccfg).expect("config valid");
     let m = Model::<f64>::paper().unwrap();
-    // The estimator's measurement model of this scene's drive (ideal: η = 1, no backlash).
+    // The estimator's measurement model of this scene's drive (ideal: η = 1, no backlash), as
+    // the controller's drive carries it to the firmware's estimate.
     let d = &scene.drive;
     let mut cfg = PathFitConfig::DEFAULT.for_drive(
         d.rotor_inertia_kgm2,
@@ -189,6 +191,7 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
         d.eff_drive,
         d.backlash_rad,
     );
+    assert_eq!(cfg, ccfg.drive.path_fit_config());
     if std::env::var("PATHFIT_OLD_MEAS").is_ok() {
         // Diagnosis: the previous measurement model (J N², no lead, plateaus kept).
         cfg.inertia_kgm2 = d.rotor_inertia_kgm2 * d.gear_ratio * d.gear_ratio;
@@ -297,11 +300,11 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
                 );
                 let mut fw_req = req.clone();
                 fw_req.estimator = grasp::Estimator::PathFit;
-                case.fw = Some(run_estimate(&pts::Finger::PAPER, &fw_req));
-                case.fw_f64 = Some(grasp::run_estimate_with(&m, &fw_req));
+                case.fw = Some(run_estimate(&pts::Finger::PAPER, &ccfg.drive, &fw_req));
+                case.fw_f64 = Some(grasp::run_estimate_with(&m, &ccfg.drive, &fw_req));
                 let mut tp_req = req.clone();
                 tp_req.estimator = grasp::Estimator::TwoPoint;
-                let r = run_estimate(&pts::Finger::PAPER, &tp_req);
+                let r = run_estimate(&pts::Finger::PAPER, &ccfg.drive, &tp_req);
                 case.two_point = r.ok().and_then(|e| e.k2_um.map(|k| f64::from(k) * 1e-6));
                 c.deliver(&mut hw, r);
                 break;
@@ -680,12 +683,13 @@ fn pathfit_grid_on_the_plant() {
     }
     let real = run_grid(real_scene);
     // The tables below score the integer kernel through this test's adapter; the firmware
-    // calls `run_estimate`. On the plant the firmware is built for (the realistic drive) the
-    // two must be one computation, so the tables measure what ships.
-    let scored = if inertia_scale().is_none() {
-        &real[..]
+    // calls `run_estimate` with the controller's drive. On both plants (the ideal drive's
+    // η = 1 and no backlash reach the estimate through the drive) the two must be one
+    // computation, so the tables measure what ships.
+    let scored: Vec<&Case> = if inertia_scale().is_none() {
+        ideal.iter().chain(real.iter()).collect()
     } else {
-        &[]
+        Vec::new()
     };
     for c in scored {
         if let (Some(Ok(q)), Some(fw)) = (&c.fit_q, &c.fw) {

@@ -73,7 +73,7 @@ fn release_on_command_from_holding_only() {
         let out = grasp::tick_dyn(&mut c, &mut hw);
         if out.estimate_ready {
             let req = c.take_request().unwrap();
-            c.deliver(&mut hw, grasp::run_estimate(&cfg.finger, &req));
+            c.deliver(&mut hw, grasp::run_estimate(&cfg.finger, &cfg.drive, &req));
         }
         hw.advance();
         match c.state() {

@@ -111,6 +111,7 @@ pub fn run(
     let mut obs = Recorder {
         out: &mut out,
         finger: &cfg.finger,
+        drive: cfg.drive,
         inject: &mut inject,
         trace,
     };
@@ -131,6 +132,8 @@ pub fn run(
 struct Recorder<'a, F> {
     out: &'a mut Outcome,
     finger: &'a pts::Finger,
+    /// The controller's drive (the path fit's measurement model).
+    drive: DriveConfig,
     inject: &'a mut F,
     /// Print every n-th tick to stderr (`GRASP_TRACE=n`), 0: never.
     trace: u64,
@@ -149,7 +152,7 @@ impl<F: FnMut(f64, State, &mut Plant)> Observer<PlantHw> for Recorder<'_, F> {
         hw: &PlantHw,
     ) -> Result<EstimateResult, grasp::EstimateError> {
         self.out.truth_settled = Some(hw.plant.truth());
-        let r = run_estimate(self.finger, req);
+        let r = run_estimate(self.finger, &self.drive, req);
         self.out.estimate = Some(r);
         self.out.request = Some(req.clone());
         r

@@ -31,6 +31,14 @@ pub struct DriveConfig {
     pub adc_zero_code: f64,
     /// Absolute model angle θa at the rest pose, where the encoder reading is taken as zero (rad).
     pub theta_a_rest_rad: f64,
+    /// Effective inertia of the drive at the crank as the measured torque sees it (kg·m²;
+    /// η × rotor inertia × gear ratio², ≥ 0): the path fit takes J·θ̈a off every sample.
+    /// Read by the path fit's table only ([`crate::path_table`], which checks it).
+    pub inertia_kgm2: f64,
+    /// Backlash between the encoder and the crank, at the crank (rad, ≥ 0): the encoder leads
+    /// the finger by half of it while the drive loads in flexion (the path fit's measurement
+    /// model). Read by the path fit's table only, which checks it.
+    pub backlash_rad: f64,
 }
 
 impl DriveConfig {
@@ -48,6 +56,10 @@ impl DriveConfig {
         // 1.65 V mid-scale of a 3.3 V 12-bit ADC
         adc_zero_code: 2048.0,
         theta_a_rest_rad: -0.850_360_8,
+        // η × 7.0e-9 kg·m² (RE10 rotor) × 3072², and the prototype's 3 mrad: the finger file's
+        // defaults (`pts::config::FingerFile::PAPER_DRIVE`).
+        inertia_kgm2: 0.6175 * 7.0e-9 * 3072.0 * 3072.0,
+        backlash_rad: 3e-3,
     };
 
     /// Actuator torque per ampere of motor current: kt × ratio × efficiency (N·m/A).
@@ -58,6 +70,16 @@ impl DriveConfig {
     /// Actuator angle per encoder count (rad/count).
     pub const fn rad_per_count(&self) -> f64 {
         2.0 * core::f64::consts::PI / (self.encoder_counts_per_rev * self.gear_ratio)
+    }
+
+    /// The path fit's configuration for this drive: the default fit with the drive's inertia
+    /// and encoder lead (half the backlash).
+    pub const fn path_fit_config(&self) -> pathfit::PathFitConfig {
+        pathfit::PathFitConfig {
+            inertia_kgm2: self.inertia_kgm2,
+            encoder_lead_rad: 0.5 * self.backlash_rad,
+            ..pathfit::PathFitConfig::DEFAULT
+        }
     }
 }
 
@@ -609,6 +631,8 @@ impl ControllerConfig {
                 amps_per_code: cs.amps_per_count,
                 adc_zero_code: f64::from(cs.zero_count),
                 theta_a_rest_rad,
+                inertia_kgm2: file.drive.inertia_kgm2,
+                backlash_rad: file.drive.backlash_rad,
             },
             overcurrent_a: file.motor.max_current_a,
             ..self
@@ -653,7 +677,7 @@ impl ControllerConfig {
         )?;
         table(
             "path fit's",
-            crate::path_table(&file.finger, (dt_s * 1e9) as u32).map(|_| ()),
+            crate::path_table(&file.finger, &cfg.drive, (dt_s * 1e9) as u32).map(|_| ()),
         )?;
         Ok(cfg)
     }

@@ -18,12 +18,12 @@
 
 use heapless::Vec;
 use pathfit::q::{fit_path_q, PathTable, RawSample};
-use pathfit::{fit_path, PathFit, PathFitConfig, PathFitError, PathSample};
+use pathfit::{fit_path, PathFit, PathFitError, PathSample};
 use pts::fixed::Fx32;
 use pts::table::{FreeTable, TableReal};
 use pts::{Estimate, Finger, Model, Phalanx, PtsError, Real};
 
-use crate::config::{Estimator, HISTORY};
+use crate::config::{DriveConfig, Estimator, HISTORY};
 
 /// The numeric back end of the estimator on the target. One place to switch
 /// (`pts::FirmwareReal`, I32F32 fixed point; f32 or f64 work too).
@@ -266,14 +266,16 @@ fn usable<R: Real>(x: R) -> bool {
 
 /// Runs the estimator the request names for `finger` as the firmware does: the two-point
 /// method on the free-motion table ([`two_point_fw`]), the path fit on the integer kernel
-/// ([`path_fit_fw`]), both built here for `finger` and the request's control period.
+/// ([`path_fit_fw`]), both built here for `finger` (the path fit's with `drive`'s measurement
+/// model) and the request's control period.
 pub fn run_estimate(
     finger: &Finger,
+    drive: &DriveConfig,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, EstimateError> {
     match req.estimator {
         Estimator::TwoPoint => two_point_fw(&two_point_table(finger)?, req),
-        Estimator::PathFit => path_fit_fw(&path_table(finger, req.dt_ns)?, req),
+        Estimator::PathFit => path_fit_fw(&path_table(finger, drive, req.dt_ns)?, req),
     }
 }
 
@@ -282,37 +284,49 @@ pub fn run_estimate(
 /// two-point refusal leaves the reference empty; it never fails the fit's answer.
 pub fn run_estimate_with_reference(
     finger: &Finger,
+    drive: &DriveConfig,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, EstimateError> {
-    let mut r = run_estimate(finger, req)?;
+    let mut r = run_estimate(finger, drive, req)?;
     if req.estimator == Estimator::PathFit {
         let two_point = EstimateRequest {
             estimator: Estimator::TwoPoint,
             ..req.clone()
         };
-        r.two_point_k2_um = run_estimate(finger, &two_point).ok().and_then(|t| t.k2_um);
+        r.two_point_k2_um = run_estimate(finger, drive, &two_point)
+            .ok()
+            .and_then(|t| t.k2_um);
     }
     Ok(r)
 }
 
 /// Runs the estimator the request names with a given model (any back end; the contact
-/// point from the model's Newton solves in f64): the generic reference of the firmware's
-/// estimate.
+/// point from the model's Newton solves in f64) and `drive`'s measurement model: the generic
+/// reference of the firmware's estimate.
 pub fn run_estimate_with<R: EstNum>(
     model: &Model<R>,
+    drive: &DriveConfig,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, EstimateError> {
     match req.estimator {
         Estimator::TwoPoint => two_point(model, req).map_err(EstimateError::Model),
-        Estimator::PathFit => path_fit(model, req).map_err(EstimateError::PathFit),
+        Estimator::PathFit => path_fit(model, drive, req).map_err(EstimateError::PathFit),
     }
 }
 
-/// The table the firmware's path fit runs on for a finger and the control period (ns): the
-/// default path-fit configuration (the prototype drive). Built once, at init on the board
-/// (f64 arithmetic; see [`pathfit::q::PathTable`]).
-pub fn path_table(finger: &Finger, dt_ns: u32) -> Result<PathTable, PtsError> {
-    PathTable::new(finger, &PathFitConfig::DEFAULT, f64::from(dt_ns) * 1e-9)
+/// The table the firmware's path fit runs on for a finger, its drive and the control period
+/// (ns): the default path-fit configuration with the drive's measurement model
+/// ([`DriveConfig::path_fit_config`]: its inertia and encoder lead; `drive.dt_s` is not read,
+/// the period is `dt_ns`). Built once, at build time for the board, at init on the simulated
+/// board (f64 arithmetic; see [`pathfit::q::PathTable`]).
+/// Refused ([`PtsError::OutOfRange`]) for a negative or non-finite inertia or backlash, and
+/// wherever [`PathTable::new`] refuses.
+pub fn path_table(finger: &Finger, drive: &DriveConfig, dt_ns: u32) -> Result<PathTable, PtsError> {
+    // `!(x >= 0)` is true for NaN too.
+    if !(drive.backlash_rad >= 0.0 && drive.backlash_rad.is_finite()) {
+        return Err(PtsError::OutOfRange);
+    }
+    PathTable::new(finger, &drive.path_fit_config(), f64::from(dt_ns) * 1e-9)
 }
 
 /// The free-motion table the firmware's two-point estimate runs on (Q32.32).
@@ -329,10 +343,11 @@ pub fn two_point_table(finger: &Finger) -> Result<TwoPointTable, PtsError> {
 /// finger's tables).
 pub fn run_estimate_fw(
     finger: &Finger,
+    drive: &DriveConfig,
     _model: &Model<EstReal>,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, EstimateError> {
-    run_estimate(finger, req)
+    run_estimate(finger, drive, req)
 }
 
 /// The firmware's two-point estimate: the estimate task's whole work in a two-point build,
@@ -387,6 +402,7 @@ fn path_samples(req: &EstimateRequest) -> impl DoubleEndedIterator<Item = &Sampl
 /// detection.
 pub fn path_fit<R: EstNum>(
     model: &Model<R>,
+    drive: &DriveConfig,
     req: &EstimateRequest,
 ) -> Result<EstimateResult, PathFitError> {
     let (theta_c, ta_c) = contact_point_model(model, req).unwrap_or_else(|| contact_point(req));
@@ -398,7 +414,13 @@ pub fn path_fit<R: EstNum>(
         torque_nm: R::from_f64(f64::from(s.torque_unm) * 1e-6),
     });
     let (theta_c, ta_c) = (conv(theta_c)?, conv(ta_c)?);
-    let fit = fit_path(model, &PathFitConfig::DEFAULT, theta_c, Some(ta_c), samples);
+    let fit = fit_path(
+        model,
+        &drive.path_fit_config(),
+        theta_c,
+        Some(ta_c),
+        samples,
+    );
     path_fit_result(model.l2(), req, theta_c, ta_c, fit).map(|(r, _)| r)
 }
 

@@ -122,7 +122,7 @@ fn run(c: &mut Controller, hw: &mut Mock, max_ticks: u32, mut inject: impl FnMut
         let out = c.tick(hw);
         if out.estimate_ready {
             let req = c.take_request().expect("request after estimate_ready");
-            c.deliver(hw, run_estimate(&pts::Finger::PAPER, &req));
+            c.deliver(hw, run_estimate(&pts::Finger::PAPER, &drive(), &req));
         }
         if matches!(c.state(), State::Fault(_) | State::Done | State::Holding) {
             return;

@@ -256,7 +256,7 @@ fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
             // every `every` ticks.
             if tick % every == 0 && sup.service(&mut link) {
                 let req = sup.take_request().unwrap();
-                sup.deliver(run_estimate(&pts::Finger::PAPER, &req));
+                sup.deliver(run_estimate(&pts::Finger::PAPER, &cfg.drive, &req));
                 sup.publish(&mut link);
                 k2 = sup.result().and_then(|r| r.k2_um);
             }
@@ -323,7 +323,7 @@ fn a_stalled_supervisor_switches_the_bridge_off_in_every_state() {
             lp.tick(&mut hw, &mut link);
             if sup.service(&mut link) && stop_in != State::Estimating {
                 let req = sup.take_request().unwrap();
-                sup.deliver(run_estimate(&pts::Finger::PAPER, &req));
+                sup.deliver(run_estimate(&pts::Finger::PAPER, &cfg.drive, &req));
                 sup.publish(&mut link);
             }
             if sup.state() == stop_in {
@@ -416,7 +416,7 @@ fn a_supervisor_late_by_less_than_the_link_never_trips_the_heartbeat() {
         lp.tick(&mut hw, &mut link);
         if tick % every == 0 && sup.service(&mut link) {
             let req = sup.take_request().unwrap();
-            sup.deliver(run_estimate(&pts::Finger::PAPER, &req));
+            sup.deliver(run_estimate(&pts::Finger::PAPER, &cfg.drive, &req));
             sup.publish(&mut link);
         }
         if matches!(sup.state(), State::Holding | State::Fault(_)) {

@@ -710,6 +710,9 @@ impl Recording {
                 counts_per_rev: d.counts_per_rev,
                 amps_per_code: d.amps_per_code,
                 zero_code: d.zero_code,
+                // The device does not report them: the finger file's stay.
+                inertia_kgm2: None,
+                backlash_rad: None,
             }),
             controller: MetaController {
                 estimator: Some(match s.estimator {

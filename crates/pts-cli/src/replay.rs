@@ -90,6 +90,10 @@ pub struct MetaDrive {
     pub amps_per_code: f64,
     /// ADC code at zero current.
     pub zero_code: f64,
+    /// Effective inertia at the crank (kg·m²), when the recorder knew it.
+    pub inertia_kgm2: Option<f64>,
+    /// Backlash at the crank (rad), when the recorder knew it.
+    pub backlash_rad: Option<f64>,
 }
 
 impl MetaDrive {
@@ -104,6 +108,8 @@ impl MetaDrive {
             counts_per_rev: d.encoder_counts_per_rev,
             amps_per_code: d.amps_per_code,
             zero_code: d.adc_zero_code,
+            inertia_kgm2: Some(d.inertia_kgm2),
+            backlash_rad: Some(d.backlash_rad),
         }
     }
 
@@ -122,6 +128,12 @@ impl MetaDrive {
         f.encoder.counts_per_rev = int(self.counts_per_rev, "counts_per_rev")?;
         f.current_sense.amps_per_count = self.amps_per_code;
         f.current_sense.zero_count = int(self.zero_code, "zero_code")?;
+        if let Some(v) = self.inertia_kgm2 {
+            f.drive.inertia_kgm2 = v;
+        }
+        if let Some(v) = self.backlash_rad {
+            f.drive.backlash_rad = v;
+        }
         Ok(())
     }
 }
@@ -143,6 +155,14 @@ impl TraceMeta {
                 d.amps_per_code,
                 d.zero_code
             );
+            for (k, v) in [
+                ("inertia_kgm2", d.inertia_kgm2),
+                ("backlash_rad", d.backlash_rad),
+            ] {
+                if let Some(v) = v {
+                    s += &format!(" {k}={v}");
+                }
+            }
         }
         let c = &self.controller;
         if let Some(m) = c.estimator {
@@ -182,6 +202,8 @@ impl TraceMeta {
                 counts_per_rev: get("counts_per_rev")?,
                 amps_per_code: get("amps_per_code")?,
                 zero_code: get("zero_code")?,
+                inertia_kgm2: get("inertia_kgm2"),
+                backlash_rad: get("backlash_rad"),
             })
         })();
         let estimator = line
@@ -248,6 +270,8 @@ struct ReplayFeed<'a> {
     rest: f64,
     /// Control period (s).
     dt: f64,
+    /// The controller's drive (the path fit's measurement model).
+    drive: grasp::DriveConfig,
     rep: &'a mut Replay,
     /// Rounding error carried to the next ADC code (codes).
     dither: f64,
@@ -296,7 +320,7 @@ impl Observer<TraceHw> for ReplayFeed<'_> {
         req: &grasp::EstimateRequest,
         _hw: &TraceHw,
     ) -> Result<EstimateResult, grasp::EstimateError> {
-        let r = grasp::run_estimate_with_reference(&self.finger.finger, req);
+        let r = grasp::run_estimate_with_reference(&self.finger.finger, &self.drive, req);
         self.rep.estimate = Some(r.map_err(|e| crate::sim::EstError::new(e.kind(), &e)));
         r
     }
@@ -427,6 +451,7 @@ pub fn replay(
         raw,
         rest,
         dt,
+        drive: cfg.drive,
         rep: &mut rep,
         dither: 0.0,
         gaps: 0,
@@ -608,6 +633,12 @@ fn segment_rows(
     let cfg = OfflineConfig::DEFAULT
         .with_estimator(method.estimator())
         .with_encoder_count(finger.rad_per_count());
+    // The file's drive as the firmware's estimate sees it (the two-point method reads none of it).
+    let drive_fw = grasp::DriveConfig {
+        inertia_kgm2: finger.drive.inertia_kgm2,
+        backlash_rad: finger.drive.backlash_rad,
+        ..grasp::DriveConfig::DEFAULT
+    };
     let mut scratch = vec![Block::default(); 1 << 16];
     let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch)
         .map_err(|e| format!("segmenting the trace: {} ({e:?})", e.kind()))?;
@@ -639,7 +670,7 @@ fn segment_rows(
         |r| match r {
             Ok(seg) => {
                 let fw = |req: &grasp::EstimateRequest| {
-                    grasp::run_estimate_fw(&finger.finger, &mfw, req)
+                    grasp::run_estimate_fw(&finger.finger, &drive_fw, &mfw, req)
                         .map_err(|e| crate::sim::EstError::new(e.kind(), &e))
                 };
                 let (mut t_s, mut theta_a_c, mut ta_c) =

@@ -349,6 +349,7 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
     let mut obs = SimRecorder {
         rep: &mut rep,
         finger: &finger,
+        drive,
         record: opts.record,
         before: None,
     };
@@ -367,6 +368,8 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
 struct SimRecorder<'a> {
     rep: &'a mut SimReport,
     finger: &'a pts::Finger,
+    /// The controller's drive (the path fit's measurement model).
+    drive: DriveConfig,
     record: bool,
     /// The raw readings and the truth before the tick.
     before: Option<(u16, u16, plant::Truth)>,
@@ -386,7 +389,7 @@ impl Observer<PlantHw> for SimRecorder<'_> {
         _hw: &PlantHw,
     ) -> Result<EstimateResult, grasp::EstimateError> {
         self.rep.k_at_settle_m = self.before.map(|(_, _, truth)| truth.k_m);
-        let r = grasp::run_estimate_with_reference(self.finger, req);
+        let r = grasp::run_estimate_with_reference(self.finger, &self.drive, req);
         self.rep.estimate = Some(r.map_err(|e| EstError::new(e.kind(), &e)));
         r
     }

@@ -99,7 +99,7 @@ impl Perturbation {
         d.coulomb_nm *= self.friction_factor;
         d.stiction_nm *= self.friction_factor;
         d.viscous_nm_s_per_rad *= self.friction_factor;
-        d.rotor_inertia_kgm2 *= self.inertia_factor;
+        // The rotor inertia follows the true file's (`finger_scene`), already scaled.
         Ok(scene)
     }
 }

@@ -213,7 +213,12 @@ fn estimates(rows: &[TraceSample], est: Estimator) -> Vec<Result<f64, String>> {
     let mut out = vec![];
     for_each_contact(&m, &cfg, &scratch[..nb], bs, QUANTUM, |r| {
         out.push(match r {
-            Ok(seg) => match run_estimate_fw(&pts::Finger::PAPER, &mfx, &seg.request) {
+            Ok(seg) => match run_estimate_fw(
+                &pts::Finger::PAPER,
+                &grasp::DriveConfig::DEFAULT,
+                &mfx,
+                &seg.request,
+            ) {
                 Ok(r) => r
                     .k2_um
                     .map(|k| f64::from(k) * 1e-6)
@@ -421,7 +426,12 @@ fn no_panic_on_arbitrary_traces() {
             let mfx = Model::<grasp::EstReal>::paper().unwrap();
             for_each_contact(&m, &cfg, &scratch[..nb], bs, QUANTUM, |r| {
                 if let Ok(seg) = r {
-                    let _ = run_estimate_fw(&pts::Finger::PAPER, &mfx, &seg.request);
+                    let _ = run_estimate_fw(
+                        &pts::Finger::PAPER,
+                        &grasp::DriveConfig::DEFAULT,
+                        &mfx,
+                        &seg.request,
+                    );
                     assert!(seg.request.path.len() <= grasp::PATH_CAPACITY);
                 }
             });

@@ -218,7 +218,12 @@ fn estimate(
     let (nb, bs) = make_blocks(&m, &cfg, rows, &mut scratch)?;
     let seg = find_contact(&m, &cfg, &scratch[..nb], bs, QUANTUM, 0)?;
     let mfx = Model::<grasp::EstReal>::paper().unwrap();
-    let r = run_estimate_fw(&pts::Finger::PAPER, &mfx, &seg.request);
+    let r = run_estimate_fw(
+        &pts::Finger::PAPER,
+        &grasp::DriveConfig::DEFAULT,
+        &mfx,
+        &seg.request,
+    );
     Ok((seg, r))
 }
 

@@ -94,8 +94,9 @@ impl Hardware for PlantBoard {
 
 /// The scene with its finger replaced by `finger` (geometry and springs; the mechanical stops and
 /// the structure's stiffness stay the scene's) and its drive's nominal constants by `drive`'s
-/// (gear ratio, efficiency, motor constant, resistance, supply; the friction, backlash and
-/// sensor models stay the scene's): the plant built from the same finger the controller is.
+/// (gear ratio, efficiency, motor constant, resistance, supply, the rotor inertia behind the
+/// drive's effective inertia, backlash; the friction and sensor models stay the scene's): the
+/// plant built from the same finger the controller is.
 pub fn scene_for_finger(mut scene: Scene, finger: &pts::Finger, drive: &DriveConfig) -> Scene {
     let g = &mut scene.finger;
     g.l1_m = finger.l1;
@@ -119,6 +120,13 @@ pub fn scene_for_finger(mut scene: Scene, finger: &pts::Finger, drive: &DriveCon
     d.kt_nm_per_a = drive.kt_nm_per_a;
     d.r_ohm = drive.resistance_ohm;
     d.supply_v = drive.bus_v;
+    // The drive's inertia as the measured torque sees it is η·J·N²; the plant needs a rotor
+    // with some inertia, so a file's zero keeps the plant's own.
+    let rotor = drive.inertia_kgm2 / (drive.efficiency * drive.gear_ratio * drive.gear_ratio);
+    if rotor.is_finite() && rotor > 0.0 {
+        d.rotor_inertia_kgm2 = rotor;
+    }
+    d.backlash_rad = drive.backlash_rad;
     scene
 }
 
@@ -139,6 +147,10 @@ pub fn scene_drive(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
         amps_per_code: 1.0 / s.codes_per_amp(),
         adc_zero_code: s.zero_code(),
         theta_a_rest_rad,
+        // The measurement model of this drive: what the torque sees of the rotor through the
+        // gearhead's driving efficiency, and its backlash.
+        inertia_kgm2: d.eff_drive * d.rotor_inertia_kgm2 * d.gear_ratio * d.gear_ratio,
+        backlash_rad: d.backlash_rad,
     }
 }
 

@@ -219,7 +219,7 @@ fn build() -> Result<State, PtsError> {
         ctl,
         mock,
         fw_tp: grasp::two_point_table(&f)?,
-        fw_pt: grasp::path_table(&f, 100_000)?,
+        fw_pt: grasp::path_table(&f, &grasp::DriveConfig::DEFAULT, 100_000)?,
         req: EstimateRequest {
             contact: Sample::ZERO,
             seat: Sample::ZERO,
@@ -277,7 +277,7 @@ fn load_request(s: &mut State, inp: *const u64) -> i32 {
         }
     }
     if s.fw_pt.tick_ns() != r.dt_ns {
-        match grasp::path_table(&Finger::PAPER, r.dt_ns) {
+        match grasp::path_table(&Finger::PAPER, &grasp::DriveConfig::DEFAULT, r.dt_ns) {
             Ok(t) => s.fw_pt = t,
             Err(_) => return 3,
         }
