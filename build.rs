@@ -157,8 +157,49 @@ fn finger_consts(src: &mut String) {
          pub const FINGER_REST: grasp::FingerRest = \
          grasp::FingerRest::checked_at_build(FINGER, FINGER_THETA_A_REST_RAD);"
     );
+    let st = file.stops;
+    let _ = writeln!(
+        src,
+        "/// The finger's extension stops, from the finger description at build time.\n\
+         pub const FINGER_STOPS: pts::Stops = pts::Stops {{ theta1_min_rad: {:?}, \
+         theta2_min_rad: {:?}, stiffness_nm_per_rad: {:?} }};",
+        st.theta1_min_rad, st.theta2_min_rad, st.stiffness_nm_per_rad
+    );
+    rest_check_const(src, &file, &cfg.drive);
     free_table_const(src, &f);
     path_table_const(src, &f, &cfg.drive);
+}
+
+/// The rest check for the finger, its drive and its stops (`sim_board::finger_rest_check`: the
+/// stop's pose and the springs' torque there from the geometry) as a constant: the board links
+/// no kinematics for it. A finger whose stop pose the model cannot solve is a build error.
+fn rest_check_const(src: &mut String, file: &pts::config::FingerFile, drive: &grasp::DriveConfig) {
+    let Some(c) = sim_board::finger_rest_check(&file.finger, drive, &file.stops) else {
+        fail(
+            "FINGER_TOML: the finger's rest or open-stop pose cannot be solved for the rest check",
+        );
+    };
+    let _ = writeln!(
+        src,
+        "/// The rest check for [`FINGER`] against [`FINGER_STOPS`] (built at build time).\n\
+         pub const FINGER_REST_CHECK: grasp::RestCheck = grasp::RestCheck {{ \
+         open_torque_nm: {:?}, return_torque_nm: {:?}, stop_from_rest_rad: {:?}, \
+         stop_spring_nm: {:?}, friction_nm: {:?}, stop_compliance_rad_per_nm: {:?}, \
+         backlash_rad: {:?}, still_s: {:?}, still_rad: {:?}, timeout_s: {:?}, \
+         max_travel_rad: {:?}, return_band_rad: {:?} }};",
+        c.open_torque_nm,
+        c.return_torque_nm,
+        c.stop_from_rest_rad,
+        c.stop_spring_nm,
+        c.friction_nm,
+        c.stop_compliance_rad_per_nm,
+        c.backlash_rad,
+        c.still_s,
+        c.still_rad,
+        c.timeout_s,
+        c.max_travel_rad,
+        c.return_band_rad
+    );
 }
 
 /// The two-point estimate's free-motion table for the finger (`pts::table::FreeTable`, Q32.32,

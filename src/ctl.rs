@@ -285,7 +285,12 @@ pub fn board_drive() -> DriveConfig {
 #[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn finger_scene(scene: plant::Scene) -> plant::Scene {
     match crate::config::FINGER_DRIVE {
-        Some(_) => sim_board::scene_for_finger(scene, &crate::config::FINGER, &file_drive()),
+        Some(_) => sim_board::scene_for_finger(
+            scene,
+            &crate::config::FINGER,
+            &file_drive(),
+            &crate::config::FINGER_STOPS,
+        ),
         None => scene,
     }
 }
@@ -306,9 +311,9 @@ pub const REST_CHECK: bool = match crate::config::REST_CHECK {
     None => cfg!(all(target_os = "none", not(feature = "qemu"))),
 };
 
-/// The board's rest check: the paper finger's stop (a finger file does not describe its
-/// stops yet).
-pub const BOARD_REST_CHECK: grasp::RestCheck = grasp::RestCheck::PAPER;
+/// The board's rest check: the build's finger against its stops (the finger file's `[stops]`,
+/// by default just below its rest angles), its drive's backlash; built at build time.
+pub const BOARD_REST_CHECK: grasp::RestCheck = crate::config::FINGER_REST_CHECK;
 
 /// The controller configuration for a drive: the build's finger (and its current limit when a
 /// finger file was given), grasp's defaults otherwise; the board's rest check when
@@ -388,6 +393,27 @@ mod tests {
         assert_eq!(fixed.model().finger, crate::config::FINGER);
         let th = pts::fixed::Fx32::from_bits(-(1 << 30));
         assert_eq!(fixed.free_torque(th), built.free_torque(th));
+    }
+
+    /// The board's rest check, built at build time from the build's finger file, is for the
+    /// paper's finger (the default build) the prototype's hand-written one: its stop within
+    /// 0.01 mrad, the springs' and friction's torque there within 1 mN·m, the same backlash
+    /// and compliance.
+    #[test]
+    fn the_board_s_rest_check_is_the_prototype_s_for_the_paper_finger() {
+        if crate::config::FINGER_DRIVE.is_some() {
+            return; // built for another finger file
+        }
+        let (b, p) = (BOARD_REST_CHECK, grasp::RestCheck::PAPER);
+        assert!(
+            (b.stop_from_rest_rad - p.stop_from_rest_rad).abs() < 1e-5,
+            "{b:?}"
+        );
+        assert!((b.stop_spring_nm - p.stop_spring_nm).abs() < 1e-3, "{b:?}");
+        assert!((b.friction_nm - p.friction_nm).abs() < 1e-3, "{b:?}");
+        assert_eq!(b.backlash_rad, p.backlash_rad);
+        assert_eq!(b.stop_compliance_rad_per_nm, p.stop_compliance_rad_per_nm);
+        assert_eq!(b.open_torque_nm, p.open_torque_nm);
     }
 
     /// The board's build-time path-fit table is the one init builds for the build's finger

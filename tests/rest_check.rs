@@ -212,3 +212,84 @@ fn a_short_during_the_check_trips_over_current() {
         "{longest_s}"
     );
 }
+
+/// A finger whose extension stops sit further from its rest than the prototype's (a finger
+/// file's `[stops]`; here both 0.12 rad below the rest angles, on its free-motion path): the
+/// check built from them (`sim_board::finger_rest_check`, what build.rs bakes into the board)
+/// expects the plant's lock where the plant locks, and a finger powered up flexed is homed to
+/// the θa,c of one powered up at rest. The prototype's check (`RestCheck::PAPER`) on the same
+/// finger zeroes the encoder at the wrong stop.
+#[test]
+fn a_finger_file_s_stops_reach_the_rest_check() {
+    let finger = pts::Finger::PAPER;
+    let stops = pts::Stops {
+        theta1_min_rad: finger.theta01 - 0.12,
+        theta2_min_rad: finger.theta02 - 0.12,
+        stiffness_nm_per_rad: 200.0,
+    };
+    let base = plant::scenes::table2();
+    let drive = drive_config(&base);
+    let at = |offset_rad: f64| {
+        let mut s = sim_board::scene_for_finger(base, &finger, &drive, &stops);
+        s.faults.power_up_offset_rad = offset_rad;
+        s
+    };
+    let check = sim_board::finger_rest_check(&finger, &drive, &stops).unwrap();
+    let p = RestCheck::PAPER;
+    println!(
+        "stop from rest: file {:.5} rad (paper {:.5}), springs there {:.4} N·m (paper {:.4})",
+        check.stop_from_rest_rad, p.stop_from_rest_rad, check.stop_spring_nm, p.stop_spring_nm
+    );
+    // Where the plant locks when driven open, against where the check expects it.
+    let mut plant = Plant::new(&at(0.0)).unwrap();
+    let rest = plant.theta_a_rest_rad();
+    let stall_full = drive.torque_per_amp() * drive.bus_v / drive.resistance_ohm;
+    // 6 s: the drive opens at about 0.07 rad/s.
+    for _ in 0..60_000 {
+        plant.step(-check.open_torque_nm / stall_full);
+    }
+    let t = plant.truth();
+    assert_eq!(t.contact, plant::ContactState::Locked);
+    let expect = check.stop_from_rest_rad
+        - (check.open_torque_nm - check.stop_spring_nm - check.friction_nm)
+            * check.stop_compliance_rad_per_nm;
+    let got = t.theta_a_rad - rest;
+    println!("plant locks at {got:.5} rad from rest, the file's check expects {expect:.5}");
+    // The check's stop model (both joints on their stops, 1/k of compliance at the crank) is
+    // approximate beyond the prototype's stops: within 1 mrad here (30 encoder counts, under
+    // 1 mN·m of free-motion torque), against the 0.11 rad the prototype's check is off.
+    const TOL_RAD: f64 = 1e-3;
+    assert!((got - expect).abs() < TOL_RAD, "{got} vs {expect}");
+    let with = |s: &Scene, c: RestCheck| grasp::ControllerConfig {
+        rest_check: Some(c),
+        ..config(s, 0.8)
+    };
+    let reference = theta_c(&run(
+        &at(0.0),
+        config(&at(0.0), 0.8),
+        60.0,
+        0.0,
+        |_, _, _| {},
+    ));
+    let s = at(0.3);
+    let th = theta_c(&run(&s, with(&s, check), 60.0, 0.0, |_, _, _| {}));
+    let paper = run(&s, with(&s, p), 60.0, 0.0, |_, _, _| {});
+    let th_paper = paper
+        .estimate
+        .and_then(Result::ok)
+        .map(|e| f64::from(e.theta_a_c_urad) * 1e-6);
+    println!(
+        "powered up 0.3 rad flexed: θa,c {th:.5} with the file's check, {th_paper:.5?} with the \
+         prototype's (at rest {reference:.5})"
+    );
+    assert!((th - reference).abs() < TOL_RAD, "θa,c {th} vs {reference}");
+    // The prototype's stop is 0.11 rad nearer the rest: the zero, and θa,c, that far off.
+    let off = check.stop_from_rest_rad - p.stop_from_rest_rad;
+    assert!(off.abs() > 0.05, "the stops differ by {off} rad only");
+    if let Some(tp) = th_paper {
+        assert!(
+            (tp - reference).abs() > 0.5 * off.abs(),
+            "θa,c {tp} vs {reference}"
+        );
+    }
+}

@@ -1109,6 +1109,10 @@ fn calibrated_file(nominal: &FingerFile, p: &[f64; 9]) -> Result<FingerFile, Cal
     file.finger.k2 = p[1];
     file.finger.theta01 = p[2];
     file.finger.theta02 = p[3];
+    // The sweeps do not see the stops: they keep their offsets from the rest angles (a rest
+    // angle identified below a nominal stop would otherwise be refused).
+    file.stops.theta1_min_rad += p[2] - nominal.finger.theta01;
+    file.stops.theta2_min_rad += p[3] - nominal.finger.theta02;
     file.drive.inertia_kgm2 = p[7].max(0.0);
     let off_a = nominal.current_from_torque(p[8]);
     let zero =

@@ -84,7 +84,7 @@ pub struct SimOptions {
 pub fn finger_scene(scene: Scene, file: &pts::config::FingerFile) -> Result<(Scene, f64), String> {
     let cfg = crate::replay::controller_config(file, scene.dt_s)?;
     Ok((
-        sim_board::scene_for_finger(scene, &file.finger, &cfg.drive),
+        sim_board::scene_for_finger(scene, &file.finger, &cfg.drive, &file.stops),
         cfg.overcurrent_a,
     ))
 }

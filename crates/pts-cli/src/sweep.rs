@@ -84,6 +84,10 @@ impl Perturbation {
         f.finger.k2 *= self.k2_factor;
         f.finger.theta01 += self.theta01_deg.to_radians();
         f.finger.theta02 += self.theta02_deg.to_radians();
+        // The stops keep their place relative to the rest angles: a rest angle moved below
+        // its stop would leave the simulated finger preloaded against it.
+        f.stops.theta1_min_rad += self.theta01_deg.to_radians();
+        f.stops.theta2_min_rad += self.theta02_deg.to_radians();
         f.drive.inertia_kgm2 *= self.inertia_factor;
         f
     }
@@ -93,7 +97,7 @@ impl Perturbation {
     /// sensor model (offset, gain error, noise) stays.
     pub fn scene(&self, base: Scene, nominal: &FingerFile) -> Result<Scene, String> {
         let truth = self.apply_to_file(nominal);
-        // (The plant's extension stops follow the rest angles: `sim_board::scene_for_finger`.)
+        // (The plant's extension stops are the true file's, moved with its rest angles.)
         let (mut scene, _) = crate::sim::finger_scene(base, &truth)?;
         let d = &mut scene.drive;
         d.coulomb_nm *= self.friction_factor;

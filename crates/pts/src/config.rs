@@ -41,7 +41,7 @@
 
 extern crate std;
 
-use crate::{Finger, Model};
+use crate::{Finger, Model, Stops};
 use serde::Deserialize;
 use std::fmt;
 use std::format;
@@ -164,6 +164,8 @@ pub struct FingerFile {
     pub encoder: Encoder,
     /// Current-sense scaling.
     pub current_sense: CurrentSense,
+    /// Extension stops.
+    pub stops: Stops,
 }
 
 impl Default for FingerFile {
@@ -211,6 +213,7 @@ impl FingerFile {
             motor: Self::PAPER_MOTOR,
             encoder: Self::PAPER_ENCODER,
             current_sense: Self::PAPER_CURRENT_SENSE,
+            stops: Stops::below_rest(&Finger::PAPER),
         }
     }
 
@@ -288,7 +291,8 @@ impl FingerFile {
              [drive]\ngear_ratio = {gr:?}\nefficiency = {eff:?}\ninertia_kgm2 = {jd:?}\nbacklash_rad = {bl:?}\n\n\
              [motor]\nkt_nm_per_a = {kt:?}\nresistance_ohm = {r:?}\nsupply_v = {v:?}\nmax_current_a = {imax:?}\n\n\
              [encoder]\ncounts_per_rev = {cpr}\n\n\
-             [current_sense]\namps_per_count = {apc:?}\nzero_count = {zc}\nadc_bits = {bits}\n",
+             [current_sense]\namps_per_count = {apc:?}\nzero_count = {zc}\nadc_bits = {bits}\n\n\
+             [stops]\ntheta1_min_rad = {s1:?}\ntheta2_min_rad = {s2:?}\nstiffness_nm_per_rad = {sk:?}\n",
             name = self.name,
             l1 = f.l1,
             l2 = f.l2,
@@ -312,6 +316,9 @@ impl FingerFile {
             apc = cs.amps_per_count,
             zc = cs.zero_count,
             bits = cs.adc_bits,
+            s1 = self.stops.theta1_min_rad,
+            s2 = self.stops.theta2_min_rad,
+            sk = self.stops.stiffness_nm_per_rad,
         )
     }
 }
@@ -332,6 +339,7 @@ struct RawFile {
     motor: RawMotor,
     encoder: RawEncoder,
     current_sense: RawCurrentSense,
+    stops: RawStops,
 }
 
 #[derive(Deserialize, Default)]
@@ -370,6 +378,14 @@ struct RawMotor {
     resistance_ohm: Option<f64>,
     supply_v: Option<f64>,
     max_current_a: Option<f64>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawStops {
+    theta1_min_rad: Option<f64>,
+    theta2_min_rad: Option<f64>,
+    stiffness_nm_per_rad: Option<f64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -437,6 +453,7 @@ impl RawFile {
                 1 << 24,
             )?,
         };
+        let stops = self.stops(&finger)?;
         Ok(FingerFile {
             name: self.name.unwrap_or_else(|| "unnamed finger".to_string()),
             finger,
@@ -444,6 +461,53 @@ impl RawFile {
             motor,
             encoder,
             current_sense,
+            stops,
+        })
+    }
+
+    /// `[stops]`: each below its rest angle (missing: [`Stops::below_rest`]).
+    fn stops(&self, finger: &Finger) -> Result<Stops, ConfigError> {
+        let d = Stops::below_rest(finger);
+        let s = &self.stops;
+        let below = |key: &str, v: Option<f64>, default: f64, rest: f64, joint: &str| {
+            let Some(x) = v else { return Ok(default) };
+            if x.is_finite() && x < rest && x >= rest - 1.0 {
+                Ok(x)
+            } else {
+                Err(ConfigError::invalid(
+                    key,
+                    format!(
+                        "{x} is not physical: expected a finite value in [{}, {rest}) rad, below \
+                         the rest angle {joint} = {rest} by at most 1 rad",
+                        rest - 1.0
+                    ),
+                ))
+            }
+        };
+        Ok(Stops {
+            theta1_min_rad: below(
+                "stops.theta1_min_rad",
+                s.theta1_min_rad,
+                d.theta1_min_rad,
+                finger.theta01,
+                "springs.theta01_rad",
+            )?,
+            theta2_min_rad: below(
+                "stops.theta2_min_rad",
+                s.theta2_min_rad,
+                d.theta2_min_rad,
+                finger.theta02,
+                "springs.theta02_rad",
+            )?,
+            stiffness_nm_per_rad: real(
+                "stops.stiffness_nm_per_rad",
+                s.stiffness_nm_per_rad,
+                d.stiffness_nm_per_rad,
+                0.0,
+                false,
+                1e7,
+                "N·m/rad",
+            )?,
         })
     }
 
@@ -670,8 +734,63 @@ mod tests {
         let mut f = FingerFile::paper();
         f.finger.k1 = 0.5;
         f.drive.gear_ratio = 100.0;
+        f.stops.theta2_min_rad = -0.125;
         let g = FingerFile::from_toml_str(&f.to_toml_string()).unwrap();
         assert_eq!(f, g);
+    }
+
+    #[test]
+    fn stops_default_below_the_file_s_rest_angles_and_are_checked() {
+        // The prototype's: π/4 − 0.05 and −0.05 (the simulated plant's `FingerGeom::PAPER`).
+        let p = FingerFile::paper().stops;
+        assert_eq!(p.theta1_min_rad, core::f64::consts::FRAC_PI_4 - 0.05);
+        assert_eq!(p.theta2_min_rad, -0.05);
+        // Without [stops], they follow the file's rest angles.
+        let f =
+            FingerFile::from_toml_str("[springs]\ntheta01_rad = 0.6\ntheta02_rad = 0.1\n").unwrap();
+        assert_eq!(f.stops.theta1_min_rad, 0.6 - 0.05);
+        assert_eq!(f.stops.theta2_min_rad, 0.1 - 0.05);
+        let f = FingerFile::from_toml_str(
+            "[stops]\ntheta1_min_rad = 0.7\ntheta2_min_rad = -0.2\nstiffness_nm_per_rad = 50\n",
+        )
+        .unwrap();
+        assert_eq!(f.stops.theta1_min_rad, 0.7);
+        assert_eq!(f.stops.theta2_min_rad, -0.2);
+        assert_eq!(f.stops.stiffness_nm_per_rad, 50.0);
+        // At or above the rest angle, more than 1 rad below, or a stiffness ≤ 0: named, with
+        // the range.
+        for (text, key, range) in [
+            (
+                "[stops]\ntheta1_min_rad = 0.8",
+                "stops.theta1_min_rad",
+                "0.785",
+            ),
+            (
+                "[stops]\ntheta1_min_rad = -0.3",
+                "stops.theta1_min_rad",
+                "-0.214",
+            ),
+            (
+                "[stops]\ntheta2_min_rad = 0.0",
+                "stops.theta2_min_rad",
+                "[-1, 0)",
+            ),
+            (
+                "[stops]\ntheta2_min_rad = nan",
+                "stops.theta2_min_rad",
+                "[-1, 0)",
+            ),
+            (
+                "[stops]\nstiffness_nm_per_rad = 0",
+                "stops.stiffness_nm_per_rad",
+                "(0, 10000000]",
+            ),
+            ("[stops]\nangle = 1", "stops.angle", ""),
+        ] {
+            let e = FingerFile::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key(), key, "{text}: {e}");
+            assert!(e.to_string().contains(range), "{text}: {e}");
+        }
     }
 
     #[test]

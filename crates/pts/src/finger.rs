@@ -75,3 +75,30 @@ impl Finger {
         Ok(())
     }
 }
+
+/// The finger's extension stops: where it rests against when opened, which the firmware's rest
+/// check finds before it zeroes the encoder.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Stops {
+    /// Proximal extension stop, absolute θ1 (rad); below the rest angle θ0,1, by at most 1 rad.
+    pub theta1_min_rad: f64,
+    /// Distal extension stop, relative θ2 (rad); below the rest angle θ0,2, by at most 1 rad.
+    pub theta2_min_rad: f64,
+    /// Stiffness of a stop (N·m/rad), in (0, 1e7].
+    pub stiffness_nm_per_rad: f64,
+}
+
+impl Stops {
+    /// Below each rest angle by as much as the prototype's (0.05 rad), the prototype's
+    /// stiffness (200 N·m/rad): the default for a file without `[stops]`.
+    pub const fn below_rest(finger: &Finger) -> Stops {
+        Stops {
+            theta1_min_rad: finger.theta01 - Self::PAPER_BELOW_REST_RAD,
+            theta2_min_rad: finger.theta02 - Self::PAPER_BELOW_REST_RAD,
+            stiffness_nm_per_rad: 200.0,
+        }
+    }
+
+    /// How far below its rest angle each of the prototype's stops sits (rad).
+    pub const PAPER_BELOW_REST_RAD: f64 = 0.05;
+}

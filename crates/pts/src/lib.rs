@@ -23,7 +23,7 @@ pub mod real;
 pub mod table;
 
 pub use error::PtsError;
-pub use finger::Finger;
+pub use finger::{Finger, Stops};
 pub use model::{Closure, Config, Contact, Estimate, Model, Phalanx};
 pub use real::Real;
 

@@ -92,12 +92,17 @@ impl Hardware for PlantBoard {
     }
 }
 
-/// The scene with its finger replaced by `finger` (geometry and springs; the mechanical stops and
-/// the structure's stiffness stay the scene's) and its drive's nominal constants by `drive`'s
+/// The scene with its finger replaced by `finger` (geometry and springs), its extension stops by
+/// `stops` (the flexion stops stay the scene's) and its drive's nominal constants by `drive`'s
 /// (gear ratio, efficiency, motor constant, resistance, supply, the rotor inertia behind the
 /// drive's effective inertia, backlash; the friction and sensor models stay the scene's): the
 /// plant built from the same finger the controller is.
-pub fn scene_for_finger(mut scene: Scene, finger: &pts::Finger, drive: &DriveConfig) -> Scene {
+pub fn scene_for_finger(
+    mut scene: Scene,
+    finger: &pts::Finger,
+    drive: &DriveConfig,
+    stops: &pts::Stops,
+) -> Scene {
     let g = &mut scene.finger;
     g.l1_m = finger.l1;
     g.l2_m = finger.l2;
@@ -105,11 +110,9 @@ pub fn scene_for_finger(mut scene: Scene, finger: &pts::Finger, drive: &DriveCon
     g.b_m = finger.b;
     g.c_m = finger.c;
     g.phi2_rad = finger.phi2;
-    // The extension stops keep their place relative to the rest angles (a finger file has no
-    // stops; the plant's rest pose sits above each), so that any rest angle the file may hold
-    // builds a plant.
-    g.theta1_min_rad += finger.theta01 - g.theta01_rad;
-    g.theta2_min_rad += finger.theta02 - g.theta02_rad;
+    g.theta1_min_rad = stops.theta1_min_rad;
+    g.theta2_min_rad = stops.theta2_min_rad;
+    g.k_lock_nm_per_rad = stops.stiffness_nm_per_rad;
     g.theta01_rad = finger.theta01;
     g.theta02_rad = finger.theta02;
     g.k1_nm_per_rad = finger.k1;
@@ -152,6 +155,17 @@ pub fn scene_drive(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
         inertia_kgm2: d.eff_drive * d.rotor_inertia_kgm2 * d.gear_ratio * d.gear_ratio,
         backlash_rad: d.backlash_rad,
     }
+}
+
+/// The rest check for a finger, its drive and its stops (a finger file's): [`scene_rest_check`]
+/// of the plant built from them ([`scene_for_finger`] on the default scene, whose drive
+/// friction a finger file does not describe). What the board's build takes (build.rs).
+pub fn finger_rest_check(
+    finger: &pts::Finger,
+    drive: &DriveConfig,
+    stops: &pts::Stops,
+) -> Option<RestCheck> {
+    scene_rest_check(&scene_for_finger(Scene::DEFAULT, finger, drive, stops))
 }
 
 /// The rest check for a simulated finger: its open stop (both joints on their extension stops)
