@@ -679,7 +679,65 @@ impl ControllerConfig {
             "path fit's",
             crate::path_table(&file.finger, &cfg.drive, (dt_s * 1e9) as u32).map(|_| ()),
         )?;
+        cfg.detection_separates(&file.finger)
+            .map_err(|m| invalid("springs", m))?;
         Ok(cfg)
+    }
+}
+
+impl ControllerConfig {
+    /// The contact detection must take this finger's free motion for free and its softest
+    /// contact for a contact: over the approach (T_a from 0 to
+    /// [`ControllerConfig::approach_max_nm`]) the free-motion stiffness stays at or below half
+    /// [`ControllerConfig::detect_stiffness_nm_per_rad`] (the detection reads it through the
+    /// drive's friction and the approach's dynamics), and every contact (proximal, and distal
+    /// from 2 % of l2 to the tip) is at least as stiff as the threshold, else it is missed. `Err` says which side
+    /// fails, with the finger's stiffnesses.
+    #[cfg(feature = "std")]
+    pub fn detection_separates(&self, finger: &Finger) -> Result<(), std::string::String> {
+        use std::format;
+        let model = pts::Model::<f64>::new(finger).map_err(|e| format!("{e:?}"))?;
+        let thr = self.detect_stiffness_nm_per_rad;
+        let (mut free_max, mut contact_min) = (0.0f64, (f64::INFINITY, ""));
+        const STEPS: u32 = 16;
+        for i in 0..=STEPS {
+            let ta = self.approach_max_nm * f64::from(i) / f64::from(STEPS);
+            let c = model.free_from_torque(ta).map_err(|e| {
+                format!("the free motion at T_a = {ta:.3} N·m cannot be solved ({e:?})")
+            })?;
+            if let Ok(k) = model.kc_free(c.theta2, ta) {
+                free_max = free_max.max(k);
+            }
+            if let Ok(k) = model.kc_proximal(c.theta2, ta) {
+                if k < contact_min.0 {
+                    contact_min = (k, "a proximal contact");
+                }
+            }
+            for j in 1..=10 {
+                let k2 = finger.l2 * (0.02 + 0.098 * f64::from(j - 1));
+                if let Ok(k) = model.kc_distal(c.theta2, ta, k2) {
+                    if k < contact_min.0 {
+                        contact_min = (k, "a distal contact");
+                    }
+                }
+            }
+        }
+        if 2.0 * free_max > thr {
+            return Err(format!(
+                "the free motion is up to {free_max:.3} N·m/rad stiff over the approach: the \
+                 contact detection's threshold of {thr} N·m/rad would take it for a contact \
+                 (allowed: free motion up to half the threshold, {:.3} N·m/rad)",
+                0.5 * thr
+            ));
+        }
+        if contact_min.0 < thr {
+            return Err(format!(
+                "{} is only {:.3} N·m/rad stiff: below the contact detection's threshold of \
+                 {thr} N·m/rad, the detection would miss it",
+                contact_min.1, contact_min.0
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -1029,6 +1087,37 @@ mod file_tests {
             .with_finger_file(&f, 1e-4)
             .unwrap_err();
         assert_eq!(key_of(e), "motor.max_current_a");
+    }
+
+    /// The detection's threshold (1.5 N·m/rad) between the free motion and the softest
+    /// contact: the paper's finger (free ≤ 0.58, proximal 2.59 N·m/rad) passes; springs three
+    /// times stiffer make the free motion up to 1.65 N·m/rad (above the threshold itself: a
+    /// contact for the detection), and a distal spring a third as stiff leaves a proximal
+    /// contact at 0.86 N·m/rad (missed by the detection): both refused under `springs`, with the
+    /// stiffness named. The free motion's stiffness is checked by finite differences of the
+    /// free-motion solution, independently of the model's closed form.
+    #[test]
+    fn a_finger_the_contact_detection_cannot_see_is_refused() {
+        let cfg = ControllerConfig::DEFAULT;
+        assert!(cfg.detection_separates(&Finger::PAPER).is_ok());
+        let mut f = FingerFile::paper();
+        f.finger.k1 *= 3.0;
+        f.finger.k2 *= 3.0;
+        let e = cfg.with_finger_file(&f, 1e-4).unwrap_err();
+        assert_eq!(key_of(e.clone()), "springs", "{e}");
+        assert!(e.to_string().contains("would take it for a contact"), "{e}");
+        // The free motion's stiffness as the detection sees it: ΔT_a/Δθa along free motion.
+        let m = Model::<f64>::new(&f.finger).unwrap();
+        let th = |t: f64| m.free_from_torque(t).unwrap().theta_a;
+        let k_fd = 0.2 / (th(1.5) - th(1.3));
+        std::println!("{e}; finite differences: {k_fd:.3} N·m/rad");
+        assert!(k_fd > 1.5, "free stiffness {k_fd}");
+        let mut f = FingerFile::paper();
+        f.finger.k2 /= 3.0;
+        let e = cfg.with_finger_file(&f, 1e-4).unwrap_err();
+        assert_eq!(key_of(e.clone()), "springs", "{e}");
+        std::println!("{e}");
+        assert!(e.to_string().contains("a proximal contact is only"), "{e}");
     }
 
     #[test]
