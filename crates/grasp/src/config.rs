@@ -691,8 +691,8 @@ impl ControllerConfig {
     /// [`ControllerConfig::approach_max_nm`]) the free-motion stiffness stays at or below half
     /// [`ControllerConfig::detect_stiffness_nm_per_rad`] (the detection reads it through the
     /// drive's friction and the approach's dynamics), and every contact (proximal, and distal
-    /// from 2 % of l2 to the tip) is at least as stiff as the threshold, else it is missed. `Err` says which side
-    /// fails, with the finger's stiffnesses.
+    /// from 2 % of l2 to the tip) is at least as stiff as the threshold, else it is missed.
+    /// `Err` says which side fails, with the finger's stiffnesses.
     #[cfg(feature = "std")]
     pub fn detection_separates(&self, finger: &Finger) -> Result<(), std::string::String> {
         use std::format;
@@ -713,8 +713,8 @@ impl ControllerConfig {
                     contact_min = (k, "a proximal contact");
                 }
             }
-            for j in 1..=10 {
-                let k2 = finger.l2 * (0.02 + 0.098 * f64::from(j - 1));
+            for j in 0..10 {
+                let k2 = finger.l2 * (0.02 + 0.98 * f64::from(j) / 9.0);
                 if let Ok(k) = model.kc_distal(c.theta2, ta, k2) {
                     if k < contact_min.0 {
                         contact_min = (k, "a distal contact");
