@@ -696,8 +696,40 @@ impl ControllerConfig {
     #[cfg(feature = "std")]
     pub fn detection_separates(&self, finger: &Finger) -> Result<(), std::string::String> {
         use std::format;
-        let model = pts::Model::<f64>::new(finger).map_err(|e| format!("{e:?}"))?;
+        let DetectionStiffness {
+            free_max_nm_per_rad: free_max,
+            contact_min_nm_per_rad,
+            softest,
+        } = self.detection_stiffness(finger)?;
+        let contact_min = (contact_min_nm_per_rad, softest);
         let thr = self.detect_stiffness_nm_per_rad;
+        if 2.0 * free_max > thr {
+            return Err(format!(
+                "the free motion is up to {free_max:.3} N·m/rad stiff over the approach: the \
+                 contact detection's threshold of {thr} N·m/rad would take it for a contact \
+                 (allowed: free motion up to half the threshold, {:.3} N·m/rad)",
+                0.5 * thr
+            ));
+        }
+        if contact_min.0 < thr {
+            return Err(format!(
+                "{} is only {:.3} N·m/rad stiff: below the contact detection's threshold of \
+                 {thr} N·m/rad, the detection would miss it",
+                contact_min.1, contact_min.0
+            ));
+        }
+        Ok(())
+    }
+
+    /// The stiffnesses [`ControllerConfig::detection_separates`] compares with the threshold:
+    /// the free motion's largest over the approach and the softest contact's.
+    #[cfg(feature = "std")]
+    pub fn detection_stiffness(
+        &self,
+        finger: &Finger,
+    ) -> Result<DetectionStiffness, std::string::String> {
+        use std::format;
+        let model = pts::Model::<f64>::new(finger).map_err(|e| format!("{e:?}"))?;
         let (mut free_max, mut contact_min) = (0.0f64, (f64::INFINITY, ""));
         const STEPS: u32 = 16;
         for i in 0..=STEPS {
@@ -722,23 +754,24 @@ impl ControllerConfig {
                 }
             }
         }
-        if 2.0 * free_max > thr {
-            return Err(format!(
-                "the free motion is up to {free_max:.3} N·m/rad stiff over the approach: the \
-                 contact detection's threshold of {thr} N·m/rad would take it for a contact \
-                 (allowed: free motion up to half the threshold, {:.3} N·m/rad)",
-                0.5 * thr
-            ));
-        }
-        if contact_min.0 < thr {
-            return Err(format!(
-                "{} is only {:.3} N·m/rad stiff: below the contact detection's threshold of \
-                 {thr} N·m/rad, the detection would miss it",
-                contact_min.1, contact_min.0
-            ));
-        }
-        Ok(())
+        Ok(DetectionStiffness {
+            free_max_nm_per_rad: free_max,
+            contact_min_nm_per_rad: contact_min.0,
+            softest: contact_min.1,
+        })
     }
+}
+
+/// What the contact detection has to tell apart on a finger
+/// ([`ControllerConfig::detection_stiffness`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DetectionStiffness {
+    /// Largest free-motion stiffness over the approach (N·m/rad).
+    pub free_max_nm_per_rad: f64,
+    /// Smallest contact stiffness (N·m/rad).
+    pub contact_min_nm_per_rad: f64,
+    /// Which contact that is ("a proximal contact" or "a distal contact").
+    pub softest: &'static str,
 }
 
 /// Resolution of the ADC the controller reads (bits): the STM32F411's, and the simulated board's.

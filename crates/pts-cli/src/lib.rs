@@ -47,6 +47,33 @@ pub fn load_finger_model(path: Option<&Path>) -> Result<FingerFile, String> {
     FingerFile::from_toml_str(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// What the firmware derives from a finger description, as TOML comments (`pts finger`
+/// prints them under the file, which still reads back as the same file): the rest pose, the
+/// open stop the rest check homes against and the springs' torque there, and the stiffnesses
+/// the contact detection tells apart.
+pub fn finger_derived(file: &FingerFile) -> Result<String, String> {
+    let cfg = replay::controller_config(file, grasp::DriveConfig::DEFAULT.dt_s)?;
+    let rest = cfg.drive.theta_a_rest_rad;
+    let check = sim_board::finger_rest_check(&file.finger, &cfg.drive, &file.stops)
+        .ok_or("the rest or open-stop pose cannot be solved")?;
+    let d = cfg.detection_stiffness(&file.finger)?;
+    let thr = cfg.detect_stiffness_nm_per_rad;
+    Ok(format!(
+        "# Derived by the firmware's build (comments, not read back):\n\
+         #   rest pose θa = {rest:.5} rad; open stop {:.5} rad from it, the springs holding \
+         {:.4} N·m there (the rest check)\n\
+         #   contact detection at {thr} N·m/rad: free motion up to {:.3} N·m/rad over the \
+         approach (allowed: up to {:.3}), softest contact {:.3} N·m/rad, {} (allowed: from \
+         {thr})",
+        check.stop_from_rest_rad,
+        check.stop_spring_nm,
+        d.free_max_nm_per_rad,
+        0.5 * thr,
+        d.contact_min_nm_per_rad,
+        d.softest,
+    ))
+}
+
 /// Loads a finger description, or the paper's prototype when no file is given, checked as the
 /// controller checks it (drive, limits, both estimators' tables).
 pub fn load_finger(path: Option<&Path>) -> Result<FingerFile, String> {

@@ -890,8 +890,11 @@ fn main() -> ExitCode {
             firmware: c.firmware,
         }),
         Cmd::Board(args) => return run_board(args),
-        Cmd::Finger { finger } => pts_cli::load_finger(finger.as_deref())
-            .map(|f| pts_cli::outln!("{}", f.to_toml_string().trim_end())),
+        Cmd::Finger { finger } => pts_cli::load_finger(finger.as_deref()).and_then(|f| {
+            let derived = pts_cli::finger_derived(&f)?;
+            pts_cli::outln!("{}\n\n{derived}", f.to_toml_string().trim_end());
+            Ok(())
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -72,3 +72,30 @@ fn a_finger_the_estimators_cannot_model_is_refused_by_pts_finger() {
         assert!(err.contains(key) && err.contains(range), "{name}: {err}");
     }
 }
+
+/// `pts finger` prints the file and, as comments, what the firmware's build derives from it;
+/// the printout reads back as the same finger. For the paper's finger the rest check's stop is
+/// the hand-written prototype's (81.53 mrad below rest, 0.0444 N·m of spring there: MODEL.md's
+/// geometry through `grasp::RestCheck::PAPER`), and the detection's margins are printed.
+#[test]
+fn pts_finger_prints_what_the_build_derives() {
+    let out = pts(&["finger"]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    let back = pts::config::FingerFile::from_toml_str(&text).expect("reads back");
+    assert_eq!(back, pts::config::FingerFile::paper());
+    let stop = text
+        .lines()
+        .find(|l| l.starts_with("#   rest pose"))
+        .unwrap_or_else(|| panic!("{text}"));
+    assert!(
+        stop.contains("open stop -0.08153 rad") && stop.contains("holding 0.0444 N·m"),
+        "{stop}"
+    );
+    let det = text
+        .lines()
+        .find(|l| l.starts_with("#   contact detection at 1.5 N·m/rad"))
+        .unwrap_or_else(|| panic!("{text}"));
+    assert!(det.contains("(allowed: up to 0.750)"), "{det}");
+    assert!(det.contains("a proximal contact"), "{det}");
+}
