@@ -202,10 +202,8 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64) -> Case {
     // The estimator's measurement model of this scene's drive (ideal: η = 1, no backlash), as
     // the controller's drive carries it to the firmware's estimate.
     let d = &scene.drive;
-    let mut cfg = PathFitConfig::DEFAULT.for_drive(
-        d.rotor_inertia_kgm2,
-        d.gear_ratio,
-        d.eff_drive,
+    let mut cfg = PathFitConfig::DEFAULT.with_drive_model(
+        d.eff_drive * d.rotor_inertia_kgm2 * d.gear_ratio * d.gear_ratio,
         d.backlash_rad,
     );
     assert_eq!(cfg, ccfg.drive.path_fit_config());

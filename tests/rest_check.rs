@@ -30,29 +30,34 @@ fn theta_c(o: &Outcome) -> f64 {
     }
 }
 
+/// Drives the plant of `s` open at the stall duty of `c`'s opening torque for `ticks`; returns
+/// its truth there, with θa and the gear's angle from the plant's rest, and θa from rest where
+/// `c` expects the lock: the stop less the stop's compliance under the opening torque net of
+/// the springs' share and the friction. The plant's truth, independent of the check's code.
+fn drive_open(s: &Scene, c: &RestCheck, ticks: u32) -> (plant::Truth, f64, f64, f64) {
+    let mut p = Plant::new(s).unwrap();
+    let rest = p.theta_a_rest_rad();
+    let d = drive_config(s);
+    let stall_full = d.torque_per_amp() * d.bus_v / d.resistance_ohm;
+    for _ in 0..ticks {
+        p.step(-c.open_torque_nm / stall_full);
+    }
+    let t = p.truth();
+    let expect = c.stop_from_rest_rad
+        - (c.open_torque_nm - c.stop_spring_nm - c.friction_nm) * c.stop_compliance_rad_per_nm;
+    (t, t.theta_a_rad - rest, t.gear_out_rad - rest, expect)
+}
+
 /// The stop the check assumes is where the plant's finger locks: both joints on their
 /// extension stops, found by driving it open with the check's torque (independent of the
 /// check's own code: the plant's truth).
 #[test]
 fn the_paper_stop_angle_is_where_the_plant_locks() {
-    let s = plant::scenes::table2();
-    let mut p = Plant::new(&s).unwrap();
-    let rest = p.theta_a_rest_rad();
-    let d = drive_config(&s);
-    let stall_full = d.torque_per_amp() * d.bus_v / d.resistance_ohm;
-    let duty = RestCheck::PAPER.open_torque_nm / stall_full;
-    for _ in 0..30_000 {
-        p.step(-duty);
-    }
-    let t = p.truth();
-    assert_eq!(t.contact, plant::ContactState::Locked);
     let c = RestCheck::PAPER;
-    let expect = c.stop_from_rest_rad
-        - (c.open_torque_nm - c.stop_spring_nm - c.friction_nm) * c.stop_compliance_rad_per_nm;
-    let got = t.theta_a_rad - rest;
+    let (t, got, gear, expect) = drive_open(&plant::scenes::table2(), &c, 30_000);
+    assert_eq!(t.contact, plant::ContactState::Locked);
     println!("plant locks at {got:.5} rad from rest, the check assumes {expect:.5}");
     // The encoder is on the motor: the gear sits on its opening flank there.
-    let gear = t.gear_out_rad - rest;
     let expect_gear = expect - 0.5 * c.backlash_rad;
     println!("gear at {gear:.5} rad from rest, the check assumes {expect_gear:.5}");
     assert!((gear - expect_gear).abs() < 3e-4, "{gear} vs {expect_gear}");
@@ -240,20 +245,10 @@ fn a_finger_file_s_stops_reach_the_rest_check() {
         "stop from rest: file {:.5} rad (paper {:.5}), springs there {:.4} N·m (paper {:.4})",
         check.stop_from_rest_rad, p.stop_from_rest_rad, check.stop_spring_nm, p.stop_spring_nm
     );
-    // Where the plant locks when driven open, against where the check expects it.
-    let mut plant = Plant::new(&at(0.0)).unwrap();
-    let rest = plant.theta_a_rest_rad();
-    let stall_full = drive.torque_per_amp() * drive.bus_v / drive.resistance_ohm;
-    // 6 s: the drive opens at about 0.07 rad/s.
-    for _ in 0..60_000 {
-        plant.step(-check.open_torque_nm / stall_full);
-    }
-    let t = plant.truth();
+    // Where the plant locks when driven open (6 s: the drive opens at about 0.07 rad/s),
+    // against where the check expects it.
+    let (t, got, _, expect) = drive_open(&at(0.0), &check, 60_000);
     assert_eq!(t.contact, plant::ContactState::Locked);
-    let expect = check.stop_from_rest_rad
-        - (check.open_torque_nm - check.stop_spring_nm - check.friction_nm)
-            * check.stop_compliance_rad_per_nm;
-    let got = t.theta_a_rad - rest;
     println!("plant locks at {got:.5} rad from rest, the file's check expects {expect:.5}");
     // The check's stop model (both joints on their stops, 1/k of compliance at the crank) is
     // approximate beyond the prototype's stops: within 1 mrad here (30 encoder counts, under

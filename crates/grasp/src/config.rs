@@ -73,13 +73,9 @@ impl DriveConfig {
     }
 
     /// The path fit's configuration for this drive: the default fit with the drive's inertia
-    /// and encoder lead (half the backlash).
+    /// and backlash ([`pathfit::PathFitConfig::with_drive_model`]).
     pub const fn path_fit_config(&self) -> pathfit::PathFitConfig {
-        pathfit::PathFitConfig {
-            inertia_kgm2: self.inertia_kgm2,
-            encoder_lead_rad: 0.5 * self.backlash_rad,
-            ..pathfit::PathFitConfig::DEFAULT
-        }
+        pathfit::PathFitConfig::DEFAULT.with_drive_model(self.inertia_kgm2, self.backlash_rad)
     }
 }
 
@@ -698,10 +694,9 @@ impl ControllerConfig {
         use std::format;
         let DetectionStiffness {
             free_max_nm_per_rad: free_max,
-            contact_min_nm_per_rad,
+            contact_min_nm_per_rad: contact_min,
             softest,
         } = self.detection_stiffness(finger)?;
-        let contact_min = (contact_min_nm_per_rad, softest);
         let thr = self.detect_stiffness_nm_per_rad;
         if 2.0 * free_max > thr {
             return Err(format!(
@@ -711,11 +706,10 @@ impl ControllerConfig {
                 0.5 * thr
             ));
         }
-        if contact_min.0 < thr {
+        if contact_min < thr {
             return Err(format!(
-                "{} is only {:.3} N·m/rad stiff: below the contact detection's threshold of \
-                 {thr} N·m/rad, the detection would miss it",
-                contact_min.1, contact_min.0
+                "{softest} is only {contact_min:.3} N·m/rad stiff: below the contact detection's \
+                 threshold of {thr} N·m/rad, the detection would miss it"
             ));
         }
         Ok(())

@@ -185,14 +185,14 @@ pub struct PathFitConfig {
     /// finger on its contact stiffness is a slow oscillator (≈ 2 Hz for the paper's finger
     /// on an RE10 with 3072:1), so θ̈a from the samples' second differences is removed with
     /// this coefficient (J N² alone over-corrects by 1/η: 60 % on the paper's drive). 0: off.
-    /// See [`PathFitConfig::for_drive`].
+    /// See [`PathFitConfig::with_drive_model`].
     pub inertia_kgm2: f64,
     /// How far the encoder angle leads the finger's θa while the drive loads it in flexion
     /// (rad): the encoder is on the motor shaft, the backlash sits between, and after the
     /// rest-pose zeroing the gear crosses half the backlash before it pushes the finger. The
     /// caller's θa,c and the samples are encoder angles; the contact configuration is taken
     /// at θa,c minus this (on the plant: θa,meas − θa = 1.46–1.49 mrad along the whole
-    /// loading, backlash 3 mrad). See [`PathFitConfig::for_drive`].
+    /// loading, backlash 3 mrad). See [`PathFitConfig::with_drive_model`].
     pub encoder_lead_rad: f64,
     /// A sample is used only while its θa stays within this (rad) of every later sample's:
     /// drops the overshoot after impact (≈ 10 mrad on the paper's finger), keeps the
@@ -249,19 +249,14 @@ impl PathFitConfig {
         contact_mu: 0.0,
     };
 
-    /// This configuration with the measurement model of a drive: rotor inertia (kg·m²), total
-    /// gear ratio, driving efficiency η (the one the board's torque conversion uses) and
-    /// backlash at the base link (rad). [`PathFitConfig::DEFAULT`] is the paper's finger on
-    /// the RE10 + GP10A drive (7.0e-9 kg·m², 3072, 0.6175, 3 mrad).
-    pub const fn for_drive(
-        self,
-        rotor_inertia_kgm2: f64,
-        gear_ratio: f64,
-        efficiency: f64,
-        backlash_rad: f64,
-    ) -> Self {
+    /// This configuration with the measurement model of a drive: its inertia as the measured
+    /// torque sees it (kg·m²; η × rotor inertia × gear ratio²) and its backlash at the base
+    /// link (rad), of which the encoder leads by half while the drive loads in flexion.
+    /// [`PathFitConfig::DEFAULT`] is the paper's finger on the RE10 + GP10A drive
+    /// (η 0.6175 × 7.0e-9 kg·m² × 3072², 3 mrad).
+    pub const fn with_drive_model(self, inertia_kgm2: f64, backlash_rad: f64) -> Self {
         PathFitConfig {
-            inertia_kgm2: efficiency * rotor_inertia_kgm2 * gear_ratio * gear_ratio,
+            inertia_kgm2,
             encoder_lead_rad: 0.5 * backlash_rad,
             ..self
         }
