@@ -12,7 +12,9 @@
 //! `cargo test --release --test pathfit_grid -- --nocapture` prints the tables;
 //! `PATHFIT_NO_SEATING=RATE` (N·m/s) runs the grid without the seating stages, the step a ramp
 //! of RATE (printed only: the guards below are the seated controller's);
-//! `PATHFIT_INERTIA_SCALE=F` fits with F × the drive's inertia (printed only too).
+//! `PATHFIT_INERTIA_SCALE=F` fits with F × the drive's inertia (printed only too);
+//! `PATHFIT_GAIN_ERROR=G` gives the realistic plant's current sensor the relative gain error G
+//! (the scene's is +0.01; printed only), which the estimate cannot see without calibration.
 //! (Owned by the pathfit helper; the harness in `tests/common` is the grasp owner's.)
 mod common;
 
@@ -48,6 +50,15 @@ fn no_seating() -> Option<f64> {
 /// computation, so the check that the tables score what ships is skipped.
 fn inertia_scale() -> Option<f64> {
     positive_env("PATHFIT_INERTIA_SCALE")
+}
+
+/// `PATHFIT_GAIN_ERROR=G`: the realistic plant's current-sensor gain error (relative, |G| ≤
+/// 0.1; the scene's own is +0.01).
+fn gain_error() -> Option<f64> {
+    std::env::var("PATHFIT_GAIN_ERROR")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|g| g.is_finite() && g.abs() <= 0.1)
 }
 
 /// No diagnosis variable changes this test's fit from the firmware's: the check that the
@@ -696,6 +707,9 @@ fn pathfit_grid_on_the_plant() {
     {
         real_scene.sensors.seed = seed;
     }
+    if let Some(g) = gain_error() {
+        real_scene.sensors.gain_error = g;
+    }
     let real = run_grid(real_scene);
     // The tables below score the integer kernel through this test's adapter; the firmware
     // calls `run_estimate` with the controller's drive. On both plants (the ideal drive's
@@ -706,6 +720,8 @@ fn pathfit_grid_on_the_plant() {
     } else {
         Vec::new()
     };
+    // Collected, and asserted after the tables are printed (a mismatch still shows them).
+    let mut mismatches = Vec::new();
     for c in scored {
         if let (Some(Ok(q)), Some(fw)) = (&c.fit_q, &c.fw) {
             let k = fw
@@ -713,14 +729,15 @@ fn pathfit_grid_on_the_plant() {
                 .ok()
                 .and_then(|r| r.k2_um)
                 .map(|k| f64::from(k) * 1e-6);
-            assert!(
-                k.is_some_and(|k| (k - q.k2).abs() <= 1e-4 * L2),
-                "R={} k2c={:.2} ΔT={}: run_estimate {fw:?}, integer kernel k2 {:.6} m",
-                c.radius,
-                c.k2c / L2,
-                c.dta,
-                q.k2
-            );
+            if !k.is_some_and(|k| (k - q.k2).abs() <= 1e-4 * L2) {
+                mismatches.push(format!(
+                    "R={} k2c={:.2} ΔT={}: run_estimate {fw:?}, integer kernel k2 {:.6} m",
+                    c.radius,
+                    c.k2c / L2,
+                    c.dta,
+                    q.k2
+                ));
+            }
         }
     }
     let f64_fit: fn(&Case) -> &Option<Result<FitOut, PathFitError>> = |c| &c.fit;
@@ -742,7 +759,7 @@ fn pathfit_grid_on_the_plant() {
             pick,
         );
         // Issue 7's targets, printed as met or not (the README quotes these lines).
-        let big_steps = |cases: &[Case]| {
+        let big_step_errors = |cases: &[Case]| -> Vec<f64> {
             cases
                 .iter()
                 .filter(|c| c.dta >= 0.5)
@@ -750,8 +767,11 @@ fn pathfit_grid_on_the_plant() {
                     Some(Ok(f)) => Some((f.k2 - c.k2c).abs() / L2),
                     _ => None,
                 })
-                .fold(0.0f64, f64::max)
+                .collect()
         };
+        let big_steps = |cases: &[Case]| big_step_errors(cases).into_iter().fold(0.0f64, f64::max);
+        let big_real = big_step_errors(&real);
+        let big_real_mean = big_real.iter().sum::<f64>() / big_real.len().max(1) as f64;
         let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
         println!(
             "\n{label}: issue 7 targets: ideal max ≤ 1 % l2: {} ({:.2} %; ΔT_a ≥ 0.5 N·m only: {:.2} %)",
@@ -761,15 +781,22 @@ fn pathfit_grid_on_the_plant() {
         );
         println!(
             "{label}: issue 7 targets: realistic mean ≤ 2 % and max ≤ 5 % l2: {} (mean {:.2} %, max {:.2} %; \
-             ΔT_a ≥ 0.5 N·m only: max {:.2} %)",
+             ΔT_a ≥ 0.5 N·m only: {} estimates, mean {:.2} %, max {:.2} %)",
             verdict(sr.mean <= 0.02 && sr.max <= 0.05),
             100.0 * sr.mean,
             100.0 * sr.max,
+            big_real.len(),
+            100.0 * big_real_mean,
             100.0 * big_steps(&real)
         );
         results.push((label, si, sr, big_steps(&ideal)));
     }
-    if no_seating().is_some() || inertia_scale().is_some() {
+    assert!(
+        mismatches.is_empty(),
+        "the tables' adapter and the firmware's run_estimate differ by more than 1e-4·l2:\n{}",
+        mismatches.join("\n")
+    );
+    if no_seating().is_some() || inertia_scale().is_some() || gain_error().is_some() {
         return;
     }
     for (label, si, sr, big_ideal) in &results {
