@@ -29,6 +29,12 @@ use crate::state::{Event, FaultReason, State};
 use crate::{Hardware, DUTY_MAX};
 
 /// Events queued for logging (oldest dropped first is NOT done: new events are dropped
+/// A settled step's torque may miss its reference by ΔT_a over this (the loop's tracking at
+/// rest is far tighter; a drive that cannot follow misses by a large share of ΔT_a).
+const DELIVERED_SHARE: i32 = 20;
+/// ... and by at least this much (µN·m): a few ADC codes of torque.
+const DELIVERED_MIN_UNM: i64 = 5_000;
+
 /// and counted when the queue is full, so the first fault is never lost).
 pub const EVENT_CAPACITY: usize = 16;
 
@@ -1391,6 +1397,14 @@ impl Supervisor {
         let Some(end) = self.settled(since) else {
             return;
         };
+        // A step is measured only once the drive has delivered it: a finger held still by a
+        // drive that cannot reach the reference (duty at its limit) is not a settled step but
+        // a stall, which the loop trips on. The seating stages' slow ramps used to hide this;
+        // a fast step settles before the stall's persistence runs out.
+        let miss = (i64::from(end.torque_unm) - i64::from(self.t_ref_unm)).abs();
+        if miss > i64::from(self.p.delta_ta_unm / DELIVERED_SHARE).max(DELIVERED_MIN_UNM) {
+            return;
+        }
         let loaded = if self.p.seating {
             loaded
         } else {

@@ -248,13 +248,25 @@ fn no_object_ends_in_no_contact() {
 #[test]
 fn drive_that_cannot_follow_is_a_stall() {
     // The board's supply is 1 V, the configuration says 6 V: the duty saturates and the
-    // torque never arrives.
-    let mut c = Controller::new(cfg(0.2)).unwrap();
-    let mut hw = Mock::new(DriveConfig {
-        bus_v: 1.0,
-        ..drive()
-    });
-    run(&mut c, &mut hw, 120_000, |_, _| {});
-    assert_eq!(c.state(), State::Fault(FaultReason::Stall));
-    assert!(hw.off);
+    // torque never arrives. With the seating stages and with a fast step from the detection
+    // (which settles within the stall's persistence unless a settled step must be delivered).
+    for (seating, step_shape) in [(true, StepShape::Ramp(1.0)), (false, StepShape::Ramp(4.0))] {
+        let mut c = Controller::new(ControllerConfig {
+            seating,
+            step_shape,
+            ..cfg(0.2)
+        })
+        .unwrap();
+        let mut hw = Mock::new(DriveConfig {
+            bus_v: 1.0,
+            ..drive()
+        });
+        run(&mut c, &mut hw, 120_000, |_, _| {});
+        assert_eq!(
+            c.state(),
+            State::Fault(FaultReason::Stall),
+            "seating {seating}"
+        );
+        assert!(hw.off);
+    }
 }
