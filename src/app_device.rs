@@ -7,8 +7,8 @@
 //! | 4    | `sample`    | hardware, `ADC`, 10 kHz        | as in `app.rs` while a grasp runs; bridge off while halted; the host's silence checked; the watchdog fed |
 //! | 3    | `supervise` | software                       | the grasp state machine                         |
 //! | 2    | `estimate`  | software                       | the estimator the grasp's settings name         |
-//! | 1    | `link_rx`   | hardware, `OTG_FS` (board: USB; QEMU: UART0 RX) | service the link, decode requests, answer them; stop switches the bridge off at once; a closed link stops a grasp in motion |
-//! | 1    | `host`      | software                       | events, contacts and samples to the host (and defmt) |
+//! | 1    | `link_rx`   | hardware, `OTG_FS` (board: USB; QEMU: UART0 RX) | service the link, decode requests, answer them; encode and send what is queued for the host; stop switches the bridge off at once; a closed link stops a grasp in motion |
+//! | 1    | `host`      | software                       | events, contacts and samples queued for the host (and defmt); pends `link_rx` |
 //!
 //! A grasp starts from a fresh controller (`Controller::new` with the host's settings); on QEMU
 //! also from a fresh simulated finger at its rest pose: the same start as a power-up grasp, so
@@ -363,14 +363,24 @@ mod app {
                 Msg::HostLost { tick, silent_ticks } => {
                     d.sweep_stopped(tick);
                     let f = device::host_lost(silent_ticks);
-                    d.send(&DeviceMsg::Event(Event {
+                    d.send(DeviceMsg::Event(Event {
                         tick,
                         kind: EventKind::Fault(f),
                     }));
                 }
                 _ => {}
             });
+            // The link's task encodes and sends: it runs when this one yields.
+            pend_link();
         }
+    }
+
+    /// Makes the host link's interrupt run ([`Device::flush`] at the end of [`receive`]).
+    fn pend_link() {
+        #[cfg(feature = "qemu")]
+        rtic::pend(crate::sim::pac::Interrupt::OTG_FS);
+        #[cfg(not(feature = "qemu"))]
+        rtic::pend(stm32f4xx_hal::pac::Interrupt::OTG_FS);
     }
 
     /// The host link's interrupt: USB events and bytes on the board (OTG FS), received bytes on
@@ -436,7 +446,7 @@ mod app {
         );
         sh.dev.lock(|d| {
             d.sweep_stopped(tick);
-            d.send(&DeviceMsg::Event(Event {
+            d.send(DeviceMsg::Event(Event {
                 tick,
                 kind: EventKind::Fault(device::host_lost(silent)),
             }))
@@ -466,7 +476,7 @@ mod app {
             sh.dev.lock(|d| {
                 for _ in 0..100_000 {
                     d.flush();
-                    if d.tx.is_empty() {
+                    if d.drained() {
                         break;
                     }
                 }
@@ -552,7 +562,7 @@ mod app {
         );
         sh.dev.lock(|d| {
             d.rest = Some(DeviceState::Stopped);
-            d.send(&DeviceMsg::Event(Event {
+            d.send(DeviceMsg::Event(Event {
                 tick: off_tick,
                 kind: EventKind::Stopped {
                     requested_tick: rx_tick,
@@ -635,11 +645,11 @@ mod app {
         sh.dev.lock(|d| {
             d.sweep_stopped(tick);
             d.rest = Some(DeviceState::Idle);
-            d.send(&DeviceMsg::Event(Event {
+            d.send(DeviceMsg::Event(Event {
                 tick,
                 kind: EventKind::Releasing,
             }));
-            d.send(&DeviceMsg::Event(Event {
+            d.send(DeviceMsg::Event(Event {
                 tick,
                 kind: EventKind::Idle,
             }));
@@ -865,7 +875,7 @@ mod app {
         defmt::info!("SWEEP started at tick {=u32}", tick);
         sh.dev.lock(|d| {
             d.rest = Some(DeviceState::Sweeping);
-            d.send(&DeviceMsg::Event(Event {
+            d.send(DeviceMsg::Event(Event {
                 tick,
                 kind: EventKind::SweepStarted,
             }));
@@ -894,7 +904,7 @@ mod app {
                     proto::Estimator::PathFit => "path-fit",
                 }
             );
-            d.send(&DeviceMsg::Event(Event {
+            d.send(DeviceMsg::Event(Event {
                 tick,
                 kind: EventKind::GraspStarted { grasp: d.grasps },
             }));

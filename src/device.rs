@@ -38,8 +38,12 @@ pub static DECIMATION: AtomicU32 = AtomicU32::new(200);
 /// this often (ticks: 2 s at 10 kHz); `pts board` polls the status meanwhile.
 pub const HOST_TIMEOUT_TICKS: u32 = 20_000;
 
-/// Bytes of encoded frames waiting for the UART.
-pub const TX_QUEUE: usize = 4096;
+/// Bytes of encoded frames waiting for the link.
+pub const TX_QUEUE: usize = 1024;
+/// Messages waiting to be encoded: a whole telemetry queue's burst
+/// ([`crate::telemetry::QUEUE`]) and the replies and events around it.
+pub const OUT_QUEUE: usize = 48;
+const _: () = assert!(TX_QUEUE >= 2 * proto::MAX_FRAME);
 
 /// True in the states where the finger moves under the controller's command and a silent
 /// host stops the grasp (or the release).
@@ -148,7 +152,9 @@ pub mod uart {
     }
 }
 
-/// What the host side of the device keeps between commands.
+/// What the host side of the device keeps between commands. `repr(C)` with the queues last:
+/// the small fields stay within the reach of Thumb-2's 12-bit load and store offsets.
+#[repr(C)]
 pub struct Device {
     /// The next grasp's settings.
     pub settings: Settings,
@@ -160,11 +166,7 @@ pub struct Device {
     pub estimator: proto::Estimator,
     /// The state outside a grasp (idle, stopped, a fault) or `None` during one.
     pub rest: Option<DeviceState>,
-    /// The request decoder.
-    pub rx: proto::Decoder<Request, { proto::MAX_FRAME }>,
-    /// Encoded frames waiting for the link.
-    pub tx: heapless::Deque<u8, TX_QUEUE>,
-    /// Frames dropped for a full TX queue.
+    /// Messages dropped for a full message queue.
     pub tx_dropped: u32,
     /// The link to the host.
     pub io: Link,
@@ -172,6 +174,13 @@ pub struct Device {
     pub source: proto::SettingsSource,
     /// A `set` changed `settings` since they were loaded or stored.
     pub changed: bool,
+    /// The request decoder.
+    pub rx: proto::Decoder<Request, { proto::MAX_FRAME }>,
+    /// Encoded frames waiting for the link.
+    pub tx: heapless::Deque<u8, TX_QUEUE>,
+    /// Messages waiting to be encoded. Only the link's task ([`Device::flush`]) encodes and
+    /// touches the link: the serialiser and the USB stack stay out of the other tasks.
+    pub out: heapless::Deque<DeviceMsg, OUT_QUEUE>,
 }
 
 impl Device {
@@ -186,6 +195,7 @@ impl Device {
             estimator: settings.estimator,
             rest: Some(DeviceState::Idle),
             rx: proto::Decoder::new(),
+            out: heapless::Deque::new(),
             tx: heapless::Deque::new(),
             tx_dropped: 0,
             io,
@@ -196,28 +206,29 @@ impl Device {
         }
     }
 
-    /// Encodes a message into the TX queue (whole frames only) and sends what the link takes.
-    pub fn send(&mut self, msg: &DeviceMsg) {
-        let mut buf = [0u8; proto::MAX_FRAME];
-        match msg.encode(&mut buf) {
-            Ok(n) => {
-                let frame = buf.get(..n).unwrap_or(&[]);
-                if self.tx.capacity() - self.tx.len() < frame.len() {
-                    self.tx_dropped = self.tx_dropped.wrapping_add(1);
-                } else {
-                    for &b in frame {
-                        let _ = self.tx.push_back(b);
-                    }
-                }
-            }
-            Err(e) => defmt::error!("proto: reply not encodable: {}", e),
+    /// Queues a message for the link's task, which encodes and sends it ([`Device::flush`]).
+    pub fn send(&mut self, msg: DeviceMsg) {
+        if self.out.push_back(msg).is_err() {
+            self.tx_dropped = self.tx_dropped.wrapping_add(1);
         }
-        self.flush();
     }
 
-    /// Hands queued bytes to the link while it has room.
+    /// Nothing waits to be encoded or sent.
+    pub fn drained(&self) -> bool {
+        self.out.is_empty() && self.tx.is_empty()
+    }
+
+    /// Encodes queued messages into the TX queue (whole frames only, while it has room for one)
+    /// and hands queued bytes to the link while it takes them. The link's task only.
     pub fn flush(&mut self) {
         loop {
+            while self.tx.capacity() - self.tx.len() >= proto::MAX_FRAME {
+                let Some(msg) = self.out.front() else {
+                    break;
+                };
+                encode_into(&mut self.tx, msg);
+                self.out.pop_front();
+            }
             let (front, _) = self.tx.as_slices();
             let n = match front.len() {
                 0 => break,
@@ -237,7 +248,7 @@ impl Device {
         if let Err(e) = &result {
             log_error(e);
         }
-        self.send(&DeviceMsg::Reply { id, result });
+        self.send(DeviceMsg::Reply { id, result });
     }
 
     /// The state the host sees outside a grasp (`controller`: the controller's state, for
@@ -272,7 +283,7 @@ impl Device {
             GEvent::StepDone { tick } => (tick, EventKind::StepDone),
             GEvent::Settled { tick, .. } => (tick, EventKind::Settled),
             GEvent::Estimated { tick, result } => {
-                self.send(&DeviceMsg::Event(Event {
+                self.send(DeviceMsg::Event(Event {
                     tick,
                     kind: EventKind::Estimated,
                 }));
@@ -295,7 +306,7 @@ impl Device {
                     delta_theta_a_urad: result.delta_theta_a_urad,
                     good: result.quality == Quality::Good,
                 };
-                self.send(&DeviceMsg::Contact(c));
+                self.send(DeviceMsg::Contact(c));
                 return;
             }
             GEvent::Holding { tick } => (tick, EventKind::Holding),
@@ -312,12 +323,12 @@ impl Device {
         if let EventKind::Fault(f) = kind {
             self.rest = Some(DeviceState::Fault(f));
         }
-        self.send(&DeviceMsg::Event(Event { tick, kind }));
+        self.send(DeviceMsg::Event(Event { tick, kind }));
     }
 
     /// A telemetry sample.
     pub fn sample(&mut self, out: Sample) {
-        self.send(&DeviceMsg::Sample(out));
+        self.send(DeviceMsg::Sample(out));
     }
 
     /// The calibration sweep is over (`end`): reported, and the device idle when it ended on
@@ -329,7 +340,7 @@ impl Device {
         {
             self.rest = Some(DeviceState::Idle);
         }
-        self.send(&DeviceMsg::Event(Event {
+        self.send(DeviceMsg::Event(Event {
             tick,
             kind: EventKind::SweepEnded { end, rows },
         }));
@@ -344,6 +355,20 @@ impl Device {
                 SWEEP_ROWS.load(Ordering::Relaxed),
             );
         }
+    }
+}
+
+/// Appends `msg`'s frame to `tx` (which has room for a whole frame); one copy of the encoder.
+#[inline(never)]
+fn encode_into(tx: &mut heapless::Deque<u8, TX_QUEUE>, msg: &DeviceMsg) {
+    let mut buf = [0u8; proto::MAX_FRAME];
+    match msg.encode(&mut buf) {
+        Ok(n) => {
+            for &b in buf.get(..n).unwrap_or(&[]) {
+                let _ = tx.push_back(b);
+            }
+        }
+        Err(e) => defmt::error!("proto: message not encodable: {}", e),
     }
 }
 
