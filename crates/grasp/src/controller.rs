@@ -29,14 +29,14 @@ use crate::state::{Event, FaultReason, State};
 use crate::{Hardware, DUTY_MAX};
 
 /// Events queued for logging (oldest dropped first is NOT done: new events are dropped
+/// and counted when the queue is full, so the first fault is never lost).
+pub const EVENT_CAPACITY: usize = 16;
+
 /// A settled step's torque may miss its reference by ΔT_a over this (the loop's tracking at
 /// rest is far tighter; a drive that cannot follow misses by a large share of ΔT_a).
 const DELIVERED_SHARE: i32 = 20;
 /// ... and by at least this much (µN·m): a few ADC codes of torque.
 const DELIVERED_MIN_UNM: i64 = 5_000;
-
-/// and counted when the queue is full, so the first fault is never lost).
-pub const EVENT_CAPACITY: usize = 16;
 
 /// What one tick did (for telemetry and the application).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
