@@ -419,6 +419,9 @@ mod app {
                 if let Some(r) = r {
                     LAST_RX_TICK.store(tm::TICKS.load(Ordering::Relaxed), Ordering::Relaxed);
                     handle(sh, r);
+                    // Each reply out before the next request: a burst of requests cannot
+                    // fill the message queue with replies.
+                    sh.dev.lock(|d| d.flush());
                 }
             }
         }
