@@ -78,7 +78,8 @@ fn adapter_is_firmware() -> bool {
     .all(|v| std::env::var_os(v).is_none())
 }
 
-/// The controller of a grid run: the default, or without seating (`PATHFIT_NO_SEATING`).
+/// The controller of a grid run: the default, or without seating, the step a ramp of
+/// `unseated_rate` (N·m/s).
 fn grid_config(scene: &Scene, dta: f64, unseated_rate: Option<f64>) -> grasp::ControllerConfig {
     let c = config(scene, dta);
     match unseated_rate {
@@ -696,6 +697,21 @@ fn summarize(
     s
 }
 
+/// |k̂2,c − k2,c| / l2 of the answered cases at ΔT_a ≥ 0.5 N·m, by the back end `pick`.
+fn big_step_errors(
+    cases: &[Case],
+    pick: fn(&Case) -> &Option<Result<FitOut, PathFitError>>,
+) -> Vec<f64> {
+    cases
+        .iter()
+        .filter(|c| c.dta >= 0.5)
+        .filter_map(|c| match pick(c) {
+            Some(Ok(f)) => Some((f.k2 - c.k2c).abs() / L2),
+            _ => None,
+        })
+        .collect()
+}
+
 #[test]
 fn pathfit_grid_on_the_plant() {
     let ideal = run_grid(plant::Scene::DEFAULT.ideal(), no_seating());
@@ -759,18 +775,12 @@ fn pathfit_grid_on_the_plant() {
             pick,
         );
         // Issue 7's targets, printed as met or not (the README quotes these lines).
-        let big_step_errors = |cases: &[Case]| -> Vec<f64> {
-            cases
-                .iter()
-                .filter(|c| c.dta >= 0.5)
-                .filter_map(|c| match pick(c) {
-                    Some(Ok(f)) => Some((f.k2 - c.k2c).abs() / L2),
-                    _ => None,
-                })
-                .collect()
+        let big_steps = |cases: &[Case]| {
+            big_step_errors(cases, pick)
+                .into_iter()
+                .fold(0.0f64, f64::max)
         };
-        let big_steps = |cases: &[Case]| big_step_errors(cases).into_iter().fold(0.0f64, f64::max);
-        let big_real = big_step_errors(&real);
+        let big_real = big_step_errors(&real, pick);
         let big_real_mean = big_real.iter().sum::<f64>() / big_real.len().max(1) as f64;
         let verdict = |ok: bool| if ok { "met" } else { "NOT met" };
         println!(
@@ -927,14 +937,7 @@ fn seated_and_unseated_over_the_sensor_gain() {
         scene.sensors.gain_error = gain;
         let mut cells = Vec::new();
         for (i, rate) in [None, Some(4.0)].into_iter().enumerate() {
-            let errs: Vec<f64> = run_grid(scene, rate)
-                .iter()
-                .filter(|c| c.dta >= 0.5)
-                .filter_map(|c| match &c.fit_q {
-                    Some(Ok(f)) => Some((f.k2 - c.k2c).abs() / L2),
-                    _ => None,
-                })
-                .collect();
+            let errs = big_step_errors(&run_grid(scene, rate), |c| &c.fit_q);
             let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
             let max = errs.iter().copied().fold(0.0f64, f64::max);
             worst[i] = worst[i].max(max);
