@@ -31,8 +31,9 @@ type Build = (
 const BUILDS: &[Build] = &[
     ("board, two-point", &[], "two-point", BOARD_ROOTS, &[]),
     ("board, path fit", &[], "path-fit", BOARD_ROOTS, &[]),
-    // Device mode: the loop, the supervisor and the estimate are held to the same rule; the host
-    // USB interrupt, the one task that touches the link, is an allowance (DEVICE_OPEN_ROOTS).
+    // Device mode: the loop, the supervisor, the estimate and the host task are held to the
+    // same rule; the USB interrupt, the one task that touches the link, is an allowance
+    // (DEVICE_OPEN_ROOTS).
     (
         "board, device mode (USB), path fit",
         &["board", "device"],
