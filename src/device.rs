@@ -279,7 +279,8 @@ impl Device {
                     torque_unm,
                 },
             ),
-            GEvent::Seated { .. } => return,
+            // The host sees the re-measurement as the seating state.
+            GEvent::Seated { .. } | GEvent::Reseating { .. } => return,
             GEvent::StepDone { tick } => (tick, EventKind::StepDone),
             GEvent::Settled { tick, .. } => (tick, EventKind::Settled),
             GEvent::Estimated { tick, result } => {
