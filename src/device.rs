@@ -279,8 +279,7 @@ impl Device {
                     torque_unm,
                 },
             ),
-            // The host sees the re-measurement as the seating state.
-            GEvent::Seated { .. } | GEvent::Reseating { .. } => return,
+            GEvent::Seated { .. } => return,
             GEvent::StepDone { tick } => (tick, EventKind::StepDone),
             GEvent::Settled { tick, .. } => (tick, EventKind::Settled),
             GEvent::Estimated { tick, result } => {

@@ -183,7 +183,6 @@ pub fn event_words(msg: &str) -> Option<String> {
             rad(v("theta_a_urad")),
             nm(v("torque_unm"))
         ),
-        "Reseating" => "estimate refused; measuring the step again with the seating stages".into(),
         "StepDone" => "torque step complete; waiting for the finger to settle".into(),
         "Settled" => format!(
             "settled: θa = {}, T_a = {}; estimating from {} samples",

@@ -174,12 +174,6 @@ pub struct ControllerConfig {
     /// step starts from T_a,c at the detection, the path fit reading the whole loading path,
     /// and the estimate is known about a second sooner.
     pub seating: bool,
-    /// Without seating: a refused estimate is measured again with the seating stages (the
-    /// reference returns to T_a,c + δ_seat and the seated sequence runs from there), whose
-    /// estimate or fault is final. The fast step's path cannot tell a finger locked by a
-    /// second contact from one it does not determine; the seated stages name it. Grasps the
-    /// fast step answers take no longer.
-    pub reseat_on_refusal: bool,
     /// The torque increase ΔT_a after contact (N·m).
     pub delta_ta_nm: f64,
     /// Shape of the increase.
@@ -275,7 +269,6 @@ impl ControllerConfig {
         slide_min_rad: 1e-4,
         slide_extra_nm: 0.005,
         seating: true,
-        reseat_on_refusal: true,
         delta_ta_nm: 0.2,
         step_shape: StepShape::Ramp(1.0),
         settle_window: 25,
@@ -495,11 +488,7 @@ impl ControllerConfig {
             seat_ramp_q16: ramp(self.seat_ramp_nm_per_s),
             slide_min_urad: to_i32(self.slide_min_rad * 1e6),
             slide_extra_unm: unm(self.slide_extra_nm),
-            seating: match (self.seating, self.reseat_on_refusal) {
-                (true, _) => Seating::Stages,
-                (false, false) => Seating::Fast,
-                (false, true) => Seating::FastThenStages,
-            },
+            seating: self.seating,
             delta_ta_unm: unm(self.delta_ta_nm),
             step_ramp_q16,
             settle_window: self.settle_window as usize,
@@ -854,18 +843,6 @@ pub fn finger_rest_theta_a_rad(finger: &Finger) -> Result<f64, ConfigError> {
 /// Samples kept in the pre-contact history ring (decimated samples).
 pub const HISTORY: usize = 64;
 
-/// What follows the contact's detection: [`ControllerConfig::seating`] and
-/// [`ControllerConfig::reseat_on_refusal`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Seating {
-    /// The seating stages, then the step.
-    Stages,
-    /// The step from T_a,c at once; a refused estimate is final.
-    Fast,
-    /// The step from T_a,c at once; a refused estimate is measured again with the stages.
-    FastThenStages,
-}
-
 /// The integer form of [`ControllerConfig`]: what the tick path reads. Q16 = ×2¹⁶.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Params {
@@ -911,8 +888,8 @@ pub struct Params {
     pub slide_min_urad: i32,
     /// Seating: torque added after the slide is seen (µN·m).
     pub slide_extra_unm: i32,
-    /// What follows the detection (one byte, so that the tick path's layout stays).
-    pub seating: Seating,
+    /// Seat in static stages before the step (else the step starts at the detection).
+    pub seating: bool,
     /// ΔT_a (µN·m).
     pub delta_ta_unm: i32,
     /// Step ramp, µN·m per tick, Q16; 0 = a step.

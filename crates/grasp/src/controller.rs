@@ -21,9 +21,7 @@ use heapless::{Deque, Vec};
 use pathfit::PathFitError;
 use pts::PtsError;
 
-use crate::config::{
-    AfterEstimate, ConfigError, ControllerConfig, FingerRest, Params, Seating, HISTORY,
-};
+use crate::config::{AfterEstimate, ConfigError, ControllerConfig, FingerRest, Params, HISTORY};
 use crate::control_loop::{ControlLoop, Input, Link, Reference, SampleSums, Setpoint, TorqueQ16};
 use crate::estimate::{EstimateError, EstimateRequest, EstimateResult, Sample, PATH_CAPACITY};
 use crate::sensors::sat_i32;
@@ -199,9 +197,7 @@ impl Controller {
     }
 
     /// Gives the estimate back. A refused estimate puts the controller in the safe state
-    /// (bridge off now), or, after a step without seating, starts the seated measurement
-    /// ([`ControllerConfig::reseat_on_refusal`](crate::ControllerConfig)); ignored unless
-    /// the controller is waiting for it.
+    /// (bridge off now); ignored unless the controller is waiting for it.
     pub fn deliver<H: Hardware + ?Sized>(
         &mut self,
         hw: &mut H,
@@ -487,11 +483,6 @@ pub struct Supervisor {
     events_dropped: u32,
     /// A fault found inside a sample step; applied at its end.
     pending: Option<FaultReason>,
-    /// This contact runs the seating stages: the configuration's choice at the detection,
-    /// or the measurement again after a refused fast step.
-    seated: bool,
-    /// Where a refused fast step settled, while it is measured again.
-    fast_end: Option<Sample>,
 }
 
 /// Secant stiffness between two static points, (T_b − T_a)/(θ_b − θ_a) (µN·m/rad),
@@ -715,8 +706,6 @@ impl Supervisor {
             events: Deque::new(),
             events_dropped: 0,
             pending: None,
-            seated: p.seating == Seating::Stages,
-            fast_end: None,
         }
     }
 
@@ -1023,12 +1012,8 @@ impl Supervisor {
             since,
             request_ready: false,
         };
-        // A refused fast step is measured again from the same contact: its history stays.
-        let pre = if self.seated || self.p.seating != Seating::FastThenStages {
-            core::mem::take(&mut self.pre)
-        } else {
-            self.pre.clone()
-        };
+        let mut pre = Vec::new();
+        core::mem::swap(&mut pre, &mut self.pre);
         let mut path = Vec::new();
         core::mem::swap(&mut path, &mut self.path.samples);
         Some(EstimateRequest {
@@ -1081,40 +1066,14 @@ impl Supervisor {
             Err(EstimateError::PathFit(PathFitError::SecondContact)) => {
                 self.fault(FaultReason::SecondContact { kc_unm_per_rad });
             }
-            Err(error) if !self.seated && self.p.seating == Seating::FastThenStages => {
-                self.reseat(loaded.contact, end, error)
-            }
             Err(error) => self.fault(FaultReason::EstimateOutOfRange { error }),
         }
     }
 
-    /// The fast step's estimate was refused: from T_a,c + ΔT_a the reference returns to
-    /// T_a,c + δ_seat, where the seating stages start as after an impact (the finger comes to
-    /// rest there, then the reference ramps until it slides forward again), and the step's
-    /// seated measurement decides. The contact and the history before it stay; the path
-    /// starts anew, and the settle timeout runs again from here.
-    fn reseat(&mut self, contact: Contact, end: Sample, error: EstimateError) {
-        self.seated = true;
-        self.fast_end = Some(end);
-        self.path.clear();
-        let tick = self.tick;
-        self.phase = Phase::Seating {
-            contact: Contact { tick, ..contact },
-            seat: Seat::Impact,
-            target_unm: contact
-                .knee
-                .torque_unm
-                .saturating_add(self.p.seat_above_unm),
-            since: tick,
-        };
-        self.emit(Event::Reseating { tick, error });
-    }
-
     /// Loss of contact: θa beyond what the contact allows. Before the second static point
-    /// (`loaded` is `None`): a stiffness ≥ K_detect from the contact point, or, measuring a
-    /// refused fast step again, from where that step settled (the finger leaves it only as
-    /// the reference falls back). After it: 1.5× the displacement the early stiffness
-    /// (seated → seated again) predicts from there (the path only stiffens).
+    /// (`loaded` is `None`): a stiffness ≥ K_detect from the contact point. After it: 1.5×
+    /// the displacement the early stiffness (seated → seated again) predicts from there (the
+    /// path only stiffens).
     fn lost(
         &self,
         theta: i32,
@@ -1127,12 +1086,7 @@ impl Supervisor {
             Some((seat2, k_early)) if k_early > 0 && k_early < i64::from(i32::MAX) => {
                 (seat2, k_early, 3, 2)
             }
-            _ => (
-                self.fast_end.unwrap_or(contact.knee),
-                self.p.detect_k_unm_per_rad,
-                1,
-                1,
-            ),
+            _ => (contact.knee, self.p.detect_k_unm_per_rad, 1, 1),
         };
         let dth = i64::from(theta) - i64::from(from.theta_a_urad);
         let dt = (i64::from(t_ref) - i64::from(from.torque_unm)).max(0);
@@ -1256,9 +1210,7 @@ impl Supervisor {
             knee,
             tick: self.tick,
         };
-        self.seated = self.p.seating == Seating::Stages;
-        self.fast_end = None;
-        if self.seated {
+        if self.p.seating {
             let seat = knee.torque_unm.saturating_add(self.p.seat_above_unm);
             self.jump_q16 = Some(i64::from(seat) << 16);
             self.phase = Phase::Seating {
@@ -1453,7 +1405,7 @@ impl Supervisor {
         if miss > i64::from(self.p.delta_ta_unm / DELIVERED_SHARE).max(DELIVERED_MIN_UNM) {
             return;
         }
-        let loaded = if self.seated {
+        let loaded = if self.p.seating {
             loaded
         } else {
             self.unseated_points(loaded, &end)
@@ -1474,7 +1426,7 @@ impl Supervisor {
         // dynamics (the reference drops to T_a,c at the detection while the impact
         // decelerates the drive, so the torque there can be below T_a,c), and only the whole
         // step's secant is checked; the path fit judges the path's shape.
-        let (late, early) = if self.seated {
+        let (late, early) = if self.p.seating {
             (
                 i64::from(loaded.kc_late_unm_per_rad(&end)),
                 i64::from(stiffness(&loaded.seat, &loaded.seat2)),

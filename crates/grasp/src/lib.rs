@@ -66,9 +66,7 @@ pub mod sensors;
 pub mod state;
 pub mod torque_loop;
 
-pub use config::{
-    AfterEstimate, ControllerConfig, DriveConfig, Estimator, FingerRest, Seating, StepShape,
-};
+pub use config::{AfterEstimate, ControllerConfig, DriveConfig, Estimator, FingerRest, StepShape};
 pub use control_loop::{
     ControlLoop, Input, Link, LoopOutput, Reference, SampleSums, Setpoint, TorqueQ16, LINK_SAMPLES,
 };

@@ -207,14 +207,6 @@ pub enum Event {
         /// Mean measured T_a over the settle window (µN·m).
         torque_unm: i32,
     },
-    /// The fast step's estimate was refused; the step is measured again with the seating
-    /// stages (from T_a,c + δ_seat).
-    Reseating {
-        /// Tick.
-        tick: u32,
-        /// Why the fast step's estimate was refused.
-        error: EstimateError,
-    },
     /// The reference reached T_a,c + ΔT_a.
     StepDone {
         /// Tick.

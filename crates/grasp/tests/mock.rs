@@ -2,10 +2,9 @@
 //! piecewise-linear stiffness), independent of crates/plant: the stiffness after contact is
 //! MODEL.md's K_c of the Table 2 contact, so the estimate must give back its k2.
 use grasp::{
-    run_estimate, Controller, ControllerConfig, DriveConfig, EstimateError, Event, FaultReason,
-    Hardware, Located, State, StepShape, DUTY_MAX,
+    run_estimate, Controller, ControllerConfig, DriveConfig, FaultReason, Hardware, Located, State,
+    StepShape, DUTY_MAX,
 };
-use pathfit::PathFitError;
 
 /// MODEL.md Table 2 numbers.
 const THETA_REST: f64 = -0.850_360_8;
@@ -235,73 +234,6 @@ fn second_contact_during_the_ramp() {
         "{:?}",
         c.state()
     );
-}
-
-/// Without seating, a refused estimate (here refused on purpose: the estimate task answers
-/// `not_determined` once) is measured again with the seating stages from the same contact:
-/// the three static points follow, and the seated two-point estimate gives back the mock's
-/// k2. Switched off, the same refusal ends in the safe state at once.
-#[test]
-fn a_refused_fast_estimate_is_measured_again_with_seating() {
-    for reseat in [true, false] {
-        let mut c = Controller::new(ControllerConfig {
-            seating: false,
-            reseat_on_refusal: reseat,
-            ..cfg(0.5)
-        })
-        .unwrap();
-        let mut hw = Mock::new(drive());
-        let mut requests = 0;
-        let mut events = Vec::new();
-        for _ in 0..80_000 {
-            let out = c.tick(&mut hw);
-            while let Some(e) = c.poll_event() {
-                events.push(e);
-            }
-            if out.estimate_ready {
-                let req = c.take_request().expect("request");
-                requests += 1;
-                let r = if requests == 1 {
-                    assert!(!req.pre.is_empty(), "the fast request lost its history");
-                    Err(EstimateError::PathFit(PathFitError::NotDetermined))
-                } else {
-                    assert!(!req.pre.is_empty(), "the seated request lost the history");
-                    run_estimate(&pts::Finger::PAPER, &drive(), &req)
-                };
-                c.deliver(&mut hw, r);
-            }
-            if matches!(c.state(), State::Fault(_) | State::Holding) {
-                break;
-            }
-        }
-        let reseated = events
-            .iter()
-            .filter(|e| matches!(e, Event::Reseating { .. }))
-            .count();
-        let seated = events
-            .iter()
-            .filter(|e| matches!(e, Event::Seated { .. }))
-            .count();
-        if !reseat {
-            assert!(
-                matches!(
-                    c.state(),
-                    State::Fault(FaultReason::EstimateOutOfRange { .. })
-                ),
-                "{:?}",
-                c.state()
-            );
-            assert!(hw.off, "the bridge still drives");
-            assert_eq!((requests, reseated, seated), (1, 0, 0));
-            continue;
-        }
-        assert_eq!(c.state(), State::Holding, "events {events:?}");
-        assert_eq!((requests, reseated, seated), (2, 1, 3), "events {events:?}");
-        let k2 = f64::from(c.result().unwrap().k2_um.unwrap()) * 1e-6;
-        let err = (k2 - K2_TRUE) / L2 * 100.0;
-        println!("measured again with seating: k2 {k2:.5} m, error {err:+.2} % of l2");
-        assert!(err.abs() < 1.0, "error {err} % of l2");
-    }
 }
 
 #[test]

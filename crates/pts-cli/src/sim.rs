@@ -217,14 +217,6 @@ fn ctl_event(e: &grasp::Event, dt: f64) -> TimedEvent {
                 f64::from(torque_unm) / 1e6
             ),
         ),
-        E::Reseating { tick, error } => (
-            tick,
-            "reseating",
-            format!(
-                "the step's estimate was refused ({}); measuring it again with the seating stages",
-                error.kind()
-            ),
-        ),
         E::StepDone { tick } => (tick, "step_done", String::new()),
         E::Settled {
             tick,
