@@ -220,6 +220,53 @@ const ACCEPTED_OWN_SITES: &[(&str, &str, bool, &str)] = &[
     ),
 ];
 
+/// For a panic inside a function of core's on path `p` (root … caller, core function, panic):
+/// the places of the calls into core from the first function up the path that is not core's,
+/// when they all lie outside this project's code (or are accepted); else why not.
+fn std_caller(p: &[String], sites: &[Site], root: &Path) -> Result<String, String> {
+    let mut callee = p.len().checked_sub(2).ok_or("no caller")?;
+    loop {
+        let Some(caller) = callee.checked_sub(1) else {
+            return Err(format!(
+                "the task's entry calls core's {} directly",
+                p[callee]
+            ));
+        };
+        let owners: Vec<Owner> = sites
+            .iter()
+            .filter(|c| c.caller == p[caller] && c.callee == p[callee])
+            .map(|c| c.owner(root))
+            .collect();
+        if owners.is_empty() {
+            return Err(format!(
+                "the call from {} into core's {} is not in the linked ELF, so it cannot be \
+                 attributed",
+                p[caller], p[callee]
+            ));
+        }
+        if owners.iter().all(|o| *o == Owner::Std) {
+            callee = caller;
+            continue;
+        }
+        let mut places = Vec::new();
+        for o in owners {
+            match o {
+                Owner::Own(f) if accepted_own(&f, root).is_none() => {
+                    return Err(format!(
+                        "own code at {} calls core's {}, which panics",
+                        Site::place(&f, root),
+                        p[callee]
+                    ))
+                }
+                Owner::Own(f) => places.push(Site::place(&f, root)),
+                Owner::Crate(k, f) => places.push(format!("{k} {}", Site::place(&f, root))),
+                Owner::Std => {}
+            }
+        }
+        return Ok(places.join(", "));
+    }
+}
+
 fn accepted_own(f: &Frame, root: &Path) -> Option<&'static str> {
     let file = Path::new(f.file.as_deref()?);
     ACCEPTED_OWN_SITES
@@ -280,7 +327,7 @@ pub fn check(
                 bad.push(format!("{root}: {chain} (at {})", wher.join(", ")));
                 continue;
             }
-            let Some((_, dir)) = sites else {
+            let Some((all, dir)) = sites else {
                 bad.push(format!("{root}: {chain}: no line tables to attribute it"));
                 continue;
             };
@@ -311,18 +358,18 @@ pub fn check(
                         lines.push(format!("  KNOWN OPEN {root}: {k} {}", Site::place(&f, dir)));
                         *open.entry(k).or_default() += 1;
                     }
-                    Owner::Std => {
-                        // Inside a core function that was not inlined: who called it.
-                        let by = p
-                            .len()
-                            .checked_sub(3)
-                            .map_or(root.to_string(), |i| p[i].clone());
-                        lines.push(format!(
-                            "  KNOWN OPEN {root}: core, in {} called by {by}",
-                            p[p.len() - 2]
-                        ));
-                        *open.entry("core".into()).or_default() += 1;
-                    }
+                    // Inside a core function that was not inlined: the calls into it decide,
+                    // by their own line tables, walking up the path while they are core's too.
+                    Owner::Std => match std_caller(&p, all, dir) {
+                        Ok(places) => {
+                            lines.push(format!(
+                                "  KNOWN OPEN {root}: core, in {} reached from {places}",
+                                p[p.len() - 2]
+                            ));
+                            *open.entry("core".into()).or_default() += 1;
+                        }
+                        Err(why) => bad.push(format!("{root}: {why}: {chain}")),
+                    },
                 }
             }
         }
@@ -393,6 +440,7 @@ fn ph(_: &core::panic::PanicInfo) -> ! { loop {} }
 #[export_name = "_ZN7pathfit1q7bin_raw17h0123456789abcdefE"] #[inline(never)] pub fn planted_pathfit(s: &[u32], i: usize) -> u32 { s[i] }
 #[no_mangle] #[inline(never)] pub fn planted_estimate(s: &[u32], i: usize) -> u32 { planted_pathfit(s, i) + 1 }
 #[no_mangle] #[inline(never)] pub fn planted_clean(s: &[u32], i: usize) -> u32 { s.get(i).copied().unwrap_or(0) / 3 }
+#[no_mangle] #[inline(never)] pub fn planted_sort(s: &mut [u32]) { s.sort_unstable() }
 "#;
 
     /// The planted functions built for the firmware's target: as a library (`elf` false:
@@ -500,6 +548,24 @@ fn ph(_: &core::panic::PanicInfo) -> ! { loop {} }
         }
         // No panic call in the clean function; the entry point reaches none.
         assert!(sites.iter().all(|s| s.caller != "planted_clean"));
+        // A panic inside core's own (not inlined) functions is judged by the call into them.
+        let f = "planted_sort";
+        let line = src
+            .lines()
+            .position(|l| l.contains("fn planted_sort("))
+            .unwrap()
+            + 1;
+        let e = check(&asm, Some((&sites, &dir)), &[f], &[f]).unwrap_err();
+        assert!(
+            e.contains("calls core's") && e.contains(&format!("planted.rs:{line}")),
+            "{e}"
+        );
+        let ok = check(&asm, Some((&sites, &elsewhere)), &[f], &[f]).unwrap();
+        assert!(
+            ok.iter()
+                .any(|l| l.contains("KNOWN OPEN") && l.contains("core, in")),
+            "{ok:?}"
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -47,6 +47,13 @@ pub enum Owner {
     Std,
 }
 
+/// A function that may be core's: its path or its impl's self type names core (legacy or v0
+/// mangling: `4core`, `core..`). Broad on purpose: a call recorded into a function that is not
+/// core's costs a lookup, a call missed would leave a panic in core unattributed.
+pub fn is_core(sym: &str) -> bool {
+    sym.contains("4core") || sym.contains("core..")
+}
+
 /// The standard library's sources as rustc records them (remapped to `/rustc/<commit>/`).
 fn is_std(file: &str) -> bool {
     file.starts_with("/rustc/") || file.contains("/library/core/src/")
@@ -140,10 +147,11 @@ fn sign_extend(v: u32, bits: u32) -> i64 {
     (i64::from(v) << shift) >> shift
 }
 
-/// Every branch to a panic entry point in the ELF's functions, with the source frames at it.
-/// Every halfword of each function is tried as the start of a branch, so a branch is never
-/// missed whatever sits between instructions; data that happens to encode a branch to a panic
-/// entry point can add a site, never hide one.
+/// Every branch to a panic entry point in the ELF's functions, and to a function of core's
+/// that was not inlined (a panic inside one is judged by who called it), with the source
+/// frames at it. Every halfword of each function is tried as the start of a branch, so a
+/// branch is never missed whatever sits between instructions; data that happens to encode a
+/// branch to one of these can add a site, never hide one.
 pub fn panic_sites(elf: &[u8]) -> Res<Vec<Site>> {
     let obj = object::File::parse(elf).map_err(|e| format!("ELF: {e}"))?;
     let mut funcs: Vec<(u64, u64, String)> = Vec::new();
@@ -154,7 +162,7 @@ pub fn panic_sites(elf: &[u8]) -> Res<Vec<Site>> {
         }
         let Ok(name) = sym.name() else { continue };
         let addr = sym.address() & !1;
-        if is_panic(name) {
+        if is_panic(name) || is_core(name) {
             panics.insert(addr, name.to_string());
         }
         funcs.push((addr, sym.size(), name.to_string()));
