@@ -14,7 +14,10 @@
 //! of RATE (printed only: the guards below are the seated controller's);
 //! `PATHFIT_INERTIA_SCALE=F` fits with F × the drive's inertia (printed only too);
 //! `PATHFIT_GAIN_ERROR=G` gives the realistic plant's current sensor the relative gain error G
-//! (the scene's is +0.01; printed only), which the estimate cannot see without calibration.
+//! (the scene's is +0.01; printed only), which the estimate cannot see without calibration;
+//! `PATHFIT_DRIVE_OFF=coulomb,viscous,efficiency,backlash` (any of them) switches those error
+//! sources of the realistic plant's drive off (printed only): which of them an estimate
+//! is sensitive to. The controller's drive, and so the estimate's, follows the scene.
 //! (Owned by the pathfit helper; the harness in `tests/common` is the grasp owner's.)
 mod common;
 
@@ -59,6 +62,21 @@ fn gain_error() -> Option<f64> {
         .ok()
         .and_then(|v| v.parse::<f64>().ok())
         .filter(|g| g.is_finite() && g.abs() <= 0.1)
+}
+
+/// `PATHFIT_DRIVE_OFF=…`: the realistic drive's error sources to switch off (Coulomb friction
+/// with its stiction, viscous friction, gear efficiency, backlash); `None` when unset. An
+/// unknown name is an error, so a typo cannot pass for a measurement.
+fn drive_off() -> Option<Vec<String>> {
+    let v = std::env::var("PATHFIT_DRIVE_OFF").ok()?;
+    let names: Vec<String> = v.split(',').map(|n| n.trim().to_string()).collect();
+    for n in &names {
+        assert!(
+            ["coulomb", "viscous", "efficiency", "backlash"].contains(&n.as_str()),
+            "PATHFIT_DRIVE_OFF: unknown source {n:?} (coulomb, viscous, efficiency, backlash)"
+        );
+    }
+    Some(names)
 }
 
 /// No diagnosis variable changes this test's fit from the firmware's: the check that the
@@ -726,6 +744,15 @@ fn pathfit_grid_on_the_plant() {
     if let Some(g) = gain_error() {
         real_scene.sensors.gain_error = g;
     }
+    for source in drive_off().unwrap_or_default() {
+        let d = &mut real_scene.drive;
+        match source.as_str() {
+            "coulomb" => (d.coulomb_nm, d.stiction_nm) = (0.0, 0.0),
+            "viscous" => d.viscous_nm_s_per_rad = 0.0,
+            "efficiency" => (d.eff_drive, d.eff_back) = (1.0, 1.0),
+            _ => d.backlash_rad = 0.0,
+        }
+    }
     let real = run_grid(real_scene, no_seating());
     // The tables below score the integer kernel through this test's adapter; the firmware
     // calls `run_estimate` with the controller's drive. On both plants (the ideal drive's
@@ -806,7 +833,11 @@ fn pathfit_grid_on_the_plant() {
         "the tables' adapter and the firmware's run_estimate differ by more than 1e-4·l2:\n{}",
         mismatches.join("\n")
     );
-    if no_seating().is_some() || inertia_scale().is_some() || gain_error().is_some() {
+    if no_seating().is_some()
+        || inertia_scale().is_some()
+        || gain_error().is_some()
+        || drive_off().is_some()
+    {
         return;
     }
     for (label, si, sr, big_ideal) in &results {
