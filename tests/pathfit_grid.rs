@@ -15,9 +15,10 @@
 //! `PATHFIT_INERTIA_SCALE=F` fits with F × the drive's inertia (printed only too);
 //! `PATHFIT_GAIN_ERROR=G` gives the realistic plant's current sensor the relative gain error G
 //! (the scene's is +0.01; printed only), which the estimate cannot see without calibration;
-//! `PATHFIT_DRIVE_OFF=coulomb,viscous,efficiency,backlash` (any of them) switches those error
-//! sources of the realistic plant's drive off (printed only): which of them an estimate
-//! is sensitive to. The controller's drive, and so the estimate's, follows the scene.
+//! `PATHFIT_SOURCES_OFF=coulomb,viscous,efficiency,backlash,noise,offset` (any of them)
+//! switches those error sources of the realistic plant's drive and current sensor off
+//! (printed only): which of them an estimate is sensitive to. The controller's drive, and so
+//! the estimate's, follows the scene.
 //! (Owned by the pathfit helper; the harness in `tests/common` is the grasp owner's.)
 mod common;
 
@@ -64,16 +65,27 @@ fn gain_error() -> Option<f64> {
         .filter(|g| g.is_finite() && g.abs() <= 0.1)
 }
 
-/// `PATHFIT_DRIVE_OFF=…`: the realistic drive's error sources to switch off (Coulomb friction
-/// with its stiction, viscous friction, gear efficiency, backlash); `None` when unset. An
-/// unknown name is an error, so a typo cannot pass for a measurement.
-fn drive_off() -> Option<Vec<String>> {
-    let v = std::env::var("PATHFIT_DRIVE_OFF").ok()?;
+/// The realistic plant's error sources `PATHFIT_SOURCES_OFF` can switch off: the drive's
+/// Coulomb friction with its stiction, viscous friction, gear efficiency and backlash; the
+/// current sensor's noise and offset error (its gain error is `PATHFIT_GAIN_ERROR`'s).
+const SOURCES: [&str; 6] = [
+    "coulomb",
+    "viscous",
+    "efficiency",
+    "backlash",
+    "noise",
+    "offset",
+];
+
+/// `PATHFIT_SOURCES_OFF=…`: the sources to switch off; `None` when unset. An unknown name is
+/// an error, so a typo cannot pass for a measurement.
+fn sources_off() -> Option<Vec<String>> {
+    let v = std::env::var("PATHFIT_SOURCES_OFF").ok()?;
     let names: Vec<String> = v.split(',').map(|n| n.trim().to_string()).collect();
     for n in &names {
         assert!(
-            ["coulomb", "viscous", "efficiency", "backlash"].contains(&n.as_str()),
-            "PATHFIT_DRIVE_OFF: unknown source {n:?} (coulomb, viscous, efficiency, backlash)"
+            SOURCES.contains(&n.as_str()),
+            "PATHFIT_SOURCES_OFF: unknown source {n:?} (one of {SOURCES:?})"
         );
     }
     Some(names)
@@ -744,13 +756,15 @@ fn pathfit_grid_on_the_plant() {
     if let Some(g) = gain_error() {
         real_scene.sensors.gain_error = g;
     }
-    for source in drive_off().unwrap_or_default() {
-        let d = &mut real_scene.drive;
+    for source in sources_off().unwrap_or_default() {
+        let (d, s) = (&mut real_scene.drive, &mut real_scene.sensors);
         match source.as_str() {
             "coulomb" => (d.coulomb_nm, d.stiction_nm) = (0.0, 0.0),
             "viscous" => d.viscous_nm_s_per_rad = 0.0,
             "efficiency" => (d.eff_drive, d.eff_back) = (1.0, 1.0),
-            _ => d.backlash_rad = 0.0,
+            "backlash" => d.backlash_rad = 0.0,
+            "noise" => s.noise_v_rms = 0.0,
+            _ => s.offset_error_v = 0.0,
         }
     }
     let real = run_grid(real_scene, no_seating());
@@ -836,7 +850,7 @@ fn pathfit_grid_on_the_plant() {
     if no_seating().is_some()
         || inertia_scale().is_some()
         || gain_error().is_some()
-        || drive_off().is_some()
+        || sources_off().is_some()
     {
         return;
     }
