@@ -219,9 +219,9 @@ const ACCEPTED_OWN_SITES: &[(&str, &str, bool, &str)] = &[
         "src/board/usb.rs",
         "",
         true,
-        "a call the compiler merged from several inlined places (no line) in the USB read, \
-         whose own code indexes with `get`: the places are usbd-serial's buffer and \
-         synopsys-usb-otg's endpoint reads inlined there",
+        "a call the compiler merged from several inlined places, without a line, in the USB \
+         read, whose own code indexes with `get`; the code inlined there is usbd-serial's \
+         `SerialPort::read` and usb-device's poll with the Synopsys driver",
     ),
 ];
 
@@ -306,7 +306,7 @@ pub fn check(
         let paths = panic_paths(&g, root);
         let mut accepted = 0;
         let mut open = BTreeMap::<String, usize>::new();
-        let mut merged = 0;
+        let mut own_accepted = 0;
         for p in paths {
             if ACCEPTED.iter().any(|(a, b, _)| matches_edge(&p, a, b)) {
                 accepted += 1;
@@ -344,10 +344,10 @@ pub fn check(
             for s in at {
                 match s.owner(dir) {
                     Owner::Own(f) => match accepted_own(&f, dir) {
-                        Some(_) => {
-                            merged += 1;
+                        Some(why) => {
+                            own_accepted += 1;
                             lines.push(format!(
-                                "  KNOWN OPEN {root}: accepted at {} ({})",
+                                "  KNOWN OPEN {root}: accepted at {} ({}): {why}",
                                 Site::place(&f, dir),
                                 f.function.as_deref().unwrap_or("?")
                             ));
@@ -379,11 +379,11 @@ pub fn check(
             }
         }
         lines.push(format!("{root}: {accepted} accepted panic edge(s)"));
-        if !open.is_empty() || merged > 0 {
+        if !open.is_empty() || own_accepted > 0 {
             let by: Vec<String> = open.iter().map(|(k, n)| format!("{k} {n}")).collect();
             lines.push(format!(
                 "{root}: known-open panic calls by crate: {}; in this project's files: \
-                 {merged}, each listed with its reason (ACCEPTED_OWN_SITES)",
+                 {own_accepted}, each listed with its reason (ACCEPTED_OWN_SITES)",
                 by.join(", ")
             ));
         }
