@@ -263,9 +263,8 @@ fn std_caller(p: &[String], sites: &[Site], root: &Path) -> Result<String, Strin
                         p[callee]
                     ))
                 }
-                Owner::Own(f) => places.push(Site::place(&f, root)),
-                Owner::Crate(k, f) => places.push(format!("{k} {}", Site::place(&f, root))),
                 Owner::Std => {}
+                o => places.push(o.place(root)),
             }
         }
         return Ok(places.join(", "));
@@ -320,13 +319,9 @@ pub fn check(
                     .collect(),
                 _ => Vec::new(),
             };
-            let place = |s: &Site, dir: &Path| match s.owner(dir) {
-                Owner::Own(f) | Owner::Crate(_, f) => Site::place(&f, dir),
-                Owner::Std => "core".to_string(),
-            };
             if !open_roots.contains(root) {
                 let wher: Vec<String> = match sites {
-                    Some((_, dir)) => at.iter().map(|s| place(s, dir)).collect(),
+                    Some((_, dir)) => at.iter().map(|s| s.owner(dir).place(dir)).collect(),
                     None => Vec::new(),
                 };
                 bad.push(format!("{root}: {chain} (at {})", wher.join(", ")));

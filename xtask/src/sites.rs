@@ -23,12 +23,12 @@ pub struct Frame {
     pub line: Option<u32>,
 }
 
-/// A branch to a panic entry point in the linked code.
+/// A branch, in the linked code, to a panic entry point or to one of core's functions.
 #[derive(Clone, Debug)]
 pub struct Site {
     /// The function (symbol) the branch lies in.
     pub caller: String,
-    /// The panic entry point it branches to.
+    /// The panic entry point (or core's function) it branches to.
     pub callee: String,
     /// Address of the branch instruction.
     pub addr: u64,
@@ -52,6 +52,18 @@ pub enum Owner {
 /// core's costs a lookup, a call missed would leave a panic in core unattributed.
 pub fn is_core(sym: &str) -> bool {
     sym.contains("4core") || sym.contains("core..")
+}
+
+impl Owner {
+    /// Where the call lies, for a report: `file:line` in this project, `crate file:line` in a
+    /// dependency, `core` when only the standard library's frames are known.
+    pub fn place(&self, root: &Path) -> String {
+        match self {
+            Owner::Own(f) => Site::place(f, root),
+            Owner::Crate(k, f) => format!("{k} {}", Site::place(f, root)),
+            Owner::Std => "core".to_string(),
+        }
+    }
 }
 
 /// The standard library's sources as rustc records them (remapped to `/rustc/<commit>/`).
