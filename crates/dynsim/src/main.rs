@@ -1,7 +1,9 @@
 //! Writes a grid of engine-simulated grasp traces: `<id>.csv` (t_s,theta_a_rad,torque_nm at 1 kHz)
 //! and `<id>.json` (ground truth) per grasp, plus `index.csv` listing them.
 //!
-//! `dynsim --out DIR [--grid small|full]`; progress on stderr.
+//! `dynsim --out DIR [--grid small|full] [--only ID[,ID…]]`; progress on stderr. `--only`
+//! writes just the named cases of the grid (an unknown id is an error), to look at one grasp
+//! without simulating the rest.
 
 use dynsim::grasp::{self, Target};
 use dynsim::grid::{cases, FULL, SMALL};
@@ -9,18 +11,23 @@ use std::io::Write as _;
 use std::path::PathBuf;
 
 fn usage() -> ! {
-    eprintln!("usage: dynsim --out DIR [--grid small|full]");
+    eprintln!("usage: dynsim --out DIR [--grid small|full] [--only ID[,ID...]]");
     std::process::exit(2);
 }
 
 fn main() {
     let mut out: Option<PathBuf> = None;
     let mut grid = "small".to_string();
+    let mut only: Option<Vec<String>> = None;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
             "--out" => out = Some(args.next().unwrap_or_else(|| usage()).into()),
             "--grid" => grid = args.next().unwrap_or_else(|| usage()),
+            "--only" => {
+                let list = args.next().unwrap_or_else(|| usage());
+                only = Some(list.split(',').map(str::to_string).collect());
+            }
             _ => usage(),
         }
     }
@@ -31,7 +38,14 @@ fn main() {
         _ => usage(),
     };
     std::fs::create_dir_all(&dir).expect("create the output directory");
-    let cases = cases(axes);
+    let mut cases = cases(axes);
+    if let Some(ids) = &only {
+        if let Some(unknown) = ids.iter().find(|id| !cases.iter().any(|c| &c.id == *id)) {
+            eprintln!("--only {unknown}: no such case in the {grid} grid");
+            std::process::exit(2);
+        }
+        cases.retain(|c| ids.contains(&c.id));
+    }
     let start = std::time::Instant::now();
     let mut index =
         String::from("id,expected,phalanx,k2_c_m,k2_end_m,contact_losses,max_loop_gap_m\n");
