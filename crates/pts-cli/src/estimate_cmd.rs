@@ -306,7 +306,11 @@ fn run_segmented(
                         "inertia_kgm2": n(d.inertia_kgm2),
                         "sigma_inertia_kgm2": n(d.sigma_inertia_kgm2),
                         "viscous_nm_s_per_rad": n(d.viscous_nm_s_per_rad),
+                        "sigma_viscous_nm_s_per_rad": n(d.sigma_viscous_nm_s_per_rad),
                         "offset_nm": n(d.offset_nm),
+                        "sigma_offset_nm": n(d.sigma_offset_nm),
+                        "stiction_excess_nm": d.stiction_excess_nm.map(|s| n(s.0)),
+                        "sigma_stiction_excess_nm": d.stiction_excess_nm.map(|s| n(s.1)),
                         "noise_nm": n(d.noise_nm),
                         "blocks": d.blocks,
                     });
@@ -365,15 +369,25 @@ fn run_segmented(
         );
         if let Some(d) = &c.drive {
             println!(
-                "  drive from the approach: inertia {:.3e} ± {:.1e} kg·m², viscous {:.4} N·m·s/rad, \
-                 offset {:.4} N·m, noise {:.4} N·m ({} blocks)",
+                "  drive from the approach: inertia {:.3e} ± {:.1e} kg·m², viscous {:.4} ± {:.1e} N·m·s/rad, \
+                 offset {:.4} ± {:.1e} N·m, noise {:.4} N·m ({} blocks)",
                 d.inertia_kgm2,
                 d.sigma_inertia_kgm2,
                 d.viscous_nm_s_per_rad,
+                d.sigma_viscous_nm_s_per_rad,
                 d.offset_nm,
+                d.sigma_offset_nm,
                 d.noise_nm,
                 d.blocks
             );
+            match d.stiction_excess_nm {
+                Some((e, s)) => println!(
+                    "  stiction: breakaway {e:.4} ± {s:.1e} N·m above the sliding friction"
+                ),
+                None => println!(
+                    "  stiction: not seen (the recording does not start with the crank at rest)"
+                ),
+            }
         }
         match &c.estimate {
             Ok(r) => println!("  {}", crate::sim::describe(r)),

@@ -741,7 +741,15 @@ fn dynamics_corrected_residual(
         inertia_kgm2: finger.drive.inertia_kgm2,
         sigma_inertia_kgm2: finger.drive.inertia_kgm2,
     };
-    let Some(id) = identify_drive(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior) else {
+    let Some(id) = identify_drive(
+        m64,
+        blocks,
+        0,
+        seg.knee.saturating_sub(4),
+        q,
+        quantum_rad,
+        &prior,
+    ) else {
         return;
     };
     // The encoder's quantisation (`quantum_rad`, the recording's smallest θa step) on
@@ -873,7 +881,15 @@ fn foreign_path_fit(
         sigma_inertia_kgm2: finger.drive.inertia_kgm2,
     };
     let err = |e: grasp::EstimateError| crate::sim::EstError::new(e.kind(), &e);
-    let id = identify_drive(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior);
+    let id = identify_drive(
+        m64,
+        blocks,
+        0,
+        seg.knee.saturating_sub(4),
+        q,
+        quantum_rad,
+        &prior,
+    );
     let (inertia, contact) = match id {
         Some(id) => (
             id.inertia_kgm2,

@@ -26,8 +26,18 @@ pub struct DriveId {
     pub sigma_inertia_kgm2: f64,
     /// Viscous term (N·m·s/rad).
     pub viscous_nm_s_per_rad: f64,
+    /// Its σ (N·m·s/rad): large when the approach ran at one speed (the term and the offset
+    /// are then one constant).
+    pub sigma_viscous_nm_s_per_rad: f64,
     /// Sliding friction plus measurement offset (N·m) at zero speed: the residual's constant.
+    /// An approach that moves one way cannot tell the two apart.
     pub offset_nm: f64,
+    /// Its σ (N·m).
+    pub sigma_offset_nm: f64,
+    /// Stiction: how far the breakaway torque at the start of the approach lies above the
+    /// sliding friction (N·m, static minus Coulomb), with its σ; `None` when the recording
+    /// does not start with the crank at rest ([`breakaway`]).
+    pub stiction_excess_nm: Option<(f64, f64)>,
     /// Robust σ of the residual about the model (N·m, per block).
     pub noise_nm: f64,
     /// Blocks used.
@@ -47,6 +57,7 @@ pub fn identify_drive<R: pts::Real>(
     lo: usize,
     hi: usize,
     quantum_rad: f64,
+    recording_quantum_rad: f64,
     prior: &DrivePrior,
 ) -> Option<DriveId> {
     let t_free = |th: f64| -> Option<f64> {
@@ -57,6 +68,7 @@ pub fn identify_drive<R: pts::Real>(
     };
     // (residual, ω, α) per usable block; at most 1024 of the latest.
     let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
+    let lo_at_rest = lo;
     let lo = lo.max(KIN_SPAN);
     let hi = hi.min(blocks.len().saturating_sub(KIN_SPAN));
     let start = hi.saturating_sub(1024).max(lo);
@@ -81,14 +93,182 @@ pub fn identify_drive<R: pts::Real>(
             (l.min(p.2), h.max(p.2))
         });
     let fit = huber_fit(&pts, prior)?;
+    let jack = jackknife_var(&pts, prior);
+    let sigma = |i: usize| <f64 as pts::Real>::sqrt(fit.var[i].max(jack[i]).max(0.0));
+    let step = quantum_rad.max(recording_quantum_rad);
+    let stiction_excess_nm = breakaway(blocks, lo_at_rest, hi, step, &t_free, &fit).map(|b| {
+        let excess = b.residual_nm - fit.x[0];
+        (
+            excess,
+            (b.sigma_nm * b.sigma_nm + sigma(0) * sigma(0)).sqrt(),
+        )
+    });
     Some(DriveId {
         inertia_kgm2: fit.x[2],
-        sigma_inertia_kgm2: <f64 as pts::Real>::sqrt(fit.var_inertia.max(0.0)),
+        sigma_inertia_kgm2: sigma(2),
         viscous_nm_s_per_rad: fit.x[1],
+        sigma_viscous_nm_s_per_rad: sigma(1),
         offset_nm: fit.x[0],
+        sigma_offset_nm: sigma(0),
+        stiction_excess_nm,
         noise_nm: fit.scale,
         blocks: pts.len() as u32,
         accel_span_rad_s2: amax - amin,
+    })
+}
+
+/// The crank's breakaway from rest at the start of the approach ([`breakaway`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct Breakaway {
+    /// Free-motion residual T_a − T_free(θa) at the breakaway (N·m): the static friction plus
+    /// the measurement offset.
+    pub residual_nm: f64,
+    /// Its σ (N·m): the uncertainty of the breakaway instant and the residual's noise.
+    pub sigma_nm: f64,
+}
+
+/// Still blocks at the start of the approach that [`breakaway`] needs (the recording must
+/// start at rest), and the most of them its local fit of the rising residual uses.
+const REST_BLOCKS_MIN: usize = 4;
+const REST_BLOCKS_FIT: usize = 10;
+
+/// The breakaway torque of a transmission that starts at rest: its static friction.
+///
+/// The crank stands while the residual r = T_a − T_free(θa) rises; it breaks away once r
+/// exceeds the static friction, and the encoder shows it one count (`quantum_rad`: the
+/// recording's own step where it is coarser than the finger's encoder) later. The
+/// breakaway lies between the first block that shows the motion and the earliest instant
+/// from which the identified drive (`fit`'s inertia and viscous term) could have covered one
+/// count by then, starting as slowly as it can: its friction held at the breakaway level
+/// while the torque rises on (a drive whose friction drops at once moves sooner). The
+/// residual there comes from a straight line through the last still blocks (the rising
+/// torque; when it is flat, the torque began to rise within the block that moved, whose own
+/// residual bounds the breakaway). The estimate is the middle of that range, with the range
+/// as a uniform σ and the line's own σ. `None` without [`REST_BLOCKS_MIN`] still blocks at
+/// the start, without a block that moved, or on a residual that is not finite.
+pub(super) fn breakaway(
+    blocks: &[Block],
+    lo: usize,
+    hi: usize,
+    quantum_rad: f64,
+    t_free: &dyn Fn(f64) -> Option<f64>,
+    fit: &HuberFit,
+) -> Option<Breakaway> {
+    let q = quantum_rad.max(1e-9);
+    let rest = blocks.get(lo)?.theta_a_rad;
+    // The measured residual (the blocks' own may have been corrected for the dynamics, which
+    // smears the motion after the breakaway back over the still blocks).
+    let resid = |k: &Block| t_free(k.theta_a_rad).map_or(f64::NAN, |tf| k.torque_nm - tf);
+    let moved = (lo + 1..hi.min(blocks.len()))
+        .find(|&k| (blocks[k].theta_a_rad - rest).abs() >= 0.5 * q)?;
+    if moved - lo < REST_BLOCKS_MIN {
+        return None;
+    }
+    // r(t) = a + b (t − t_moved) through the last still blocks.
+    let still = &blocks[moved.saturating_sub(REST_BLOCKS_FIT).max(lo)..moved];
+    let t_m = blocks[moved].t_s;
+    let n = still.len() as f64;
+    let (st, sr) = still
+        .iter()
+        .fold((0.0, 0.0), |(a, b), k| (a + (k.t_s - t_m), b + resid(k)));
+    let (mt, mr) = (st / n, sr / n);
+    let (mut stt, mut str_) = (0.0, 0.0);
+    for k in still {
+        let dt = k.t_s - t_m - mt;
+        stt += dt * dt;
+        str_ += dt * (resid(k) - mr);
+    }
+    if !(stt > 0.0) {
+        return None;
+    }
+    // A flat residual: the torque began to rise only within the block that moved.
+    let slope = (str_ / stt).max(0.0);
+    let r_at = |dt: f64| mr + slope * (dt - mt);
+    let line_var = {
+        let ss: f64 = still
+            .iter()
+            .map(|k| {
+                let e = resid(k) - r_at(k.t_s - t_m);
+                e * e
+            })
+            .sum();
+        ss / (n - 2.0).max(1.0)
+    };
+    if !line_var.is_finite() || !mr.is_finite() {
+        return None;
+    }
+    // The earliest breakaway: the slowest start the drive could make from it, with the
+    // friction staying at the breakaway level (a Stribeck drive's friction falls to the
+    // sliding level only once it moves): J θ̈a + viscous·θ̇a = r(t) − r(t_b). The travel by
+    // t_m grows as t_b moves back and may not exceed one count.
+    let [_, viscous, inertia] = fit.x;
+    let viscous = viscous.max(0.0);
+    let block_s = (t_m - still[0].t_s) / n;
+    let travel_from = |t_b: f64| -> f64 {
+        let steps = 64;
+        let h = -t_b / steps as f64;
+        let (mut w, mut th) = (0.0f64, 0.0f64);
+        for i in 0..steps {
+            let t = t_b + h * i as f64;
+            // Implicit in the viscous term: stable for any inertia, down to none.
+            let den = inertia.max(0.0) + h * viscous;
+            w = if den > 0.0 {
+                ((inertia.max(0.0) * w + h * (r_at(t) - r_at(t_b))) / den).max(0.0)
+            } else {
+                f64::INFINITY
+            };
+            th += h * w;
+        }
+        th
+    };
+    let (mut t_b, dt) = (-0.5 * block_s, 0.25 * block_s);
+    let limit = still[0].t_s - t_m;
+    while t_b - dt >= limit && travel_from(t_b - dt) <= q {
+        t_b -= dt;
+    }
+    let hi_r = if slope > 0.0 {
+        r_at(0.5 * block_s)
+    } else {
+        resid(&blocks[moved]).max(mr)
+    };
+    let lo_r = r_at(t_b).min(hi_r);
+    let at_var = line_var / n;
+    let width = hi_r - lo_r;
+    Some(Breakaway {
+        residual_nm: 0.5 * (lo_r + hi_r),
+        sigma_nm: (width * width / 12.0 + at_var).sqrt(),
+    })
+}
+
+/// Contiguous groups of the approach's blocks left out in turn by [`jackknife_var`].
+const JACK_GROUPS: usize = 8;
+
+/// The delete-a-group jackknife variance of the fit's parameters over [`JACK_GROUPS`]
+/// contiguous stretches of the approach: (g − 1)/g Σ (x̂₍ᵢ₎ − x̄)². The least-squares variance
+/// assumes independent rows; what the model leaves out along the approach (friction rising
+/// at low speed towards stiction, the links' pose-dependent dynamics) is a slow, one-signed
+/// residual that biases the fit without widening it. Leaving out one stretch at a time
+/// shows how far the answer depends on where the approach was measured. Zero when a
+/// leave-out fit fails or there are too few rows.
+fn jackknife_var(pts: &[(f64, f64, f64)], prior: &DrivePrior) -> [f64; 3] {
+    let g = JACK_GROUPS;
+    if pts.len() < 4 * g {
+        return [0.0; 3];
+    }
+    let mut xs = [[0.0f64; 3]; JACK_GROUPS];
+    for (i, x) in xs.iter_mut().enumerate() {
+        let (lo, hi) = (i * pts.len() / g, (i + 1) * pts.len() / g);
+        let rest: Vec<(f64, f64, f64), 1024> =
+            pts[..lo].iter().chain(&pts[hi..]).copied().collect();
+        match huber_fit(&rest, prior) {
+            Some(f) => *x = f.x,
+            None => return [0.0; 3],
+        }
+    }
+    core::array::from_fn(|j| {
+        let mean = xs.iter().map(|x| x[j]).sum::<f64>() / g as f64;
+        let ss: f64 = xs.iter().map(|x| (x[j] - mean) * (x[j] - mean)).sum();
+        ss * (g - 1) as f64 / g as f64
     })
 }
 
@@ -229,11 +409,12 @@ pub fn poly_half_width(
         .unwrap_or(max_half)
 }
 
-/// The fit of r = offset + viscous·ω + inertia·α: parameters, noise scale, var(inertia).
-struct HuberFit {
+/// The fit of r = offset + viscous·ω + inertia·α: parameters, noise scale and the
+/// parameters' variances (the covariance's diagonal, the inertia's prior included).
+pub(super) struct HuberFit {
     x: [f64; 3],
     scale: f64,
-    var_inertia: f64,
+    var: [f64; 3],
 }
 
 /// Iteratively reweighted least squares of `(r, ω, α)` rows: Huber weights at 2 σ, σ from
@@ -243,7 +424,7 @@ fn huber_fit(pts: &[(f64, f64, f64)], prior: &DrivePrior) -> Option<HuberFit> {
     let prior_on = prior.sigma_inertia_kgm2.is_finite() && prior.sigma_inertia_kgm2 > 0.0;
     let mut x = [0.0f64; 3];
     let mut scale = f64::INFINITY;
-    let mut var_inertia = f64::INFINITY;
+    let mut var = [f64::INFINITY; 3];
     for _ in 0..6 {
         let mut a = [[0.0f64; 3]; 3];
         let mut g = [0.0f64; 3];
@@ -292,13 +473,9 @@ fn huber_fit(pts: &[(f64, f64, f64)], prior: &DrivePrior) -> Option<HuberFit> {
             .iter()
             .map(|&(r, w, acc)| r - x[0] - x[1] * w - x[2] * acc);
         scale = mad_sigma(res).max(1e-5);
-        var_inertia = inv[2][2] * scale * scale;
+        var = core::array::from_fn(|i| inv[i][i] * scale * scale);
     }
-    Some(HuberFit {
-        x,
-        scale,
-        var_inertia,
-    })
+    Some(HuberFit { x, scale, var })
 }
 
 /// 1.4826 × the median absolute value (≈ σ for Gaussian noise); over up to 1024 values.
@@ -502,13 +679,87 @@ mod tests {
             inertia_kgm2: 0.0,
             sigma_inertia_kgm2: 0.0,
         };
-        let id = identify_drive(&model, &blocks, 0, blocks.len(), q, &none).unwrap();
+        let id = identify_drive(&model, &blocks, 0, blocks.len(), q, q, &none).unwrap();
         assert!(
             (id.inertia_kgm2 - j).abs() < 0.04 * j,
             "Ĵ = {:.3e} kg·m² for {j:.1e}",
             id.inertia_kgm2
         );
         assert!((id.offset_nm - 0.02).abs() < 2e-3, "{id:?}");
+    }
+
+    /// A crank started from rest by a torque ramp, simulated here on its own (semi-implicit
+    /// Euler at 20 kHz): inertia `j`, viscous `c`, a friction that holds it until the torque
+    /// exceeds `fs` and then falls towards `fc` with speed over the Stribeck speed `ws`
+    /// (fc + (fs − fc)·exp(−(ω/ws)²)). Recorded at 1 kHz by an encoder of step `q`, averaged
+    /// into 4 ms blocks, no free-motion torque (T_free = 0) and no noise.
+    fn ramp_from_rest(j: f64, c: f64, fs: f64, fc: f64, ws: f64, q: f64) -> std::vec::Vec<Block> {
+        let (slope, h) = (0.5, 5e-5);
+        let (mut w, mut th, mut stuck) = (0.0f64, 0.0f64, true);
+        let mut rows = std::vec::Vec::new();
+        for i in 0..(0.4 / h) as usize {
+            let t = h * i as f64;
+            let torque = slope * (t - 0.05).max(0.0);
+            if stuck && torque > fs {
+                stuck = false;
+            }
+            if !stuck {
+                let friction = fc + (fs - fc) * (-(w / ws).powi(2)).exp();
+                w = (w + h * (torque - friction - c * w) / j).max(0.0);
+                th += h * w;
+            }
+            if i % 20 == 0 {
+                rows.push((t, (th / q).floor() * q, torque));
+            }
+        }
+        rows.chunks(4)
+            .enumerate()
+            .map(|(k, r)| Block {
+                index: k as u32,
+                t_s: r.iter().map(|x| x.0).sum::<f64>() / 4.0,
+                theta_a_rad: r.iter().map(|x| x.1).sum::<f64>() / 4.0,
+                torque_nm: r.iter().map(|x| x.2).sum::<f64>() / 4.0,
+                ..Block::default()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_breakaway_brackets_the_static_friction() {
+        let q = core::f64::consts::TAU / 16384.0;
+        let none = |_: f64| Some(0.0);
+        // (inertia, static, Coulomb, Stribeck speed): a Stribeck drive, one whose friction drops
+        // at once, no stiction, a light drive.
+        for (j, fs, fc, ws) in [
+            (5e-3, 0.035, 0.02, 0.03),
+            (5e-3, 0.035, 0.02, 1e-6),
+            (5e-3, 0.02, 0.02, 0.03),
+            (5e-4, 0.035, 0.02, 0.03),
+        ] {
+            let b = ramp_from_rest(j, 0.003, fs, fc, ws, q);
+            let fit = HuberFit {
+                x: [fc, 0.003, j],
+                scale: 0.0,
+                var: [0.0; 3],
+            };
+            let r = breakaway(&b, 0, b.len(), q, &none, &fit).expect("a breakaway");
+            assert!(
+                (r.residual_nm - fs).abs() <= 3.0 * r.sigma_nm,
+                "J {j:.0e}, static {fs}, Stribeck {ws}: {r:?}"
+            );
+            // It says something: σ at most a third of the Stribeck drives' excess of static
+            // over sliding friction (0.015 N·m). The earliest start is the slow one, so a
+            // heavy drive on a 16384-count encoder leaves a range of about 15 mN·m.
+            assert!(r.sigma_nm <= 5e-3, "J {j:.0e}, static {fs}: {r:?}");
+        }
+        // A recording that starts with the crank moving shows no breakaway.
+        let moving = blocks_n(40, 0.004, |t| 0.1 * t);
+        let fit = HuberFit {
+            x: [0.02, 0.0, 5e-3],
+            scale: 0.0,
+            var: [0.0; 3],
+        };
+        assert_eq!(breakaway(&moving, 0, moving.len(), q, &none, &fit), None);
     }
 
     #[test]
