@@ -5,7 +5,10 @@
 mod common;
 
 use common::*;
-use grasp::{FaultReason, State};
+use grasp::{FaultReason, Located, State};
+use plant::path::ContactSpec;
+use plant::scene::ObjectSpec;
+use plant::{Phalanx, Scene};
 
 /// ΔT_a = 0.2 N·m on sound single contacts: the torque at the halfway sample dips below
 /// T_a,c (the reference drops to T_a,c at the detection while the impact decelerates the
@@ -68,4 +71,95 @@ fn a_finger_locked_at_two_points_is_still_refused() {
         );
         assert!(o.bridge_off, "ΔT_a {dta}: bridge left on");
     }
+}
+
+/// Large cylinders near O2 (the scenes of `grasp_faults::second_contact_is_detected`): the
+/// proximal phalanx touches first, then the distal one too while the torque rises. The path
+/// fit refuses the step or reads it as proximal; the probe (half a step more, then a whole
+/// step where the realistic gear's load-dependent friction holds the finger at the first)
+/// finds the finger locked and names it, with the bridge off, on both plants.
+#[test]
+fn a_second_contact_is_named_without_seating() {
+    for ideal in [true, false] {
+        for (theta1_c_rad, k_c_m, radius_m) in
+            [(1.1, 0.006, 0.10), (1.2797, 0.003, 0.10), (1.0, 0.004, 0.2)]
+        {
+            let scene = Scene {
+                name: "second_contact",
+                object: ObjectSpec::Touching(ContactSpec {
+                    theta1_c_rad,
+                    phalanx: Phalanx::Distal,
+                    k_c_m,
+                    radius_m,
+                }),
+                ..Scene::DEFAULT
+            };
+            let scene = if ideal { scene.ideal() } else { scene };
+            let o = run(&scene, unseated(&scene, 0.8), 20.0, 0.2, |_, _, _| {});
+            let name = format!("R={radius_m} k2={k_c_m} θ1,c={theta1_c_rad} ideal={ideal}");
+            println!(
+                "{name}: {:?} after {:?}, plant second contact at {:?} s",
+                o.state, o.estimate, o.second_contact_s
+            );
+            assert!(o.second_contact_s.is_some(), "{name}: no second contact");
+            assert!(
+                matches!(o.state, State::Fault(FaultReason::SecondContact { .. })),
+                "{name}: {:?}",
+                o.state
+            );
+            assert!(o.bridge_off, "{name}: bridge left on");
+        }
+    }
+}
+
+/// The probe does not name a sound contact: a proximal contact (answered proximal, the probe
+/// moves it on its own stiffness) and single distal contacts whose step the path fit refuses
+/// (a large cylinder and a tiny step, inside the realistic drive's stiction band) end as
+/// before, held with their answer or refused with the estimator's reason, never as a second
+/// contact.
+#[test]
+fn the_probe_leaves_a_sound_contact_alone() {
+    let table2 = plant::scenes::by_name("table2").expect("scene");
+    let grid = |radius_m: f64, k2c: f64| Scene {
+        object: ObjectSpec::Touching(ContactSpec {
+            theta1_c_rad: plant::scenes::TABLE2_THETA1_C_RAD,
+            phalanx: Phalanx::Distal,
+            k_c_m: k2c * 0.075,
+            radius_m,
+        }),
+        ..table2
+    };
+    let prox = plant::scenes::by_name("proximal_vertex_k1_50").expect("scene");
+    let mut probed = 0;
+    for (name, scene, dta) in [
+        ("proximal, realistic", prox, 0.8),
+        ("proximal, ideal", prox.ideal(), 0.5),
+        ("R 9.75 cm k2,c 0.4 l2, 0.2 N·m", grid(0.0975, 0.4), 0.2),
+        ("R 1 cm k2,c 0.8 l2, 0.05 N·m", grid(0.01, 0.8), 0.05),
+        ("R 2.5 cm k2,c 0.7 l2, 0.05 N·m", grid(0.025, 0.7), 0.05),
+    ] {
+        let o = run(&scene, unseated(&scene, dta), 20.0, 0.2, |_, _, _| {});
+        println!("{name}: {:?}, estimate {:?}", o.state, o.estimate);
+        assert!(o.second_contact_s.is_none(), "{name}: the plant locked");
+        assert!(
+            !matches!(o.state, State::Fault(FaultReason::SecondContact { .. })),
+            "{name}: named a second contact"
+        );
+        let probe = match &o.estimate {
+            Some(Ok(r)) => r.located != Located::Distal,
+            Some(Err(_)) => true,
+            None => false,
+        };
+        probed += usize::from(probe);
+        match (&o.state, &o.estimate) {
+            (State::Holding, Some(Ok(r))) => {
+                assert!(r.k2_um.is_some() || r.located != Located::Distal)
+            }
+            (State::Fault(FaultReason::EstimateOutOfRange { .. }), Some(Err(_))) => {}
+            (State::Fault(FaultReason::NoMotion { .. }), None) => {}
+            (s, e) => panic!("{name}: {s:?} after {e:?}"),
+        }
+    }
+    // The cases reach the probe: an answer without a distal location, or a refusal.
+    assert!(probed >= 3, "only {probed} cases were probed");
 }

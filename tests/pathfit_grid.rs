@@ -23,7 +23,7 @@
 mod common;
 
 use common::*;
-use grasp::{run_estimate, Controller, EstimateRequest, Hardware, State};
+use grasp::{run_estimate, Controller, EstimateRequest, FaultReason, Hardware, State};
 use pathfit::q::{fit_path_q, PathTable, RawSample};
 use pathfit::{fit_path, FittedObject, PathFit, PathFitConfig, PathFitError, PathSample};
 use plant::kin::Phalanx as PPhalanx;
@@ -170,6 +170,12 @@ struct Case {
     fw_f64: Option<Result<grasp::EstimateResult, grasp::EstimateError>>,
     /// The controller never produced a request (state at the end).
     no_request: Option<State>,
+    /// The plant reported a second contact or the contact passing the tip after the estimate.
+    plant_after: Option<&'static str>,
+    /// The controller's state once it took the firmware's path-fit outcome and finished with
+    /// it (held, released or faulted; the unseated controller probes first when the outcome
+    /// locates no distal contact).
+    after_estimate: Option<State>,
 }
 
 fn grid_scene(base: Scene, radius: f64, k2c: f64) -> Scene {
@@ -232,6 +238,8 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64, unseated_rate: Op
         fw: None,
         fw_f64: None,
         no_request: None,
+        plant_after: None,
+        after_estimate: None,
     };
     let Ok(plant) = Plant::new(&scene) else {
         case.plant_end = Some("scene");
@@ -363,14 +371,32 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64, unseated_rate: Op
                 tp_req.estimator = grasp::Estimator::TwoPoint;
                 let r = run_estimate(&pts::Finger::PAPER, &ccfg.drive, &tp_req);
                 case.two_point = r.ok().and_then(|e| e.k2_um.map(|k| f64::from(k) * 1e-6));
-                c.deliver(&mut hw, r);
-                break;
+                if let Some(fw) = case.fw {
+                    c.deliver(&mut hw, fw);
+                }
             }
+        }
+        if case.fit.is_some()
+            && matches!(
+                c.state(),
+                State::Holding | State::Releasing | State::Done | State::Fault(_)
+            )
+        {
+            case.after_estimate = Some(c.state());
+            break;
         }
         while c.poll_event().is_some() {}
         hw.advance();
         while let Some(e) = hw.plant.poll_event() {
             match e.kind {
+                // After the estimate (the unseated controller's probe pushes on) apart: the
+                // tables count what the estimate saw.
+                EventKind::SecondContact { .. } if case.fw.is_some() => {
+                    case.plant_after = Some("second_contact")
+                }
+                EventKind::BeyondTip { .. } if case.fw.is_some() => {
+                    case.plant_after = Some("past_tip")
+                }
                 EventKind::SecondContact { .. } => case.plant_end = Some("second_contact"),
                 EventKind::BeyondTip { .. } => case.plant_end = Some("past_tip"),
                 _ => {}
@@ -797,6 +823,54 @@ fn pathfit_grid_on_the_plant() {
             }
         }
     }
+    // What the controller did with the firmware's outcome: a second contact the controller
+    // named where the plant saw none is a false alarm (the unseated controller's probe must
+    // not raise one).
+    let mut false_second = Vec::new();
+    for (plant, cases) in [("ideal", &ideal), ("realistic", &real)] {
+        let (mut named, mut locked, mut probed_sound) = (0, 0, 0);
+        for c in cases.iter() {
+            let Some(state) = c.after_estimate else {
+                continue;
+            };
+            let second = matches!(state, State::Fault(FaultReason::SecondContact { .. }));
+            // The path fit's own verdict (a fitted object that would cut the proximal
+            // phalanx) is the estimator's, counted with its refusals above.
+            let fit_said = matches!(
+                &c.fw,
+                Some(Err(grasp::EstimateError::PathFit(
+                    PathFitError::SecondContact
+                )))
+            );
+            if c.plant_end.or(c.plant_after) == Some("second_contact") {
+                locked += 1;
+                named += usize::from(second);
+                if !second {
+                    println!(
+                        "  {plant}: R={} k2c={:.2} ΔT={}: locked (plant, {}), ended {state:?} after {:?}",
+                        c.radius,
+                        c.k2c / L2,
+                        c.dta,
+                        if c.plant_end.is_some() { "before the estimate" } else { "in the probe" },
+                        c.fw
+                    );
+                }
+            } else if second && !fit_said {
+                false_second.push(format!(
+                    "{plant}: R={} k2c={:.2} ΔT={}: {state:?}",
+                    c.radius,
+                    c.k2c / L2,
+                    c.dta
+                ));
+            } else if !matches!(&c.fw, Some(Ok(r)) if r.located == grasp::Located::Distal) {
+                probed_sound += 1;
+            }
+        }
+        println!(
+            "{plant} plant, after the estimate: second contacts named {named} of {locked} the plant \
+             locked; grasps without a distal location and no second contact: {probed_sound}, none named"
+        );
+    }
     let f64_fit: fn(&Case) -> &Option<Result<FitOut, PathFitError>> = |c| &c.fit;
     let q_fit: fn(&Case) -> &Option<Result<FitOut, PathFitError>> = |c| &c.fit_q;
     // Every summary and verdict first, then the guards (a failure still shows both back ends).
@@ -846,6 +920,11 @@ fn pathfit_grid_on_the_plant() {
         mismatches.is_empty(),
         "the tables' adapter and the firmware's run_estimate differ by more than 1e-4·l2:\n{}",
         mismatches.join("\n")
+    );
+    assert!(
+        false_second.is_empty(),
+        "a second contact named where the plant saw none:\n{}",
+        false_second.join("\n")
     );
     if no_seating().is_some()
         || inertia_scale().is_some()

@@ -247,6 +247,10 @@ pub struct ControllerConfig {
     pub rest_check: Option<crate::rest::RestCheck>,
 }
 
+/// The probe after an unseated estimate stays below this share of the torque the
+/// over-current limit stands for (the current's transients on the ramp stay below the limit).
+const PROBE_CURRENT_SHARE: f64 = 0.8;
+
 impl ControllerConfig {
     /// Defaults tuned against the simulated plant (see the host tests).
     pub const DEFAULT: ControllerConfig = ControllerConfig {
@@ -490,6 +494,8 @@ impl ControllerConfig {
             slide_extra_unm: unm(self.slide_extra_nm),
             seating: self.seating,
             delta_ta_unm: unm(self.delta_ta_nm),
+            probe_max_unm: unm((self.approach_max_nm + self.delta_ta_nm)
+                .min(PROBE_CURRENT_SHARE * self.overcurrent_a * d.torque_per_amp())),
             step_ramp_q16,
             settle_window: self.settle_window as usize,
             settle_band_urad: to_i32(self.settle_band_rad * 1e6),
@@ -904,6 +910,9 @@ pub struct Params {
     pub settle_timeout_ticks: u32,
     /// Estimate delivery timeout (ticks).
     pub estimate_timeout_ticks: u32,
+    /// Highest reference of the probe after an unseated estimate (µN·m): no more than a step
+    /// from the approach's ceiling would reach, and a margin below the over-current limit.
+    pub probe_max_unm: i32,
     /// Second-contact stiffness (µN·m/rad).
     pub second_k_unm_per_rad: i64,
     /// Least late-half travel (µrad).

@@ -326,6 +326,19 @@ enum Phase {
     Holding {
         loaded: Loaded,
     },
+    /// Without seating, after an estimate that refused or did not locate a distal contact:
+    /// the reference rises a further half step from the settled end, to tell a finger locked
+    /// by a second contact (which barely moves) from a path the fit could not read or a
+    /// proximal contact.
+    Probing {
+        loaded: Loaded,
+        /// The settled end point of the step.
+        end: Sample,
+        /// Where the reference goes (µN·m).
+        target_unm: i32,
+        /// Tick the reference reached the target (settling since), `None` while ramping.
+        reached: Option<u32>,
+    },
     Releasing,
     Opening {
         /// Tick the opening started.
@@ -346,6 +359,8 @@ impl Phase {
             Phase::Settling { .. } => State::Settling,
             Phase::Estimating { .. } => State::Estimating,
             Phase::Holding { .. } => State::Holding,
+            Phase::Probing { reached: None, .. } => State::Step,
+            Phase::Probing { .. } => State::Settling,
             Phase::Releasing => State::Releasing,
             Phase::Opening { .. } => State::Opening,
             Phase::Done => State::Done,
@@ -363,6 +378,7 @@ impl Phase {
                 | Phase::Settling { .. }
                 | Phase::Estimating { .. }
                 | Phase::Holding { .. }
+                | Phase::Probing { .. }
                 | Phase::Releasing
                 | Phase::Opening { .. }
         )
@@ -479,6 +495,9 @@ pub struct Supervisor {
     path: PathRecord,
     emf: EmfCheck,
     result: Option<EstimateResult>,
+    /// The estimate's outcome while [`Phase::Probing`] decides whether it stands (kept out of
+    /// the phase, which every state carries).
+    probed: Option<Result<EstimateResult, EstimateError>>,
     events: Deque<Event, EVENT_CAPACITY>,
     events_dropped: u32,
     /// A fault found inside a sample step; applied at its end.
@@ -703,6 +722,7 @@ impl Supervisor {
                 bad: 0,
             },
             result: None,
+            probed: None,
             events: Deque::new(),
             events_dropped: 0,
             pending: None,
@@ -764,9 +784,9 @@ impl Supervisor {
                 target_unm,
                 ..
             } => self.toward(target_unm, p.seat_ramp_q16),
-            Phase::Seating { target_unm, .. } | Phase::Step { target_unm, .. } => {
-                self.toward(target_unm, p.step_ramp_q16)
-            }
+            Phase::Seating { target_unm, .. }
+            | Phase::Step { target_unm, .. }
+            | Phase::Probing { target_unm, .. } => self.toward(target_unm, p.step_ramp_q16),
             Phase::Releasing => Reference::Ramp {
                 target: TorqueQ16::new(0),
                 rate: TorqueQ16::new(p.release_ramp_q16),
@@ -918,6 +938,7 @@ impl Supervisor {
             Phase::Step { loaded, .. }
             | Phase::Settling { loaded, .. }
             | Phase::Estimating { loaded, .. }
+            | Phase::Probing { loaded, .. }
             | Phase::Holding { loaded } => (loaded.contact, Some(loaded)),
             _ => return,
         };
@@ -948,6 +969,10 @@ impl Supervisor {
                 ..
             }
             | Phase::Settling {
+                loaded: Loaded { contact, .. },
+                ..
+            }
+            | Phase::Probing {
                 loaded: Loaded { contact, .. },
                 ..
             } if self.tick.wrapping_sub(contact.tick) > p.settle_timeout_ticks => {
@@ -1035,12 +1060,51 @@ impl Supervisor {
     /// Gives the estimate back (from the low-priority task). A refused estimate puts the
     /// state machine in the safe state. Ignored unless it is waiting for one. Publish the
     /// setpoint afterwards ([`Supervisor::publish`]) so the loop acts on it at once.
+    ///
+    /// Without seating no static point lies inside the step, so a refusal or an answer that
+    /// does not locate a distal contact is first probed ([`Phase::Probing`]): a finger locked
+    /// by a second contact is named as one, as the seated controller's late-half check does.
     pub fn deliver(&mut self, outcome: Result<EstimateResult, EstimateError>) {
         let Phase::Estimating { loaded, end, .. } = self.phase else {
             return;
         };
-        let tick = self.tick;
         let kc_unm_per_rad = loaded.kc_late_unm_per_rad(&end);
+        match outcome {
+            // Far stiffer than any single contact on the distal phalanx: the finger is
+            // blocked at two points.
+            Err(EstimateError::Model(PtsError::BeyondTip))
+                if i64::from(kc_unm_per_rad) > self.p.second_k_unm_per_rad =>
+            {
+                self.fault(FaultReason::SecondContact { kc_unm_per_rad });
+                return;
+            }
+            Err(EstimateError::PathFit(PathFitError::SecondContact)) => {
+                self.fault(FaultReason::SecondContact { kc_unm_per_rad });
+                return;
+            }
+            _ => {}
+        }
+        let located_distal =
+            matches!(&outcome, Ok(r) if r.located == crate::estimate::Located::Distal);
+        if !self.p.seating && !located_distal {
+            if let Some(target_unm) = self.probe_target(&end) {
+                self.probed = Some(outcome);
+                self.phase = Phase::Probing {
+                    loaded,
+                    end,
+                    target_unm,
+                    reached: None,
+                };
+                return;
+            }
+        }
+        self.conclude(outcome, loaded);
+    }
+
+    /// The estimate's outcome taken: an answer is held (or released), a refusal is the safe
+    /// state.
+    fn conclude(&mut self, outcome: Result<EstimateResult, EstimateError>, loaded: Loaded) {
+        let tick = self.tick;
         match outcome {
             Ok(r) => {
                 self.result = Some(r);
@@ -1056,17 +1120,61 @@ impl Supervisor {
                     }
                 }
             }
-            // Far stiffer than any single contact on the distal phalanx: the finger is
-            // blocked at two points.
-            Err(EstimateError::Model(PtsError::BeyondTip))
-                if i64::from(kc_unm_per_rad) > self.p.second_k_unm_per_rad =>
-            {
-                self.fault(FaultReason::SecondContact { kc_unm_per_rad });
-            }
-            Err(EstimateError::PathFit(PathFitError::SecondContact)) => {
-                self.fault(FaultReason::SecondContact { kc_unm_per_rad });
-            }
             Err(error) => self.fault(FaultReason::EstimateOutOfRange { error }),
+        }
+    }
+
+    /// Where the probe after an unseated estimate takes the reference: half a step above the
+    /// settled end, no higher than [`Params::probe_max_unm`]; `None` when that leaves less
+    /// than a quarter step.
+    fn probe_target(&self, end: &Sample) -> Option<i32> {
+        let from = end.torque_ref_unm;
+        let to = from
+            .saturating_add(self.p.delta_ta_unm / 2)
+            .min(self.p.probe_max_unm);
+        (i64::from(to) - i64::from(from) >= i64::from(self.p.delta_ta_unm / 4)).then_some(to)
+    }
+
+    /// The probe's end: once θa is still at the raised reference, its stiffness from the
+    /// step's end decides. Far stiffer than any single contact, or than the whole step, is a
+    /// second contact; anything else (a finger the drive's stiction still holds a whole step
+    /// above the end included) leaves the estimator's outcome as it was.
+    fn check_probe(&mut self, loaded: Loaded, end: Sample, since: u32) {
+        let Some(now) = self.settled(since) else {
+            return;
+        };
+        let dth = i64::from(now.theta_a_urad) - i64::from(end.theta_a_urad);
+        // Not moved at all: the gear's friction, which grows with the load it carries, may
+        // hold it; the probe goes on once, to a whole step above the end, before it decides.
+        let full = end
+            .torque_ref_unm
+            .saturating_add(self.p.delta_ta_unm)
+            .min(self.p.probe_max_unm);
+        if dth < i64::from(self.p.min_motion_urad) && now.torque_ref_unm < full {
+            self.phase = Phase::Probing {
+                loaded,
+                end,
+                target_unm: full,
+                reached: None,
+            };
+            return;
+        }
+        // Always set on entering the probe; a refusal is the safe default.
+        let outcome = self
+            .probed
+            .take()
+            .unwrap_or(Err(EstimateError::PathFit(PathFitError::NotDetermined)));
+        let late = i64::from(stiffness(&end, &now));
+        let step = i64::from(stiffness(&loaded.seat, &end));
+        if dth >= i64::from(self.p.min_motion_urad)
+            && (late > self.p.second_k_unm_per_rad
+                || late > step.saturating_mul(i64::from(self.p.second_ratio)))
+        {
+            self.fault(FaultReason::SecondContact {
+                kc_unm_per_rad: sat_i32(late),
+            });
+        } else {
+            self.conclude(outcome, loaded);
         }
     }
 
@@ -1133,6 +1241,28 @@ impl Supervisor {
                 self.hist.push(s);
                 if self.tick.wrapping_sub(since) >= self.p.settle_min_ticks {
                     self.check_settled(loaded, since);
+                }
+            }
+            Phase::Probing {
+                loaded,
+                end,
+                target_unm,
+                reached,
+            } => {
+                self.hist.push(s);
+                match reached {
+                    None if s.torque_ref_unm == target_unm => {
+                        self.phase = Phase::Probing {
+                            loaded,
+                            end,
+                            target_unm,
+                            reached: Some(self.tick),
+                        };
+                    }
+                    Some(since) if self.tick.wrapping_sub(since) >= self.p.settle_min_ticks => {
+                        self.check_probe(loaded, end, since);
+                    }
+                    _ => {}
                 }
             }
             _ => {}
