@@ -2,7 +2,9 @@
 //! (crates/dynsim, which shares no code with the estimator): each grasp is run through the
 //! engine, written as the CSV a board would log (`dynsim::grasp::to_csv`), read back by the
 //! command's code path (`trace::read_csv` → `replay::segment`, method path fit) and scored
-//! against the engine's own first contact point.
+//! against the engine's own first contact point. The drive the command identifies on each
+//! approach (offset, viscous term, stiction, each with its σ) is scored against the engine's
+//! drive too.
 //!
 //! `cargo test --release -p pts-cli --test engine_grid -- --nocapture` runs a CI slice (vertex
 //! and R 10 mm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.5 × µ 0.3 × both inertias × friction off /
