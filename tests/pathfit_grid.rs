@@ -862,7 +862,9 @@ fn pathfit_grid_on_the_plant() {
                     c.k2c / L2,
                     c.dta
                 ));
-            } else if !matches!(&c.fw, Some(Ok(r)) if r.located == grasp::Located::Distal) {
+            } else if !second
+                && !matches!(&c.fw, Some(Ok(r)) if r.located == grasp::Located::Distal)
+            {
                 probed_sound += 1;
             }
         }

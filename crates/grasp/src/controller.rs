@@ -327,9 +327,10 @@ enum Phase {
         loaded: Loaded,
     },
     /// Without seating, after an estimate that refused or did not locate a distal contact:
-    /// the reference rises a further half step from the settled end, to tell a finger locked
-    /// by a second contact (which barely moves) from a path the fit could not read or a
-    /// proximal contact.
+    /// the reference rises a further half step from the settled end (then to a whole step if
+    /// the finger did not move at all), to tell a finger locked by a second contact (which
+    /// barely moves) from a path the fit could not read or a proximal contact. The answer, if
+    /// any, is reported only once the probe has decided.
     Probing {
         loaded: Loaded,
         /// The settled end point of the step.
