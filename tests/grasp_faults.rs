@@ -5,9 +5,7 @@ mod common;
 
 use common::*;
 use grasp::{Event, FaultReason, Located, State};
-use plant::path::ContactSpec;
-use plant::scene::ObjectSpec;
-use plant::{ContactState, Fault, Phalanx, Scene};
+use plant::{ContactState, Fault, Scene};
 
 fn table2_ideal() -> Scene {
     plant::scenes::by_name("table2_ideal").expect("scene")
@@ -34,22 +32,10 @@ fn assert_safe(o: &Outcome) -> FaultReason {
 fn second_contact_is_detected() {
     // Large cylinders near O2: the finger first touches them with the proximal phalanx, then
     // the distal one touches too while the torque rises (the plant reports it).
-    for (theta1_c_rad, k_c_m, radius_m) in
-        [(1.1, 0.006, 0.10), (1.2797, 0.003, 0.10), (1.0, 0.004, 0.2)]
-    {
-        let scene = Scene {
-            name: "second_contact",
-            object: ObjectSpec::Touching(ContactSpec {
-                theta1_c_rad,
-                phalanx: Phalanx::Distal,
-                k_c_m,
-                radius_m,
-            }),
-            ..Scene::DEFAULT
-        }
-        .ideal();
+    for scene in second_contact_scenes() {
+        let scene = scene.ideal();
         let o = run(&scene, config(&scene, 0.8), 20.0, 0.2, |_, _, _| {});
-        let name = format!("R={radius_m} k2={k_c_m} θ1,c={theta1_c_rad}");
+        let name = touching_label(&scene);
         println!(
             "{name}: {:?}, plant second contact at {:?} s",
             o.state, o.second_contact_s

@@ -81,22 +81,10 @@ fn a_finger_locked_at_two_points_is_still_refused() {
 #[test]
 fn a_second_contact_is_named_without_seating() {
     for ideal in [true, false] {
-        for (theta1_c_rad, k_c_m, radius_m) in
-            [(1.1, 0.006, 0.10), (1.2797, 0.003, 0.10), (1.0, 0.004, 0.2)]
-        {
-            let scene = Scene {
-                name: "second_contact",
-                object: ObjectSpec::Touching(ContactSpec {
-                    theta1_c_rad,
-                    phalanx: Phalanx::Distal,
-                    k_c_m,
-                    radius_m,
-                }),
-                ..Scene::DEFAULT
-            };
+        for scene in second_contact_scenes() {
             let scene = if ideal { scene.ideal() } else { scene };
             let o = run(&scene, unseated(&scene, 0.8), 20.0, 0.2, |_, _, _| {});
-            let name = format!("R={radius_m} k2={k_c_m} θ1,c={theta1_c_rad} ideal={ideal}");
+            let name = format!("{} ideal={ideal}", touching_label(&scene));
             println!(
                 "{name}: {:?} after {:?}, plant second contact at {:?} s",
                 o.state, o.estimate, o.second_contact_s

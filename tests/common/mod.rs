@@ -11,6 +11,36 @@ use sim_board::run::{Limits, Observer, Timing};
 /// Length of the distal phalanx (m), MODEL.md Table 1.
 pub const L2: f64 = 0.075;
 
+/// Large cylinders near O2 that the finger touches first with the proximal phalanx, the
+/// distal one touching too while the torque rises (the plant reports the second contact):
+/// three of them on the realistic plant ([`Scene::ideal`] for the other).
+pub fn second_contact_scenes() -> [Scene; 3] {
+    use plant::path::ContactSpec;
+    use plant::scene::ObjectSpec;
+    [(1.1, 0.006, 0.10), (1.2797, 0.003, 0.10), (1.0, 0.004, 0.2)].map(
+        |(theta1_c_rad, k_c_m, radius_m)| Scene {
+            name: "second_contact",
+            object: ObjectSpec::Touching(ContactSpec {
+                theta1_c_rad,
+                phalanx: plant::Phalanx::Distal,
+                k_c_m,
+                radius_m,
+            }),
+            ..Scene::DEFAULT
+        },
+    )
+}
+
+/// "R=… k2=… θ1,c=…" of a scene whose object touches at a given configuration, for messages.
+pub fn touching_label(scene: &Scene) -> String {
+    match scene.object {
+        plant::scene::ObjectSpec::Touching(c) => {
+            format!("R={} k2={} θ1,c={}", c.radius_m, c.k_c_m, c.theta1_c_rad)
+        }
+        _ => scene.name.to_string(),
+    }
+}
+
 /// `grasp::Hardware` on top of the simulated finger (the shared adapter of crates/sim-board).
 pub use sim_board::PlantBoard as PlantHw;
 
