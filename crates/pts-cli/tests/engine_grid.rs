@@ -49,6 +49,8 @@ struct Outcome {
     sigma: Option<f64>,
     /// The answer's quality is `good` (not low-signal or ambiguous).
     good: bool,
+    /// Block phases that answered on the distal phalanx, of those run.
+    phases: Option<(u8, u8)>,
     /// Drive inertia identified from the approach (kg·m²).
     j_hat: Option<f64>,
     /// θa,c used minus the engine's θa at first contact (rad).
@@ -96,6 +98,7 @@ fn run_case(c: &Case) -> Option<Outcome> {
         .and_then(|tr| segment(&tr, &file, Method::Pathfit));
     let first = seg.as_ref().ok().and_then(|s| s.contacts.first());
     let j_hat = first.and_then(|c| c.drive).map(|d| d.inertia_kgm2);
+    let phases = first.and_then(|c| c.phases);
     let f = &c.spec.finger.friction;
     let joint_damping = reflected_joint_damping(c.spec.engine.joint_damping_nm_s_per_rad);
     let drive_vs_truth = first.and_then(|c| c.drive).map(|d| {
@@ -161,6 +164,7 @@ fn run_case(c: &Case) -> Option<Outcome> {
         k2,
         sigma,
         good,
+        phases,
         j_hat,
         dtheta_c,
         drive_vs_truth,
@@ -303,6 +307,12 @@ fn print_table(rows: &[Outcome]) -> Stats {
             format!("ΔT_a {:.1} N·m", o.dta),
         ] {
             groups.entry(key).or_default().add(o);
+        }
+        if let (Some(_), Some((a, t))) = (o.err_pct(), o.phases) {
+            groups
+                .entry(format!("answered by {a} of {t} block phases"))
+                .or_default()
+                .add(o);
         }
         if o.err_pct().is_some() {
             let grade = if o.good { "good" } else { "low signal" };
