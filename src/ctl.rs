@@ -205,6 +205,7 @@ pub fn default_settings() -> proto::Settings {
         approach_speed_rad_s: c.approach_speed_max_rad_s,
         approach_max_nm: c.approach_max_nm,
         telemetry_hz: 50,
+        seating: c.seating,
     }
 }
 
@@ -223,6 +224,7 @@ pub fn config_with(drive: DriveConfig, s: &proto::Settings) -> ControllerConfig 
     };
     c.approach_speed_max_rad_s = s.approach_speed_rad_s;
     c.approach_max_nm = s.approach_max_nm;
+    c.seating = s.seating;
     c
 }
 

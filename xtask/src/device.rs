@@ -505,14 +505,17 @@ fn watch_lines(s: &Session) -> Res<Vec<String>> {
     Ok(errs)
 }
 
-/// A grasp recorded at every control tick (`pts board record`, with a ΔT_a ramp and settings
-/// unlike the defaults) replays through `pts estimate --trace` to the device's own k2.
+/// A grasp recorded at every control tick (`pts board record`, with a ΔT_a ramp, no seating
+/// and other settings unlike the defaults) replays through `pts estimate --trace` to the
+/// device's own k2, exactly: the replay's controller takes the recording's settings, so a
+/// device that seated anyway would not replay.
 fn record_and_replay(s: &Session) -> Res<Vec<String>> {
     let mut errs = vec![];
     s.ok(&["set", "scene", "cyl10_k2_20"])?;
     s.ok(&["set", "delta_ta_nm", "0.7"])?;
     s.ok(&["set", "estimator", "two-point"])?;
     s.ok(&["set", "step_ramp_nm_per_s", "4"])?;
+    s.ok(&["set", "seating", "off"])?;
     let csv = util::root().join("target").join("device-record.csv");
     let csv_s = csv.display().to_string();
     let t = Instant::now();
@@ -522,6 +525,18 @@ fn record_and_replay(s: &Session) -> Res<Vec<String>> {
         .ok_or_else(|| format!("record: no k2 in {v}"))?;
     s.ok(&["release"])?;
     s.ok(&["set", "step_ramp_nm_per_s", "step"])?;
+    s.ok(&["set", "seating", "on"])?;
+    let meta = std::fs::read_to_string(&csv)
+        .map_err(|e| format!("{csv_s}: {e}"))?
+        .lines()
+        .find(|l| l.contains("source=pts-board-record"))
+        .map(str::to_string)
+        .unwrap_or_default();
+    if !meta.split_whitespace().any(|w| w == "seating=0") {
+        errs.push(format!(
+            "recorded grasp: no seating=0 in its settings line: {meta}"
+        ));
+    }
     let out = Command::new(&s.pts)
         .args(["estimate", "--trace", &csv_s, "--json"])
         .output()

@@ -22,7 +22,7 @@ use serde::{Deserialize, Serialize};
 
 /// Protocol version: the first byte of every frame and the value of the hello exchange.
 /// Raised whenever a message's encoding changes.
-pub const VERSION: u8 = 3;
+pub const VERSION: u8 = 4;
 
 /// A scene name of the simulated build (the plant's scene catalogue), at most 24 bytes.
 pub type SceneName = heapless::String<24>;
@@ -101,11 +101,14 @@ pub enum ParamId {
     TelemetryRate,
     /// The simulated scene (QEMU build only).
     Scene,
+    /// Whether the contact is seated in static stages before the step (more accurate on a
+    /// drive with friction) or the step starts at the contact (the estimate known sooner).
+    Seating,
 }
 
 impl ParamId {
     /// Every parameter.
-    pub const ALL: [ParamId; 7] = [
+    pub const ALL: [ParamId; 8] = [
         ParamId::DeltaTa,
         ParamId::StepShape,
         ParamId::Estimator,
@@ -113,6 +116,7 @@ impl ParamId {
         ParamId::ApproachTorqueMax,
         ParamId::TelemetryRate,
         ParamId::Scene,
+        ParamId::Seating,
     ];
 
     /// The name used on the command line and in messages.
@@ -125,6 +129,7 @@ impl ParamId {
             ParamId::ApproachTorqueMax => "approach_max_nm",
             ParamId::TelemetryRate => "telemetry_hz",
             ParamId::Scene => "scene",
+            ParamId::Seating => "seating",
         }
     }
 
@@ -155,7 +160,7 @@ impl ParamId {
                 min: 0.0,
                 max: 10_000.0,
             }),
-            ParamId::Estimator | ParamId::Scene => None,
+            ParamId::Estimator | ParamId::Scene | ParamId::Seating => None,
         }
     }
 }
@@ -212,6 +217,8 @@ pub enum Param {
     TelemetryHz(u16),
     /// The simulated scene (QEMU build).
     Scene(SceneName),
+    /// Seat the contact before the step (`true`) or step at the contact (`false`).
+    Seating(bool),
 }
 
 impl Param {
@@ -225,6 +232,7 @@ impl Param {
             Param::ApproachMaxNm(_) => ParamId::ApproachTorqueMax,
             Param::TelemetryHz(_) => ParamId::TelemetryRate,
             Param::Scene(_) => ParamId::Scene,
+            Param::Seating(_) => ParamId::Seating,
         }
     }
 
@@ -235,7 +243,7 @@ impl Param {
             Param::StepShape(StepShape::Step) => Some(0.0),
             Param::StepShape(StepShape::RampNmPerS(r)) => Some(*r),
             Param::TelemetryHz(h) => Some(f64::from(*h)),
-            Param::Estimator(_) | Param::Scene(_) => None,
+            Param::Estimator(_) | Param::Scene(_) | Param::Seating(_) => None,
         }
     }
 

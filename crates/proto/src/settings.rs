@@ -22,6 +22,8 @@ pub struct Settings {
     pub approach_max_nm: f64,
     /// Telemetry samples per second (Hz; 0 = off).
     pub telemetry_hz: u16,
+    /// Seat the contact in static stages before the step (`false`: step at the contact).
+    pub seating: bool,
 }
 
 /// Why stored bytes are not settings.
@@ -42,7 +44,7 @@ pub enum SettingsError {
 
 impl Settings {
     /// Current layout version.
-    pub const LAYOUT: u16 = 1;
+    pub const LAYOUT: u16 = 2;
     /// Largest encoded size (bytes).
     pub const MAX_BYTES: usize = 64;
 
@@ -55,6 +57,7 @@ impl Settings {
             ParamId::ApproachSpeed => Param::ApproachSpeedRadS(self.approach_speed_rad_s),
             ParamId::ApproachTorqueMax => Param::ApproachMaxNm(self.approach_max_nm),
             ParamId::TelemetryRate => Param::TelemetryHz(self.telemetry_hz),
+            ParamId::Seating => Param::Seating(self.seating),
             ParamId::Scene => return None,
         })
     }
@@ -77,6 +80,7 @@ impl Settings {
             Param::ApproachSpeedRadS(v) => self.approach_speed_rad_s = v,
             Param::ApproachMaxNm(v) => self.approach_max_nm = v,
             Param::TelemetryHz(h) => self.telemetry_hz = h,
+            Param::Seating(v) => self.seating = v,
             Param::Scene(_) => {
                 return Err(Error::UnknownChoice {
                     param: ParamId::Scene,
@@ -101,14 +105,30 @@ impl Settings {
         postcard::to_slice(self, buf).map_err(|_| SettingsError::BufferTooSmall)
     }
 
-    /// Settings from stored bytes: the layout version and every range checked.
+    /// Settings from stored bytes: the layout version and every range checked. Layout 1
+    /// (before [`Settings::seating`]) is read as this layout with seating on, what every
+    /// firmware of that layout did, so an update keeps the user's settings.
     pub fn from_bytes(bytes: &[u8]) -> Result<Settings, SettingsError> {
         let (layout, _) =
             postcard::take_from_bytes::<u16>(bytes).map_err(|_| SettingsError::Malformed)?;
-        if layout != Self::LAYOUT {
-            return Err(SettingsError::Layout { found: layout });
-        }
-        let s: Settings = postcard::from_bytes(bytes).map_err(|_| SettingsError::Malformed)?;
+        let mut buf = [0u8; Self::MAX_BYTES];
+        let current: &[u8] = match layout {
+            Self::LAYOUT => bytes,
+            1 => {
+                // Layout 1 is this layout without its last field, a bool (one byte).
+                let b = buf
+                    .get_mut(..=bytes.len())
+                    .ok_or(SettingsError::Malformed)?;
+                for (d, s) in b.iter_mut().zip(bytes.iter().chain(&[1])) {
+                    *d = *s;
+                }
+                b
+            }
+            found => return Err(SettingsError::Layout { found }),
+        };
+        let mut s: Settings =
+            postcard::from_bytes(current).map_err(|_| SettingsError::Malformed)?;
+        s.layout = Self::LAYOUT;
         s.validate()?;
         Ok(s)
     }

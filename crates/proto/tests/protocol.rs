@@ -28,6 +28,7 @@ fn settings() -> Settings {
         approach_speed_rad_s: 0.6,
         approach_max_nm: 1.5,
         telemetry_hz: 50,
+        seating: true,
     }
 }
 
@@ -64,6 +65,8 @@ fn all_params() -> Vec<Param> {
         Param::ApproachMaxNm(1.2),
         Param::TelemetryHz(10_000),
         Param::Scene(scene("cyl10_k2_20")),
+        Param::Seating(true),
+        Param::Seating(false),
     ]
 }
 
@@ -434,13 +437,55 @@ fn settings_bytes_round_trip_and_refuse_other_layouts() {
     let bytes = s.to_bytes(&mut buf).unwrap().to_vec();
     assert_eq!(Settings::from_bytes(&bytes), Ok(s));
     let mut other = s;
-    other.layout = 2;
+    other.layout = Settings::LAYOUT + 1;
     let mut buf2 = [0u8; Settings::MAX_BYTES];
     let b2 = other.to_bytes(&mut buf2).unwrap().to_vec();
     assert_eq!(
         Settings::from_bytes(&b2),
-        Err(SettingsError::Layout { found: 2 })
+        Err(SettingsError::Layout {
+            found: Settings::LAYOUT + 1
+        })
     );
+    // What the firmware before the `seating` setting stored (layout 1: the same fields
+    // without it) loads with seating on, as that firmware grasped; a truncated one does not.
+    let v1 = (
+        1u16,
+        0.4f64,
+        StepShape::Step,
+        Estimator::TwoPoint,
+        0.7f64,
+        1.2f64,
+        200u16,
+    );
+    let b1 = postcard::to_allocvec(&v1).unwrap();
+    let want = Settings {
+        layout: Settings::LAYOUT,
+        delta_ta_nm: 0.4,
+        step_shape: StepShape::Step,
+        estimator: Estimator::TwoPoint,
+        approach_speed_rad_s: 0.7,
+        approach_max_nm: 1.2,
+        telemetry_hz: 200,
+        seating: true,
+    };
+    assert_eq!(Settings::from_bytes(&b1), Ok(want));
+    assert_eq!(
+        Settings::from_bytes(&b1[..b1.len() - 1]),
+        Err(SettingsError::Malformed)
+    );
+    let mut v1_bad = v1;
+    v1_bad.1 = 9.0;
+    assert_eq!(
+        Settings::from_bytes(&postcard::to_allocvec(&v1_bad).unwrap()),
+        Err(SettingsError::OutOfRange(ParamId::DeltaTa))
+    );
+    assert_eq!(
+        Settings::from_bytes(&[0u8; Settings::MAX_BYTES + 8][..]),
+        Err(SettingsError::Layout { found: 0 })
+    );
+    let mut long = b1.clone();
+    long.resize(Settings::MAX_BYTES, 0);
+    assert_eq!(Settings::from_bytes(&long), Err(SettingsError::Malformed));
     let mut bad = s;
     bad.delta_ta_nm = 99.0;
     let mut buf3 = [0u8; Settings::MAX_BYTES];

@@ -725,8 +725,7 @@ impl Recording {
                 }),
                 approach_speed_rad_s: Some(s.approach_speed_rad_s),
                 approach_max_nm: Some(s.approach_max_nm),
-                // The device seats as its build does: the controller's default.
-                seating: None,
+                seating: Some(s.seating),
             },
         };
         writeln!(out, "{} source=pts-board-record", meta.line())?;
@@ -793,6 +792,11 @@ pub fn parse_param(name: &str, value: &str) -> Result<Param, String> {
             "two-point" => proto::Estimator::TwoPoint,
             "path-fit" => proto::Estimator::PathFit,
             _ => return Err(format!("{name} = {value}: allowed two-point, path-fit")),
+        }),
+        ParamId::Seating => Param::Seating(match value {
+            "on" => true,
+            "off" => false,
+            _ => return Err(format!("{name} = {value}: allowed on, off")),
         }),
         ParamId::Scene => Param::Scene(
             proto::SceneName::try_from(value)
@@ -868,6 +872,13 @@ mod tests {
             parse_param("estimator", "path-fit").unwrap(),
             Param::Estimator(proto::Estimator::PathFit)
         );
+        assert_eq!(
+            parse_param("seating", "off").unwrap(),
+            Param::Seating(false)
+        );
+        assert_eq!(parse_param("seating", "on").unwrap(), Param::Seating(true));
+        let e = parse_param("seating", "maybe").unwrap_err();
+        assert!(e.contains("maybe") && e.contains("on, off"), "{e}");
         assert!(parse_param("delta_ta", "0.4").is_err());
         assert!(parse_param("delta_ta_nm", "x").is_err());
         assert!(is_serial("/dev/ttyACM0") && is_serial("COM3") && !is_serial("127.0.0.1:4321"));
@@ -947,6 +958,7 @@ mod tests {
             approach_max_nm: 1.2,
             layout: proto::Settings::LAYOUT,
             telemetry_hz: 50,
+            seating: false,
         };
         let rec = Recording {
             outcome: Outcome::Stopped,
@@ -986,6 +998,7 @@ mod tests {
         assert_eq!(c.step_ramp_nm_per_s, Some(2.5));
         assert_eq!(c.approach_speed_rad_s, Some(0.3));
         assert_eq!(c.approach_max_nm, Some(1.2));
+        assert_eq!(c.seating, Some(false));
         let tr = crate::trace::read_csv(&text, &|i| i).unwrap();
         assert_eq!(tr.len(), 10);
         assert_eq!(tr.encoder_count(3), Some(104));

@@ -148,7 +148,7 @@ enum BoardCmd {
         name: String,
     },
     /// Set a parameter (idle only): `set delta_ta_nm 0.6`, `set estimator path-fit`,
-    /// `set step_ramp_nm_per_s step`, `set scene cyl10_k2_20`.
+    /// `set step_ramp_nm_per_s step`, `set seating off`, `set scene cyl10_k2_20`.
     Set {
         /// Parameter name.
         name: String,
