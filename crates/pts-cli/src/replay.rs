@@ -732,7 +732,7 @@ fn dynamics_corrected_residual(
     finger: &FingerFile,
     quantum_rad: f64,
 ) {
-    use crate::offline::{find_contact, identify_drive, DrivePrior};
+    use crate::offline::{find_contact, identify_drive_dynamics, DrivePrior};
     let q = finger.rad_per_count();
     let Ok(seg) = find_contact(m64, cfg, blocks, block_s, q, 0) else {
         return;
@@ -741,21 +741,15 @@ fn dynamics_corrected_residual(
         inertia_kgm2: finger.drive.inertia_kgm2,
         sigma_inertia_kgm2: finger.drive.inertia_kgm2,
     };
-    let Some(id) = identify_drive(
-        m64,
-        blocks,
-        0,
-        seg.knee.saturating_sub(4),
-        q,
-        quantum_rad,
-        &prior,
-    ) else {
+    let Some((inertia_kgm2, viscous_nm_s_per_rad)) =
+        identify_drive_dynamics(m64, blocks, 0, seg.knee.saturating_sub(4), q, &prior)
+    else {
         return;
     };
     // The encoder's quantisation (`quantum_rad`, the recording's smallest θa step) on
     // inertia·θ̈a held to a quarter of the detection threshold.
     let half = quartic_half_width(
-        id.inertia_kgm2,
+        inertia_kgm2,
         quantum_rad,
         block_s,
         0.25 * cfg.detect_excess_nm,
@@ -763,7 +757,7 @@ fn dynamics_corrected_residual(
     let corr: Vec<f64> = (0..blocks.len())
         .map(|k| {
             crate::offline::drive::poly_speed_accel(blocks, k, half)
-                .map(|(w, acc)| id.viscous_nm_s_per_rad * w + id.inertia_kgm2 * acc)
+                .map(|(w, acc)| viscous_nm_s_per_rad * w + inertia_kgm2 * acc)
                 .unwrap_or(0.0)
         })
         .collect();

@@ -60,33 +60,9 @@ pub fn identify_drive<R: pts::Real>(
     recording_quantum_rad: f64,
     prior: &DrivePrior,
 ) -> Option<DriveId> {
-    let t_free = |th: f64| -> Option<f64> {
-        model
-            .free_from_theta_a(R::try_from_f64(th)?)
-            .ok()
-            .map(|c| c.ta.to_f64())
-    };
-    // (residual, ω, α) per usable block; at most 1024 of the latest.
-    let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
+    let t_free = |th: f64| free_torque(model, th);
+    let pts = approach_residuals(model, blocks, lo, hi, quantum_rad)?;
     let lo_at_rest = lo;
-    let lo = lo.max(KIN_SPAN);
-    let hi = hi.min(blocks.len().saturating_sub(KIN_SPAN));
-    let start = hi.saturating_sub(1024).max(lo);
-    for k in start..hi {
-        let Some(m) = kinematics(blocks, k, quantum_rad) else {
-            continue;
-        };
-        let Some(tf) = t_free(m.theta_a_rad) else {
-            continue;
-        };
-        let r = m.torque_nm - tf;
-        if r.is_finite() {
-            let _ = pts.push((r, m.speed_rad_s, m.accel_rad_s2));
-        }
-    }
-    if pts.len() < 8 {
-        return None;
-    }
     let (amin, amax) = pts
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
@@ -115,6 +91,58 @@ pub fn identify_drive<R: pts::Real>(
         blocks: pts.len() as u32,
         accel_span_rad_s2: amax - amin,
     })
+}
+
+/// Only the dynamics of [`identify_drive`] (inertia kg·m², viscous term N·m·s/rad), the same
+/// fit on the same blocks without the σ and the breakaway it also computes: what correcting
+/// a recording's torque for the drive's dynamics needs.
+pub fn identify_drive_dynamics<R: pts::Real>(
+    model: &Model<R>,
+    blocks: &[Block],
+    lo: usize,
+    hi: usize,
+    quantum_rad: f64,
+    prior: &DrivePrior,
+) -> Option<(f64, f64)> {
+    let pts = approach_residuals(model, blocks, lo, hi, quantum_rad)?;
+    let fit = huber_fit(&pts, prior)?;
+    Some((fit.x[2], fit.x[1]))
+}
+
+/// The model's free-motion torque at θa (N·m).
+fn free_torque<R: pts::Real>(model: &Model<R>, theta_a_rad: f64) -> Option<f64> {
+    model
+        .free_from_theta_a(R::try_from_f64(theta_a_rad)?)
+        .ok()
+        .map(|c| c.ta.to_f64())
+}
+
+/// (residual T_a − T_free, ω, α) of each usable approach block in `lo..hi`, at most the 1024
+/// latest; `None` with fewer than 8.
+fn approach_residuals<R: pts::Real>(
+    model: &Model<R>,
+    blocks: &[Block],
+    lo: usize,
+    hi: usize,
+    quantum_rad: f64,
+) -> Option<Vec<(f64, f64, f64), 1024>> {
+    let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
+    let lo = lo.max(KIN_SPAN);
+    let hi = hi.min(blocks.len().saturating_sub(KIN_SPAN));
+    let start = hi.saturating_sub(1024).max(lo);
+    for k in start..hi {
+        let Some(m) = kinematics(blocks, k, quantum_rad) else {
+            continue;
+        };
+        let Some(tf) = free_torque(model, m.theta_a_rad) else {
+            continue;
+        };
+        let r = m.torque_nm - tf;
+        if r.is_finite() {
+            let _ = pts.push((r, m.speed_rad_s, m.accel_rad_s2));
+        }
+    }
+    (pts.len() >= 8).then_some(pts)
 }
 
 /// The crank's breakaway from rest at the start of the approach ([`breakaway`]).
