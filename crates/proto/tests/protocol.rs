@@ -536,6 +536,42 @@ proptest! {
         dd.feed(&bytes, |_| {});
     }
 
+    /// Any settings stored in layout 1 (before `seating`) load with the same values and
+    /// seating on, or, out of range, name the parameter; any bytes load or give a typed error.
+    #[test]
+    fn layout_1_settings_keep_their_values(
+        dta in 0.0f64..2.0,
+        ramp in proptest::option::of(0.0f64..120.0),
+        path_fit in any::<bool>(),
+        speed in 0.0f64..6.0,
+        ceiling in 0.0f64..2.5,
+        hz in any::<u16>(),
+        junk in proptest::collection::vec(any::<u8>(), 0..80),
+    ) {
+        let shape = ramp.map_or(StepShape::Step, StepShape::RampNmPerS);
+        let est = if path_fit { Estimator::PathFit } else { Estimator::TwoPoint };
+        let b1 = postcard::to_allocvec(&(1u16, dta, shape, est, speed, ceiling, hz)).unwrap();
+        let want = Settings {
+            layout: Settings::LAYOUT,
+            delta_ta_nm: dta,
+            step_shape: shape,
+            estimator: est,
+            approach_speed_rad_s: speed,
+            approach_max_nm: ceiling,
+            telemetry_hz: hz,
+            seating: true,
+        };
+        match Settings::from_bytes(&b1) {
+            Ok(s) => prop_assert_eq!(s, want),
+            Err(SettingsError::OutOfRange(id)) => {
+                prop_assert!(want.get(id).is_some_and(|p| p.check().is_err()), "{:?}", id)
+            }
+            Err(e) => prop_assert!(false, "unexpected {:?}", e),
+        }
+        prop_assert_eq!(Settings::from_bytes(&b1).is_ok(), want.validate().is_ok());
+        let _ = Settings::from_bytes(&junk);
+    }
+
     /// Any value of ΔT_a either sets or names its range.
     #[test]
     fn any_delta_ta_sets_or_names_the_range(v in any::<f64>()) {
