@@ -18,7 +18,9 @@
 //! `PATHFIT_SOURCES_OFF=coulomb,viscous,efficiency,backlash,noise,offset` (any of them)
 //! switches those error sources of the realistic plant's drive and current sensor off
 //! (printed only): which of them an estimate is sensitive to. The controller's drive, and so
-//! the estimate's, follows the scene.
+//! the estimate's, follows the scene, unless `PATHFIT_FINGER=FILE` gives the realistic plant's
+//! controller and estimate a finger file, e.g. one `pts calibrate` identified on that plant
+//! (printed only).
 //! (Owned by the pathfit helper; the harness in `tests/common` is the grasp owner's.)
 mod common;
 
@@ -224,6 +226,20 @@ fn raw_samples(req: &EstimateRequest) -> impl DoubleEndedIterator<Item = RawSamp
         })
 }
 
+/// `PATHFIT_FINGER=FILE`: the controller and the estimate of the realistic plant's grasps take
+/// this finger file (one `pts calibrate` identified on the plant, say) instead of the scene's
+/// nominal constants; the plant stays the scene's.
+fn finger_file() -> Option<pts::config::FingerFile> {
+    let path = std::env::var_os("PATHFIT_FINGER")?;
+    let shown = std::path::Path::new(&path).display().to_string();
+    let text =
+        std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("PATHFIT_FINGER={shown}: {e}"));
+    Some(
+        pts::config::FingerFile::from_toml_str(&text)
+            .unwrap_or_else(|e| panic!("PATHFIT_FINGER={shown}: {e}")),
+    )
+}
+
 fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64, unseated_rate: Option<f64>) -> Case {
     let k2c = k2c_frac * L2;
     let scene = grid_scene(base, radius, k2c);
@@ -246,9 +262,17 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64, unseated_rate: Op
         return case;
     };
     let mut hw = PlantHw::new(plant);
-    let ccfg = grid_config(&scene, dta, unseated_rate);
+    let mut ccfg = grid_config(&scene, dta, unseated_rate);
+    let realistic = scene.sensors != scene.ideal().sensors;
+    let file = finger_file().filter(|_| realistic);
+    if let Some(f) = &file {
+        ccfg = ccfg
+            .with_finger_file(f, scene.dt_s)
+            .unwrap_or_else(|e| panic!("PATHFIT_FINGER: {e}"));
+    }
+    let finger = ccfg.finger;
     let mut c = Controller::new(ccfg).expect("config valid");
-    let m = Model::<f64>::paper().unwrap();
+    let m = Model::<f64>::new(&finger).expect("the finger's model");
     // The estimator's measurement model of this scene's drive (ideal: η = 1, no backlash), as
     // the controller's drive carries it to the firmware's estimate.
     let d = &scene.drive;
@@ -256,6 +280,9 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64, unseated_rate: Op
         d.eff_drive * d.rotor_inertia_kgm2 * d.gear_ratio * d.gear_ratio,
         d.backlash_rad,
     );
+    if file.is_some() {
+        cfg = ccfg.drive.path_fit_config();
+    }
     assert_eq!(cfg, ccfg.drive.path_fit_config());
     if std::env::var("PATHFIT_OLD_MEAS").is_ok() {
         // Diagnosis: the previous measurement model (J N², no lead, plateaus kept).
@@ -358,18 +385,18 @@ fn run_case(base: Scene, radius: f64, k2c_frac: f64, dta: f64, unseated_rate: Op
                 case.fit =
                     Some(fit_path(&m, &cfg, th_c, Some(t_c), samples(&req)).map(FitOut::from));
                 let fx = |v: f64| pts::FirmwareReal::from_f64(v);
-                let table = PathTable::new(&pts::Finger::PAPER, &cfg, 1e-4).expect("table");
+                let table = PathTable::new(&finger, &cfg, 1e-4).expect("table");
                 case.fit_q = Some(
                     fit_path_q(&table, fx(th_c), Some(fx(t_c)), raw_samples(&req))
                         .map(FitOut::from),
                 );
                 let mut fw_req = req.clone();
                 fw_req.estimator = grasp::Estimator::PathFit;
-                case.fw = Some(run_estimate(&pts::Finger::PAPER, &ccfg.drive, &fw_req));
+                case.fw = Some(run_estimate(&finger, &ccfg.drive, &fw_req));
                 case.fw_f64 = Some(grasp::run_estimate_with(&m, &ccfg.drive, &fw_req));
                 let mut tp_req = req.clone();
                 tp_req.estimator = grasp::Estimator::TwoPoint;
-                let r = run_estimate(&pts::Finger::PAPER, &ccfg.drive, &tp_req);
+                let r = run_estimate(&finger, &ccfg.drive, &tp_req);
                 case.two_point = r.ok().and_then(|e| e.k2_um.map(|k| f64::from(k) * 1e-6));
                 if let Some(fw) = case.fw {
                     c.deliver(&mut hw, fw);
@@ -932,6 +959,7 @@ fn pathfit_grid_on_the_plant() {
         || inertia_scale().is_some()
         || gain_error().is_some()
         || sources_off().is_some()
+        || finger_file().is_some()
     {
         return;
     }
