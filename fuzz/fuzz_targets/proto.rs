@@ -1,11 +1,18 @@
 //! The protocol's streaming decoders (`proto::Decoder`, both directions) on arbitrary bytes:
-//! any panic is a finding; every decoded request re-encodes and decodes to itself.
+//! any panic is a finding; every decoded request re-encodes and decodes to itself. The same
+//! bytes as stored settings (`proto::Settings::from_bytes`, either layout): settings that load
+//! store and load back to themselves.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use proto::{encode, Decoder, DeviceMsg, Request, MAX_FRAME};
+use proto::{encode, Decoder, DeviceMsg, Request, Settings, MAX_FRAME};
 
 fuzz_target!(|data: &[u8]| {
+    if let Ok(s) = Settings::from_bytes(data) {
+        let mut buf = [0u8; Settings::MAX_BYTES];
+        let bytes = s.to_bytes(&mut buf).expect("loaded settings store");
+        assert_eq!(Settings::from_bytes(bytes), Ok(s));
+    }
     let mut requests = Decoder::<Request, MAX_FRAME>::new();
     let mut replies = Decoder::<DeviceMsg, MAX_FRAME>::new();
     // A small buffer too: overflow handling on every frame.
