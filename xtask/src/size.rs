@@ -133,6 +133,86 @@ pub fn report(label: &str, s: Sizes) -> Res {
     }
 }
 
+/// The documents that quote each board build's flash and static RAM.
+const SIZE_DOCS: [&str; 2] = ["README.md", "docs/RESULTS.md"];
+/// The document that quotes the stack's high-water mark of the Table 2 scene.
+const STACK_DOC: &str = "docs/SAFETY.md";
+
+/// `n` as the documents write bytes: thousands separated by commas (130904 → "130,904").
+pub fn grouped(n: u64) -> String {
+    let digits = n.to_string();
+    let mut out = String::new();
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// Each `(name, text)` of `docs` that does not state `value` bytes (grouped, not part of a
+/// longer number), as a message naming the document, `what` and the value.
+fn unstated(docs: &[(&str, String)], what: &str, value: u64) -> Vec<String> {
+    let want = grouped(value);
+    let states = |text: &str| {
+        text.match_indices(&want).any(|(i, _)| {
+            let before = text[..i].chars().next_back();
+            let after = text[i + want.len()..].chars().next();
+            !before.is_some_and(|c| c.is_ascii_digit() || c == ',')
+                && !after.is_some_and(|c| c.is_ascii_digit() || c == ',' || c == '.')
+        })
+    };
+    docs.iter()
+        .filter(|(_, text)| !states(text))
+        .map(|(name, _)| format!("{name} does not state {what} ({want} B, measured)"))
+        .collect()
+}
+
+fn read_docs(names: &[&'static str]) -> Res<Vec<(&'static str, String)>> {
+    names
+        .iter()
+        .map(|n| {
+            std::fs::read_to_string(util::root().join(n))
+                .map(|t| (*n, t))
+                .map_err(|e| format!("{n}: {e}"))
+        })
+        .collect()
+}
+
+/// `Err` naming each document (README, RESULTS) that does not quote this build's measured
+/// flash and static RAM: the sizes the documents give are the ones `cargo xtask size` prints.
+pub fn documented(label: &str, s: Sizes) -> Res {
+    let docs = read_docs(&SIZE_DOCS)?;
+    let mut errs = unstated(&docs, &format!("the flash of the {label} build"), s.flash);
+    errs.extend(unstated(
+        &docs,
+        &format!("the static RAM of the {label} build"),
+        s.ram,
+    ));
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("; ") + "; update the size rows")
+    }
+}
+
+/// `Err` when SAFETY.md does not quote the Table 2 scene's stack high-water mark `used` (B)
+/// of the `estimator` build.
+pub fn stack_documented(estimator: &str, used: u64) -> Res {
+    let docs = read_docs(&[STACK_DOC])?;
+    let errs = unstated(
+        &docs,
+        &format!("the {estimator} build's stack high-water mark"),
+        used,
+    );
+    if errs.is_empty() {
+        Ok(())
+    } else {
+        Err(errs.join("; "))
+    }
+}
+
 /// The board's RAM (STM32F411CE).
 const BOARD_RAM: u64 = 128 * 1024;
 /// The stack may use at most this share of what the board leaves it.
@@ -155,8 +235,7 @@ pub fn ensure_flip_link() -> Res {
 /// The stack line of a QEMU run checked against the board: the high-water mark must fit in
 /// half of the board's RAM left after the static budget.
 pub fn stack_check(frames: &[crate::qemu::Frame]) -> Res<String> {
-    let line = crate::log::first(frames, "STACK").ok_or("no STACK line in the log")?;
-    let used = crate::log::int(&line.msg, "used").ok_or("STACK without used")? as u64;
+    let used = stack_used(frames)?;
     let avail = BOARD_RAM - RAM_BUDGET;
     let max = (avail as f64 * STACK_MAX_SHARE) as u64;
     let text = format!(
@@ -170,15 +249,22 @@ pub fn stack_check(frames: &[crate::qemu::Frame]) -> Res<String> {
     }
 }
 
+/// The stack's high-water mark (B) of a QEMU run's log.
+pub fn stack_used(frames: &[crate::qemu::Frame]) -> Res<u64> {
+    let line = crate::log::first(frames, "STACK").ok_or("no STACK line in the log")?;
+    Ok(crate::log::int(&line.msg, "used").ok_or("STACK without used")? as u64)
+}
+
 /// `cargo xtask size`: flash and static RAM of the board builds (power-up grasp; device mode
 /// with USB, with one and with both estimators), then the stack's high-water mark of the
 /// Table 2 scene in QEMU for both estimators.
 pub fn main(_args: &[String]) -> Res {
-    let mut sized = vec![build_board().and_then(|elf| report("power-up grasp", measure(&elf)?))];
+    let checked = |label: &str, s: Sizes| report(label, s).and(documented(label, s));
+    let mut sized = vec![build_board().and_then(|elf| checked("power-up grasp", measure(&elf)?))];
     for features in [DEVICE_FEATURES, DEVICE_BOTH_FEATURES] {
         sized.push(
             build_board_device(features)
-                .and_then(|elf| report(&format!("device mode, USB, {features}"), measure(&elf)?)),
+                .and_then(|elf| checked(&format!("device mode, USB, {features}"), measure(&elf)?)),
         );
     }
     let sized: Vec<String> = sized.into_iter().filter_map(Result::err).collect();
@@ -192,7 +278,10 @@ pub fn main(_args: &[String]) -> Res {
         std::env::set_var("FINGER_FW_ESTIMATOR", est);
         let r = crate::qemu::build("table2")
             .and_then(|elf| crate::qemu::run(&elf, &mut |_| {}))
-            .and_then(|run| stack_check(&run.frames));
+            .and_then(|run| {
+                stack_documented(est, stack_used(&run.frames)?)?;
+                stack_check(&run.frames)
+            });
         std::env::remove_var("FINGER_FW_ESTIMATOR");
         match r {
             Ok(t) => println!("{est}: {t}"),
@@ -219,5 +308,27 @@ mod tests {
         assert!(e.contains("flash") && !e.contains("static RAM"), "{e}");
         let e = report("t", s(FLASH_BUDGET, RAM_BUDGET + 1)).unwrap_err();
         assert!(e.contains("static RAM") && !e.contains("flash"), "{e}");
+    }
+
+    #[test]
+    fn a_size_the_documents_do_not_state_is_named_with_the_document() {
+        assert_eq!(grouped(0), "0");
+        assert_eq!(grouped(999), "999");
+        assert_eq!(grouped(90_248), "90,248");
+        assert_eq!(grouped(130_904), "130,904");
+        assert_eq!(grouped(1_334_133), "1,334,133");
+        let docs = [
+            ("A.md", "flash 100,056 / 130,904 B".to_string()),
+            (
+                "B.md",
+                "flash 1,130,904 B and 130,9041 B and 130,904.5 B".to_string(),
+            ),
+        ];
+        assert!(unstated(&docs[..1], "x", 130_904).is_empty());
+        assert!(unstated(&docs[..1], "x", 100_056).is_empty());
+        let e = unstated(&docs, "the flash of t", 130_904);
+        assert_eq!(e.len(), 1, "{e:?}");
+        assert!(e[0].contains("B.md") && e[0].contains("130,904"), "{e:?}");
+        assert_eq!(unstated(&docs, "x", 130_905).len(), 2);
     }
 }
