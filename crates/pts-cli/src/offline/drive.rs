@@ -62,7 +62,6 @@ pub fn identify_drive<R: pts::Real>(
 ) -> Option<DriveId> {
     let t_free = |th: f64| free_torque(model, th);
     let pts = approach_residuals(model, blocks, lo, hi, quantum_rad)?;
-    let lo_at_rest = lo;
     let (amin, amax) = pts
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
@@ -72,7 +71,7 @@ pub fn identify_drive<R: pts::Real>(
     let jack = jackknife_var(&pts, prior);
     let sigma = |i: usize| <f64 as pts::Real>::sqrt(fit.var[i].max(jack[i]).max(0.0));
     let step = quantum_rad.max(recording_quantum_rad);
-    let stiction_excess_nm = breakaway(blocks, lo_at_rest, hi, step, &t_free, &fit).map(|b| {
+    let stiction_excess_nm = breakaway(blocks, lo, hi, step, &t_free, &fit).map(|b| {
         let excess = b.residual_nm - fit.x[0];
         (
             excess,
