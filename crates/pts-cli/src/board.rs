@@ -805,9 +805,84 @@ pub fn parse_param(name: &str, value: &str) -> Result<Param, String> {
     })
 }
 
+/// A parameter as `pts board set` takes it: its name and the text of its value (what
+/// [`parse_param`] reads back to the same parameter).
+pub fn param_text(p: &Param) -> (&'static str, String) {
+    let value = match p {
+        Param::DeltaTaNm(v) | Param::ApproachSpeedRadS(v) | Param::ApproachMaxNm(v) => {
+            v.to_string()
+        }
+        Param::StepShape(StepShape::Step) => "step".to_string(),
+        Param::StepShape(StepShape::RampNmPerS(r)) => r.to_string(),
+        Param::TelemetryHz(h) => h.to_string(),
+        Param::Estimator(proto::Estimator::TwoPoint) => "two-point".to_string(),
+        Param::Estimator(proto::Estimator::PathFit) => "path-fit".to_string(),
+        Param::Scene(name) => name.to_string(),
+        Param::Seating(true) => "on".to_string(),
+        Param::Seating(false) => "off".to_string(),
+    };
+    (p.id().name(), value)
+}
+
+/// Every setting as `name value`, comma-separated, in the words `pts board set` takes.
+pub fn settings_text(s: &proto::Settings) -> String {
+    ParamId::ALL
+        .iter()
+        .filter_map(|id| s.get(*id))
+        .map(|p| {
+            let (name, value) = param_text(&p);
+            format!("{name} {value}")
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What `get` and `status` print is what `set` takes: every parameter's text parses back
+    /// to the same parameter.
+    #[test]
+    fn a_parameter_read_back_sets_the_same_value() {
+        let params = [
+            Param::DeltaTaNm(0.8),
+            Param::DeltaTaNm(0.123_456_789),
+            Param::StepShape(StepShape::Step),
+            Param::StepShape(StepShape::RampNmPerS(4.0)),
+            Param::StepShape(StepShape::RampNmPerS(0.0)),
+            Param::Estimator(proto::Estimator::TwoPoint),
+            Param::Estimator(proto::Estimator::PathFit),
+            Param::ApproachSpeedRadS(0.25),
+            Param::ApproachMaxNm(1.5),
+            Param::TelemetryHz(10_000),
+            Param::Scene(proto::SceneName::try_from("cyl10_k2_20").unwrap()),
+            Param::Seating(true),
+            Param::Seating(false),
+        ];
+        for id in ParamId::ALL {
+            assert!(params.iter().any(|p| p.id() == id), "{id:?} untested");
+        }
+        for p in params {
+            let (name, value) = param_text(&p);
+            assert_eq!(parse_param(name, &value), Ok(p.clone()), "{name} {value}");
+        }
+        let s = proto::Settings {
+            layout: proto::Settings::LAYOUT,
+            delta_ta_nm: 0.6,
+            step_shape: StepShape::Step,
+            estimator: proto::Estimator::PathFit,
+            approach_speed_rad_s: 0.25,
+            approach_max_nm: 1.5,
+            telemetry_hz: 50,
+            seating: false,
+        };
+        assert_eq!(
+            settings_text(&s),
+            "delta_ta_nm 0.6, step_ramp_nm_per_s step, estimator path-fit, \
+             approach_speed_rad_s 0.25, approach_max_nm 1.5, telemetry_hz 50, seating off"
+        );
+    }
 
     /// A host that connects while the device streams (a sweep's rows) reads the tail of a
     /// frame first: dropped, the reply after it read; corruption after that is reported.

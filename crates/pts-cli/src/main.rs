@@ -770,7 +770,7 @@ mod erased {
                     board,
                 } => format!("protocol {version}, {firmware} on {board}"),
                 Reply::Status(s) => format!(
-                    "state {} (bridge {}), tick {}, grasps {}, scene {}\nsettings ({}{}): {:?}",
+                    "state {} (bridge {}), tick {}, grasps {}, scene {}\nsettings ({}{}): {}",
                     s.state.name(),
                     if s.bridge_on { "on" } else { "off" },
                     s.tick,
@@ -786,9 +786,12 @@ mod erased {
                     } else {
                         ""
                     },
-                    s.settings
+                    pts_cli::board::settings_text(&s.settings)
                 ),
-                Reply::Param(p) => format!("{p:?}"),
+                Reply::Param(p) => {
+                    let (name, value) = pts_cli::board::param_text(p);
+                    format!("{name} {value}")
+                }
                 Reply::Drive(d) => format!(
                     "control period {} s; gear {} × η {}, kt {} N·m/A, R {} Ω, bus {} V; \
                      {} counts/rev; {} A/code, zero at code {}; θa,rest {} rad",
