@@ -128,8 +128,23 @@ pub fn describe(e: &Error) -> String {
             other => format!("not supported by this firmware: {other:?}"),
         },
         Error::Store { why } => {
-            format!("settings store: {why:?} (the settings in use are unchanged)")
+            format!(
+                "settings store: {} (the settings in use are unchanged)",
+                store_failure_text(*why)
+            )
         }
+    }
+}
+
+/// Why the settings store could not give or keep settings, in words.
+pub fn store_failure_text(why: proto::StoreFailure) -> &'static str {
+    use proto::StoreFailure as F;
+    match why {
+        F::Empty => "the store holds no settings yet",
+        F::Corrupt => "no record in the store is intact",
+        F::Foreign => "the store's record is of another settings layout",
+        F::Invalid => "the stored settings are out of range or not for this build",
+        F::Flash => "the flash refused the operation",
     }
 }
 

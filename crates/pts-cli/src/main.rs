@@ -778,8 +778,10 @@ mod erased {
                     s.scene.as_deref().unwrap_or("-"),
                     match s.settings_source {
                         proto::SettingsSource::Store => "from the store".to_string(),
-                        proto::SettingsSource::Defaults { why } =>
-                            format!("build defaults: store {why:?}"),
+                        proto::SettingsSource::Defaults { why } => format!(
+                            "build defaults: {}",
+                            pts_cli::board::store_failure_text(why)
+                        ),
                     },
                     if s.settings_changed {
                         ", changed since, not stored"
