@@ -88,13 +88,18 @@ pub fn replay_text(
     }
     let conv = |i: f64| file.torque_from_current(i);
     let tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    let source = if dta.is_some() {
+        "--dta"
+    } else {
+        "the # pts-sim line's ΔT_a"
+    };
     let dta = dta.or(meta.map(|m| m.dta_nm)).unwrap_or(DEFAULT_DTA_NM);
     if !(dta.is_finite() && dta > 0.0 && dta <= 2.0) {
-        return Err("--dta must be in (0, 2] N·m".into());
+        return Err(format!("{source} {dta} N·m is outside (0, 2] N·m"));
     }
     if let Some(dt) = dt_s {
         if !(dt.is_finite() && dt > 0.0 && dt <= 0.1) {
-            return Err("--dt-s must be in (0, 0.1] s".into());
+            return Err(format!("--dt-s {dt} s is outside (0, 0.1] s"));
         }
     }
     let dt_s = dt_s.or(meta.map(|m| m.dt_s));

@@ -72,7 +72,9 @@ pub fn answer(finger: &Finger, phalanx: u8, values: &[f64]) -> Result<Map<String
         ));
     };
     if radius < 0.0 {
-        return Err(Fail::bad("field \"radius\" must be ≥ 0 (0 is a vertex)"));
+        return Err(Fail::bad(format!(
+            "field \"radius\" = {radius} m must be ≥ 0 (0 is a vertex)"
+        )));
     }
     // Same physical checks as the model for the overrides.
     finger.validate()?;

@@ -706,7 +706,7 @@ fn segment_rows(
                     phases: None,
                 });
             }
-            Err(e) => out.errors.push((e.kind(), format!("{e:?}"))),
+            Err(e) => out.errors.push((e.kind(), e.to_string())),
         },
     );
     Ok(out)

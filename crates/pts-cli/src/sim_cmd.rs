@@ -94,14 +94,16 @@ fn with_finger(a: &Args, scene: plant::Scene) -> Result<(plant::Scene, Option<f6
 }
 
 fn check_dta(dta: &[f64]) -> Result<(), String> {
-    if dta.is_empty()
-        || dta
-            .iter()
-            .any(|d| !(d.is_finite() && *d > 0.0 && *d <= 2.0))
-    {
-        return Err("--dta: each ΔT_a must be in (0, 2] N·m".into());
+    if dta.is_empty() {
+        return Err("--dta: give at least one ΔT_a in (0, 2] N·m".into());
     }
-    Ok(())
+    match dta
+        .iter()
+        .find(|d| !(d.is_finite() && **d > 0.0 && **d <= 2.0))
+    {
+        Some(d) => Err(format!("--dta: {d} N·m is outside (0, 2] N·m")),
+        None => Ok(()),
+    }
 }
 
 /// What a scene's `[command]` and `duration_s` are for, since `pts sim` does not use them.
@@ -192,7 +194,7 @@ pub fn run(a: &Args) -> Result<(), String> {
     }
     check_dta(&a.dta)?;
     if !(a.max_s.is_finite() && a.max_s > 0.0 && a.max_s <= 600.0) {
-        return Err("--max-s must be in (0, 600] s".into());
+        return Err(format!("--max-s {} s is outside (0, 600] s", a.max_s));
     }
     if a.sweep {
         return sweep(a);

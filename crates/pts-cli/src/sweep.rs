@@ -227,7 +227,7 @@ impl SweepPlan {
             return Err(format!("dither {} Hz is outside [0.1, 50]", self.dither_hz));
         }
         if self.decimate == 0 {
-            return Err("decimate must be ≥ 1".into());
+            return Err(format!("decimate {} must be ≥ 1", self.decimate));
         }
         Ok(())
     }

@@ -444,6 +444,31 @@ impl Builder {
     }
 }
 
+/// Longest header an error message quotes (characters).
+const SHOWN_HEADER_CHARS: usize = 120;
+
+/// A header as an error message quotes it: control characters escaped (a binary file is not
+/// printed raw to the terminal), cut at [`SHOWN_HEADER_CHARS`] with an ellipsis.
+fn shown_header(names: &[String]) -> String {
+    let joined = names.join(",");
+    let mut out: String = joined
+        .chars()
+        .take(SHOWN_HEADER_CHARS)
+        .flat_map(|c| {
+            let escaped: String = if c.is_control() {
+                c.escape_default().collect()
+            } else {
+                c.to_string()
+            };
+            escaped.chars().collect::<Vec<_>>()
+        })
+        .collect();
+    if joined.chars().count() > SHOWN_HEADER_CHARS {
+        out.push('…');
+    }
+    out
+}
+
 /// Reads a trace CSV. `current_to_torque` converts a `current_a` column (A → N·m) when there is
 /// no `torque_nm`. Errors only when nothing usable is left; skipped lines become warnings.
 pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Trace, String> {
@@ -472,7 +497,7 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
     let (Some(it), Some(ith)) = (col("t_s"), col("theta_a_rad")) else {
         return Err(format!(
             "the header must name at least t_s, theta_a_rad and torque_nm (or current_a); it has: {}",
-            names.join(",")
+            shown_header(&names)
         ));
     };
     let torque_col = match (col("torque_nm"), col("current_a")) {
@@ -481,7 +506,7 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
         (None, None) => {
             return Err(format!(
                 "the header has neither torque_nm nor current_a; it has: {}",
-                names.join(",")
+                shown_header(&names)
             ))
         }
     };
@@ -701,6 +726,21 @@ mod tests {
     fn current_column_is_converted() {
         let t = read_csv("t_s,current_a,theta_a_rad\n0,0.5,-0.8\n", &nm).unwrap();
         assert_eq!(t.torque_nm[0], 1.0);
+    }
+
+    #[test]
+    fn a_binary_header_is_quoted_escaped_and_cut() {
+        let header = format!("{}\u{7}{}", "x".repeat(100), "y".repeat(100));
+        let e = read_csv(&format!("{header}\n1,2\n"), &nm).unwrap_err();
+        let quoted = e.split("it has: ").nth(1).expect("the header is quoted");
+        assert!(!quoted.contains('\u{7}'), "{e}");
+        assert!(
+            quoted.starts_with(&format!("{}\\u{{7}}yyy", "x".repeat(100))),
+            "{e}"
+        );
+        assert!(quoted.ends_with('…'), "{e}");
+        // The bell becomes the five characters `\u{7}`; the ellipsis is one more.
+        assert_eq!(quoted.chars().count(), SHOWN_HEADER_CHARS + 4 + 1, "{e}");
     }
 
     #[test]

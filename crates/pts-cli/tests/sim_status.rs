@@ -221,3 +221,21 @@ fn a_saturated_duty_while_the_motor_turns_is_not_a_stall() {
         .expect("an error against the truth");
     assert!(err.abs() < 1.0, "{err} % of l2");
 }
+
+/// A value out of range is refused with the value and the range in the message, before any
+/// simulation runs.
+#[test]
+fn out_of_range_options_name_the_value_and_the_range() {
+    for (args, value, range) in [
+        (&["sim", "--dta", "0.5,7"][..], "7 N·m", "(0, 2] N·m"),
+        (&["sim", "--max-s", "1000"][..], "1000 s", "(0, 600] s"),
+    ] {
+        let out = pts(args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains(value) && err.contains(range),
+            "{args:?}: {err}"
+        );
+    }
+}

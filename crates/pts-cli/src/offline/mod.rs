@@ -264,6 +264,38 @@ impl OfflineError {
     }
 }
 
+impl core::fmt::Display for OfflineError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            OfflineError::TooShort => {
+                f.write_str("too few rows for a free-motion window, a contact and a hold")
+            }
+            OfflineError::NonFinite { row } => write!(f, "row {row} holds NaN or infinity"),
+            OfflineError::NonMonotoneTime { row } => write!(f, "time goes backwards at row {row}"),
+            OfflineError::BadConfig => f.write_str("a segmentation setting is out of range"),
+            OfflineError::NoFreeMotion => {
+                f.write_str("no free motion (θa advancing on the free-motion torque) before the end")
+            }
+            OfflineError::NoContact => f.write_str("free motion, but no contact after it"),
+            OfflineError::StepTooSmall { delta_ta_unm } => write!(
+                f,
+                "the torque rose by {:.1} mN·m after the contact, below the step the estimate needs",
+                f64::from(*delta_ta_unm) * 1e-3
+            ),
+            OfflineError::NotSettled => f.write_str("no static hold after the contact"),
+            OfflineError::Outlier { row } => write!(
+                f,
+                "θa of row {row} lies more than {OUTLIER_RAD} rad off both its neighbours (a corrupted row)"
+            ),
+            OfflineError::SampleRateTooLow { rate_hz } => write!(
+                f,
+                "{rate_hz} rows per second, below the {MIN_RATE_HZ} the contact detection needs"
+            ),
+            OfflineError::Model(e) => write!(f, "the model: {e}"),
+        }
+    }
+}
+
 impl From<PtsError> for OfflineError {
     fn from(e: PtsError) -> Self {
         OfflineError::Model(e)
@@ -296,4 +328,34 @@ pub struct Segment {
     pub static_path_points: bool,
     /// The request, as the controller builds it.
     pub request: EstimateRequest,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each refusal reads in words and names its value, not the type's Debug form.
+    #[test]
+    fn refusals_read_in_words_with_their_values() {
+        for (e, needle) in [
+            (OfflineError::NonFinite { row: 57 }, "row 57"),
+            (OfflineError::NonMonotoneTime { row: 58 }, "row 58"),
+            (OfflineError::Outlier { row: 59 }, "row 59"),
+            (
+                OfflineError::SampleRateTooLow { rate_hz: 100 },
+                "100 rows per second",
+            ),
+            (
+                OfflineError::StepTooSmall {
+                    delta_ta_unm: 12_300,
+                },
+                "12.3 mN·m",
+            ),
+            (OfflineError::TooShort, "too few rows"),
+        ] {
+            let text = e.to_string();
+            assert!(text.contains(needle), "{e:?}: {text}");
+            assert!(!text.contains('{'), "{e:?}: {text}");
+        }
+    }
 }
