@@ -115,6 +115,15 @@ impl EstimateError {
     }
 }
 
+impl core::fmt::Display for EstimateError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            EstimateError::Model(e) => write!(f, "{e}"),
+            EstimateError::PathFit(e) => write!(f, "{e}"),
+        }
+    }
+}
+
 impl From<PtsError> for EstimateError {
     fn from(e: PtsError) -> Self {
         EstimateError::Model(e)
@@ -953,6 +962,27 @@ pub fn to_micro(v: f64) -> i32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An estimator's refusal reads as its model's or its fit's words, not a Debug form.
+    #[test]
+    fn refusals_display_in_words() {
+        use core::fmt::Write as _;
+        let mut text: heapless::String<128> = heapless::String::new();
+        for (e, words) in [
+            (
+                EstimateError::PathFit(PathFitError::NotDetermined),
+                "k2 is not determined by this path",
+            ),
+            (
+                EstimateError::Model(PtsError::BeyondTip),
+                "stiffness above that of a contact at the distal tip",
+            ),
+        ] {
+            text.clear();
+            write!(text, "{e}").unwrap();
+            assert_eq!(text.as_str(), words, "{e:?}");
+        }
+    }
 
     /// The Q32.32 conversions against f64 over the request's ranges (µrad, µN·m, counts).
     #[test]

@@ -366,10 +366,10 @@ impl StaticMap {
             theta02: s.theta02,
             ..*base
         };
-        let model = Model::<f64>::new(&finger).map_err(|e| format!("{e:?}"))?;
+        let model = Model::<f64>::new(&finger).map_err(|e| e.to_string())?;
         let rest = model
             .theta_a(s.theta01, s.theta02)
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(|e| e.to_string())?;
         Ok(StaticMap {
             model,
             rest,
@@ -382,7 +382,7 @@ impl StaticMap {
         let free = self
             .model
             .free_from_theta_a(ta)
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(|e| e.to_string())?;
         let Some(p) = post else {
             return Ok(free.ta);
         };
@@ -393,7 +393,7 @@ impl StaticMap {
         let f = &self.model.finger;
         let mut t2 = free.theta2;
         for _ in 0..40 {
-            let c = self.model.closure(t2).map_err(|e| format!("{e:?}"))?;
+            let c = self.model.closure(t2).map_err(|e| e.to_string())?;
             let th = p.theta1_rad + t2 - self.phi2 - c.gamma;
             let step = (th - ta) / c.x2;
             t2 -= step;
@@ -401,7 +401,7 @@ impl StaticMap {
                 break;
             }
         }
-        let c = self.model.closure(t2).map_err(|e| format!("{e:?}"))?;
+        let c = self.model.closure(t2).map_err(|e| e.to_string())?;
         Ok(f.k2 * (t2 - f.theta02) / c.x2)
     }
 }

@@ -641,7 +641,7 @@ fn segment_rows(
     };
     let mut scratch = vec![Block::default(); 1 << 16];
     let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch)
-        .map_err(|e| format!("segmenting the trace: {} ({e:?})", e.kind()))?;
+        .map_err(|e| format!("segmenting the trace: {} ({e})", e.kind()))?;
     // The recording's encoder step: its smallest θa change between rows.
     let quantum_rad = rows
         .windows(2)

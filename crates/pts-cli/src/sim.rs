@@ -15,16 +15,16 @@ use sim_board::run::{Limits, Observer, Timing};
 pub struct EstError {
     /// snake_case kind (`beyond_tip`, `ill_conditioned`, …).
     pub kind: &'static str,
-    /// Debug form of the estimator's error.
+    /// The estimator's error in words.
     pub detail: String,
 }
 
 impl EstError {
-    /// From the estimator's error (whatever its type: it has a `kind()` and `Debug`).
-    pub fn new(kind: &'static str, e: &dyn std::fmt::Debug) -> Self {
+    /// From the estimator's error (whatever its type: it has a `kind()` and `Display`).
+    pub fn new(kind: &'static str, e: &dyn std::fmt::Display) -> Self {
         EstError {
             kind,
-            detail: format!("{e:?}"),
+            detail: e.to_string(),
         }
     }
 }

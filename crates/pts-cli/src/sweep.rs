@@ -145,10 +145,10 @@ impl DistalPost {
     /// `k_frac`·l2 from O2 when θ1 = `theta1_rad`.
     pub fn for_file(file: &FingerFile, theta1_rad: f64, k_frac: f64) -> Result<DistalPost, String> {
         let f = &file.finger;
-        let m = pts::Model::<f64>::new(f).map_err(|e| format!("{e:?}"))?;
+        let m = pts::Model::<f64>::new(f).map_err(|e| e.to_string())?;
         let cfg = m
             .free_from_torque(f.k1 * (theta1_rad - f.theta01))
-            .map_err(|e| format!("{e:?}"))?;
+            .map_err(|e| e.to_string())?;
         let (t1, t2) = (cfg.theta1, cfg.theta1 + cfg.theta2);
         let k = k_frac * f.l2;
         Ok(DistalPost {
