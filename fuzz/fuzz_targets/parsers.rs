@@ -1,6 +1,7 @@
 //! The text parsers the tools read: scene TOML (`plant::toml_scene::from_toml_str`), finger
 //! TOML (`pts::config::FingerFile::from_toml_str`) and trace CSV
-//! (`pts_cli::trace::read_csv`). Any panic is a finding; whatever parses must be usable.
+//! (`pts_cli::trace::read_csv`, then the segmentation and estimate `pts estimate` runs on
+//! it). Any panic is a finding; whatever parses must be usable.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
@@ -18,6 +19,19 @@ fuzz_target!(|data: &[u8]| {
         let _ = f.to_toml_string();
     }
     if let Ok(t) = pts_cli::trace::read_csv(text, &|i| i * 2.0) {
-        let _ = t.rows.len();
+        // A trace that reads is usable: rows in time order, finite, one length per column.
+        assert!(!t.is_empty());
+        assert_eq!(t.theta_a_rad.len(), t.len());
+        assert_eq!(t.torque_nm.len(), t.len());
+        assert!(t.t_s.windows(2).all(|w| w[0] <= w[1]));
+        assert!(t
+            .t_s
+            .iter()
+            .chain(&t.theta_a_rad)
+            .chain(&t.torque_nm)
+            .all(|v| v.is_finite()));
+        // And what `pts estimate` does with it ends in contacts or typed refusals.
+        let finger = pts::config::FingerFile::paper();
+        let _ = pts_cli::replay::segment(&t, &finger, pts_cli::method::Method::Pathfit);
     }
 });

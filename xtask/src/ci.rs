@@ -908,6 +908,17 @@ fn host_stages(st: &mut Stages) {
     st.run("cargo test --workspace", || {
         cargo(&["test", "--workspace", "--no-fail-fast"])
     });
+    // The fuzz targets live outside the workspace (nightly cargo-fuzz runs them), so nothing
+    // else would notice an API change that breaks them; stable `cargo check` does.
+    st.run("fuzz targets compile (cargo check, fuzz/)", || {
+        cargo(&[
+            "check",
+            "--manifest-path",
+            "fuzz/Cargo.toml",
+            "--bins",
+            "--no-default-features",
+        ])
+    });
     for t in ["thumbv6m-none-eabi", "thumbv7em-none-eabihf"] {
         st.run(&format!("pts builds for {t}"), || {
             cargo(&["build", "-p", "pts", "--target", t])

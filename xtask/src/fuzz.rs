@@ -2,7 +2,7 @@
 //! of `fuzz/` (nightly + libFuzzer) for N seconds each (default 60) and reports, per target,
 //! how long it ran clean and how many inputs it executed. Installs cargo-fuzz and the
 //! nightly toolchain when missing. Exit status 1 on any finding (the crash input is left in
-//! `fuzz/artifacts/<target>/`).
+//! `fuzz/artifacts/<target>/`) or on a target that does not build.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -97,6 +97,18 @@ pub fn main(args: &[String]) -> Result<i32, String> {
         .iter()
         .filter(|t| only.as_deref().is_none_or(|o| o == **t))
     {
+        // A target that does not compile is not a finding of the fuzzer: say so, with the
+        // compiler's own messages (inherited stderr).
+        if !ok(Command::new("cargo")
+            .args(["+nightly", "fuzz", "build", t])
+            .current_dir(&root))
+        {
+            findings += 1;
+            report.push(format!(
+                "fuzz {t}: DOES NOT BUILD (the compiler's errors are above)"
+            ));
+            continue;
+        }
         let start = Instant::now();
         let out = Command::new("cargo")
             .args(["+nightly", "fuzz", "run", t, "--"])
