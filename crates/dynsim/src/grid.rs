@@ -32,6 +32,18 @@ pub const FULL: Axes = Axes {
     inertia_kgm2: &[5.0e-4, 5.0e-3],
 };
 
+/// Drive inertias across the range a recording may hold (1e-4 … 0.1 kg·m² at the crank),
+/// at one ΔT_a: vertex, R 1 and 5 cm × k2,c 0.35 / 0.65 l2 × µ 0 / 0.3 (84 traces). The
+/// heaviest drive, on this grasp's open-loop torque ramp, hits the object at about 1.5 rad/s
+/// and swings far past the contact and back: what it records has to be refused, not read.
+pub const INERTIA: Axes = Axes {
+    radii_m: &[0.0, 0.01, 0.05],
+    k2_frac: &[0.35, 0.65],
+    delta_ta_nm: &[0.5],
+    mu: &[0.0, 0.3],
+    inertia_kgm2: &[1.0e-4, 2.0e-2, 1.0e-1],
+};
+
 /// A slice of the same kinds (44 traces).
 pub const SMALL: Axes = Axes {
     radii_m: &[0.0, 0.01, 0.05],

@@ -1,17 +1,17 @@
 //! Writes a grid of engine-simulated grasp traces: `<id>.csv` (t_s,theta_a_rad,torque_nm at 1 kHz)
 //! and `<id>.json` (ground truth) per grasp, plus `index.csv` listing them.
 //!
-//! `dynsim --out DIR [--grid small|full] [--only ID[,ID…]]`; progress on stderr. `--only`
+//! `dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID…]]`; progress on stderr. `--only`
 //! writes just the named cases of the grid (an unknown id is an error), to look at one grasp
 //! without simulating the rest.
 
 use dynsim::grasp::{self, Target};
-use dynsim::grid::{cases, FULL, SMALL};
+use dynsim::grid::{cases, FULL, INERTIA, SMALL};
 use std::io::Write as _;
 use std::path::PathBuf;
 
 fn usage() -> ! {
-    eprintln!("usage: dynsim --out DIR [--grid small|full] [--only ID[,ID...]]");
+    eprintln!("usage: dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID...]]");
     std::process::exit(2);
 }
 
@@ -35,6 +35,7 @@ fn main() {
     let axes = match grid.as_str() {
         "small" => &SMALL,
         "full" => &FULL,
+        "inertia" => &INERTIA,
         _ => usage(),
     };
     std::fs::create_dir_all(&dir).expect("create the output directory");

@@ -898,6 +898,22 @@ fn foreign_path_fit(
             (seg.theta_a_c_rad, seg.ta_c_nm, seg.contact_t_s),
         ),
     };
+    // A finger that settles behind the angle of its first contact has left the object (a
+    // rigid object touched at θa,c holds the finger ahead of that angle), or the contact was
+    // found late (a heavy drive's impact carries the finger far past it). Whatever the rows
+    // before the end fit, they are no loading path to a held contact.
+    let end_rad = f64::from(seg.request.end.theta_a_urad) * 1e-6;
+    if end_rad <= contact.0 {
+        let why = format!(
+            "the finger settled at θa = {end_rad:.4} rad, behind the contact found at {:.4} rad: \
+             it left the object, or the contact lies earlier than the recording shows",
+            contact.0
+        );
+        return (
+            Err(crate::sim::EstError::new("end_behind_contact", &why)),
+            id.map(|i| (i, (contact.2, contact.0, contact.1))),
+        );
+    }
     let pcfg = pathfit::PathFitConfig {
         inertia_kgm2: inertia,
         encoder_lead_rad: 0.5 * finger.drive.backlash_rad,
