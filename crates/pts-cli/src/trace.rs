@@ -451,18 +451,14 @@ const SHOWN_HEADER_CHARS: usize = 120;
 /// printed raw to the terminal), cut at [`SHOWN_HEADER_CHARS`] with an ellipsis.
 fn shown_header(names: &[String]) -> String {
     let joined = names.join(",");
-    let mut out: String = joined
-        .chars()
-        .take(SHOWN_HEADER_CHARS)
-        .flat_map(|c| {
-            let escaped: String = if c.is_control() {
-                c.escape_default().collect()
-            } else {
-                c.to_string()
-            };
-            escaped.chars().collect::<Vec<_>>()
-        })
-        .collect();
+    let mut out = String::new();
+    for c in joined.chars().take(SHOWN_HEADER_CHARS) {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
     if joined.chars().count() > SHOWN_HEADER_CHARS {
         out.push('…');
     }
