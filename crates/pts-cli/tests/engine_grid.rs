@@ -249,13 +249,20 @@ impl Stats {
         100.0 * self.within3 as f64 / self.answered.max(1) as f64
     }
     fn row(&self, label: &str) {
+        // With nothing answered there is no error to quote.
+        let (mean, max, within3) = if self.answered == 0 {
+            ("—".to_string(), "—".to_string(), "—".to_string())
+        } else {
+            (
+                format!("{:.2}", self.mean()),
+                format!("{:.2}", self.max),
+                format!("{:.1}", self.within3_pct()),
+            )
+        };
         println!(
-            "| {label} | {} | {:.1} | {:.2} | {:.2} | {:.1} |",
+            "| {label} | {} | {:.1} | {mean} | {max} | {within3} |",
             self.n,
             self.answered_pct(),
-            self.mean(),
-            self.max,
-            self.within3_pct()
         );
     }
 }
