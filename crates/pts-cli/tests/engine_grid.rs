@@ -337,9 +337,8 @@ fn print_table(rows: &[Outcome]) -> Stats {
     for (k, s) in &groups {
         s.row(k);
     }
-    let neg: Vec<&Outcome> = rows.iter().filter(|o| o.expected != "distal").collect();
-    let right = neg.iter().filter(|o| o.negative_right()).count();
-    println!("negatives right: {right}/{}", neg.len());
+    let (right, neg) = negatives_right(rows);
+    println!("negatives right: {right}/{neg}");
     println!(
         "distal positives answered as proximal (a wrong answer, not a refusal): {}",
         wrong_phalanx(rows)
@@ -428,6 +427,15 @@ fn print_drive_table(rows: &[Outcome]) -> [DriveCheck; 2] {
         );
         c
     })
+}
+
+/// The negatives answered right, and how many there are.
+fn negatives_right(rows: &[Outcome]) -> (usize, usize) {
+    let neg = rows.iter().filter(|o| o.expected != "distal");
+    (
+        neg.clone().filter(|o| o.negative_right()).count(),
+        neg.count(),
+    )
 }
 
 fn wrong_phalanx(rows: &[Outcome]) -> usize {
@@ -563,9 +571,8 @@ fn engine_grid_default_method() {
         all.within3,
         all.answered
     );
-    let neg: Vec<&Outcome> = rows.iter().filter(|o| o.expected != "distal").collect();
-    let right = neg.iter().filter(|o| o.negative_right()).count();
-    assert!(right == neg.len(), "negatives right {right}/{}", neg.len());
+    let (right, neg) = negatives_right(&rows);
+    assert!(right == neg, "negatives right {right}/{neg}");
     assert!(wrong_phalanx(&rows) == 0, "distal answered as proximal");
 }
 
@@ -600,7 +607,6 @@ fn across_the_inertia_range_no_answer_is_wrong() {
         all.answered
     );
     assert!(wrong_phalanx(&rows) == 0, "distal answered as proximal");
-    let neg: Vec<&Outcome> = rows.iter().filter(|o| o.expected != "distal").collect();
-    let right = neg.iter().filter(|o| o.negative_right()).count();
-    assert!(right == neg.len(), "negatives right {right}/{}", neg.len());
+    let (right, neg) = negatives_right(&rows);
+    assert!(right == neg, "negatives right {right}/{neg}");
 }
