@@ -26,7 +26,7 @@ fn request(realistic: bool, radius: f64, k2_frac: f64, dta: f64) -> Option<grasp
         ..Scene::DEFAULT
     };
     let s = if realistic { s } else { s.ideal() };
-    run(&s, config(&s, dta), 20.0, 0.0, |_, _, _| {}).request
+    run(&s, seated(&s, dta), 20.0, 0.0, |_, _, _| {}).request
 }
 
 #[test]

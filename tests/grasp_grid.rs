@@ -93,11 +93,11 @@ type Pf = Option<Result<f64, &'static str>>;
 
 fn run_case(c: &Case) -> (Res, Pf) {
     let s = scene(c);
-    // The grid measures the paper's two-point method in closed loop (the path fit is run
-    // on the same request below).
+    // The grid measures the paper's two-point method in closed loop, on the static points
+    // the seated controller takes (the path fit is run on the same request below).
     let cfg = grasp::ControllerConfig {
         estimator: grasp::Estimator::TwoPoint,
-        ..config(&s, c.dta)
+        ..seated(&s, c.dta)
     };
     let o = run(&s, cfg, 20.0, 0.0, |_, _, _| {});
     let pf = o.request.as_ref().map(|req| {

@@ -10,8 +10,9 @@
 //! in a second contact or past the tip (plant events) are expected to be refused and counted.
 //!
 //! `cargo test --release --test pathfit_grid -- --nocapture` prints the tables;
-//! `PATHFIT_NO_SEATING=RATE` (N·m/s) runs the grid without the seating stages, the step a ramp
-//! of RATE (printed only: the guards below are the seated controller's);
+//! the grid runs the seated controller (`seating on`); `PATHFIT_NO_SEATING=RATE` (N·m/s) runs
+//! it without the seating stages, as the default controller does, the step a ramp of RATE
+//! (printed only: the guards below are the seated controller's);
 //! `PATHFIT_INERTIA_SCALE=F` fits with F × the drive's inertia (printed only too);
 //! `PATHFIT_GAIN_ERROR=G` gives the realistic plant's current sensor the relative gain error G
 //! (the scene's is +0.01; printed only), which the estimate cannot see without calibration;
@@ -110,17 +111,16 @@ fn adapter_is_firmware() -> bool {
     .all(|v| std::env::var_os(v).is_none())
 }
 
-/// The controller of a grid run: the default, or without seating, the step a ramp of
-/// `unseated_rate` (N·m/s).
+/// The controller of a grid run: the seated one (the guards below are its), or without
+/// seating (the default), the step a ramp of `unseated_rate` (N·m/s).
 fn grid_config(scene: &Scene, dta: f64, unseated_rate: Option<f64>) -> grasp::ControllerConfig {
-    let c = config(scene, dta);
     match unseated_rate {
         Some(rate) => grasp::ControllerConfig {
             seating: false,
             step_shape: grasp::StepShape::Ramp(rate),
-            ..c
+            ..config(scene, dta)
         },
-        None => c,
+        None => seated(scene, dta),
     }
 }
 

@@ -61,10 +61,21 @@ pub fn config(scene: &Scene, delta_ta_nm: f64) -> ControllerConfig {
 
 /// The controller without seating (the step starts from T_a,c at the detection), the step a
 /// 4 N·m/s ramp of ΔT_a (N·m): a grasp shaped like a recording that no seating controller made.
+/// Spelled out rather than taken from the default, which it is today.
 pub fn unseated(scene: &Scene, delta_ta_nm: f64) -> ControllerConfig {
     ControllerConfig {
         seating: false,
         step_shape: grasp::StepShape::Ramp(4.0),
+        ..config(scene, delta_ta_nm)
+    }
+}
+
+/// The seated controller (`pts board set seating on`): the contact seated in static stages
+/// (the two-point method's static points) before a 1 N·m/s ramp of ΔT_a (N·m).
+pub fn seated(scene: &Scene, delta_ta_nm: f64) -> ControllerConfig {
+    ControllerConfig {
+        seating: true,
+        step_shape: grasp::StepShape::Ramp(1.0),
         ..config(scene, delta_ta_nm)
     }
 }

@@ -1718,10 +1718,15 @@ mod tests {
         );
     }
 
+    /// The seated controller's supervisor (its detection is the default's; the tests follow
+    /// it into seating).
     fn supervisor() -> Supervisor {
-        let p = ControllerConfig::default()
-            .params()
-            .expect("default config");
+        let p = ControllerConfig {
+            seating: true,
+            ..ControllerConfig::default()
+        }
+        .params()
+        .expect("default config");
         let mut sup = Supervisor::new(&p);
         sup.handle(Input::Started);
         sup.handle(Input::Calibrated {
@@ -1776,6 +1781,26 @@ mod tests {
         assert_eq!(tick, 200 + (30 + 7) * ST);
         assert_eq!(sup.state(), State::Seating);
         // Seating presses at T_a,c + δ_seat at once.
+        assert!(matches!(sup.setpoint().reference, Reference::Set(_)));
+    }
+
+    /// The default controller does not seat: the same detection starts the step from T_a,c
+    /// (the detection's knee).
+    #[test]
+    fn by_default_the_detection_starts_the_step() {
+        let p = ControllerConfig::default()
+            .params()
+            .expect("default config");
+        assert!(!p.seating);
+        let mut sup = Supervisor::new(&p);
+        sup.handle(Input::Started);
+        sup.handle(Input::Calibrated {
+            tick: 200,
+            offset_q8: 0,
+        });
+        assert!(approach(&mut sup, 30, 60).is_some());
+        assert_eq!(sup.state(), State::Step);
+        // The reference is put at T_a,c at once; the step's ramp starts from there.
         assert!(matches!(sup.setpoint().reference, Reference::Set(_)));
     }
 

@@ -110,6 +110,9 @@ fn cfg(dta: f64) -> ControllerConfig {
         detect_min_rise_nm: 0.002,
         // The mock has no back-EMF.
         emf_mismatch_v: 1000.0,
+        // The two-point method's static points.
+        seating: true,
+        step_shape: grasp::StepShape::Ramp(1.0),
         ..ControllerConfig::DEFAULT
     }
     .with_delta_ta(dta)

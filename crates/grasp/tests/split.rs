@@ -228,19 +228,28 @@ impl Finger {
     }
 }
 
+/// The controller for the toy finger: no damping or speed limit (it has no inertia), no
+/// back-EMF check (it has no back-EMF), and seated, so that a run passes through every
+/// state, `Seating` included, on slow ramps the inertia-free toy follows without jumps.
+fn toy_config() -> ControllerConfig {
+    ControllerConfig {
+        damping_nm_s_per_rad: 0.0,
+        approach_speed_max_rad_s: 100.0,
+        detect_min_rise_nm: 0.002,
+        emf_mismatch_v: 1000.0,
+        seating: true,
+        step_shape: grasp::StepShape::Ramp(1.0),
+        ..ControllerConfig::DEFAULT
+    }
+    .with_delta_ta(0.5)
+}
+
 /// The firmware's arrangement: the supervisor runs only every `every` ticks (a busy
 /// lower-priority task), on everything the loop left. The state machine must reach the same
 /// estimate as the composed controller ticking it every period, since it acts per sample.
 #[test]
 fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
-    let cfg = ControllerConfig {
-        damping_nm_s_per_rad: 0.0,
-        approach_speed_max_rad_s: 100.0,
-        detect_min_rise_nm: 0.002,
-        emf_mismatch_v: 1000.0,
-        ..ControllerConfig::DEFAULT
-    }
-    .with_delta_ta(0.5);
+    let cfg = toy_config();
     let run = |every: u32| -> (State, Option<i32>, u32) {
         let mut hw = Finger {
             d: cfg.drive,
@@ -286,14 +295,7 @@ fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
 /// ever runs again, reports `SupervisorStalled`.
 #[test]
 fn a_stalled_supervisor_switches_the_bridge_off_in_every_state() {
-    let cfg = ControllerConfig {
-        damping_nm_s_per_rad: 0.0,
-        approach_speed_max_rad_s: 100.0,
-        detect_min_rise_nm: 0.002,
-        emf_mismatch_v: 1000.0,
-        ..ControllerConfig::DEFAULT
-    }
-    .with_delta_ta(0.5);
+    let cfg = toy_config();
     let mut seen = Vec::new();
     for stop_in in [
         State::Calibrating,
@@ -395,14 +397,7 @@ fn a_stalled_supervisor_switches_the_bridge_off_in_every_state() {
 /// supervisor as late as the link allows minus one sample.
 #[test]
 fn a_supervisor_late_by_less_than_the_link_never_trips_the_heartbeat() {
-    let cfg = ControllerConfig {
-        damping_nm_s_per_rad: 0.0,
-        approach_speed_max_rad_s: 100.0,
-        detect_min_rise_nm: 0.002,
-        emf_mismatch_v: 1000.0,
-        ..ControllerConfig::DEFAULT
-    }
-    .with_delta_ta(0.5);
+    let cfg = toy_config();
     let p = cfg.params().unwrap();
     let mut hw = Finger {
         d: cfg.drive,

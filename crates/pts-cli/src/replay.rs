@@ -29,6 +29,10 @@ pub struct TraceMeta {
     pub controller: MetaController,
 }
 
+/// The step ramp (N·m/s) of a `# pts-sim` line written before the seating was recorded, when
+/// the controller seated by default and ramped ΔT_a at this rate.
+const LEGACY_STEP_RAMP_NM_PER_S: f64 = 1.0;
+
 /// Controller settings in a `# pts-sim` line (a device's settings at the recorded grasp);
 /// `None` = grasp's default.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -210,16 +214,25 @@ impl TraceMeta {
             .split_whitespace()
             .find_map(|w| w.strip_prefix("estimator="))
             .and_then(|v| <crate::method::Method as clap::ValueEnum>::from_str(v, true).ok());
+        let (seating, step_ramp_nm_per_s) = match get("seating") {
+            Some(v) => (Some(v != 0.0), get("step_ramp_nm_per_s")),
+            // Written before the seating was recorded: every controller seated then, and a
+            // ramp left out was the default of that time.
+            None => (
+                Some(true),
+                get("step_ramp_nm_per_s").or(Some(LEGACY_STEP_RAMP_NM_PER_S)),
+            ),
+        };
         Some(TraceMeta {
             dta_nm: get("dta_nm").filter(|v| *v > 0.0)?,
             dt_s: get("dt_s").filter(|v| *v > 0.0)?,
             drive,
             controller: MetaController {
                 estimator,
-                step_ramp_nm_per_s: get("step_ramp_nm_per_s"),
+                step_ramp_nm_per_s,
                 approach_speed_rad_s: get("approach_speed_rad_s").filter(|v| *v > 0.0),
                 approach_max_nm: get("approach_max_nm").filter(|v| *v > 0.0),
-                seating: get("seating").map(|v| v != 0.0),
+                seating,
             },
         })
     }
@@ -1055,5 +1068,34 @@ mod tests {
         let c = &out.contacts[0];
         assert_eq!(c.phases, Some((2, 3)));
         assert_eq!(c.estimate.as_ref().unwrap().k2_um, Some(30_000));
+    }
+
+    /// A `# pts-sim` line says which controller made the recording: read back as written,
+    /// and a line from before the seating was recorded as the seated 1 N·m/s ramp every
+    /// controller ran then, not as today's default.
+    #[test]
+    fn the_pts_sim_line_keeps_the_controller_and_reads_old_lines_as_seated() {
+        let meta = TraceMeta {
+            dta_nm: 0.8,
+            dt_s: 2e-4,
+            drive: None,
+            controller: MetaController {
+                step_ramp_nm_per_s: Some(4.0),
+                seating: Some(false),
+                ..MetaController::default()
+            },
+        };
+        let back = TraceMeta::find(&meta.line()).expect("its own line");
+        assert_eq!(back.controller.seating, Some(false));
+        assert_eq!(back.controller.step_ramp_nm_per_s, Some(4.0));
+        let old = TraceMeta::find("# pts-sim dta_nm=0.8 dt_s=0.0002").expect("an old line");
+        assert_eq!(old.controller.seating, Some(true));
+        assert_eq!(old.controller.step_ramp_nm_per_s, Some(1.0));
+        let c = old.controller.apply(ControllerConfig::DEFAULT);
+        assert!(c.seating);
+        assert_eq!(c.step_shape, grasp::StepShape::Ramp(1.0));
+        let old_step = TraceMeta::find("# pts-sim dta_nm=0.8 dt_s=0.0002 step_ramp_nm_per_s=0")
+            .expect("an old line with a step");
+        assert_eq!(old_step.controller.step_ramp_nm_per_s, Some(0.0));
     }
 }

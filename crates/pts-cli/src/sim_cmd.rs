@@ -41,8 +41,9 @@ pub struct Args {
     pub finger: Option<PathBuf>,
     /// Step ramp rates (N·m/s, 0 = one step); empty: the controller's default.
     pub step_ramp: Vec<f64>,
-    /// Step at once from the detection, without the seating stages.
-    pub no_seating: bool,
+    /// Seat the contact before the step (`Some(true)`) or step at once from the detection;
+    /// `None`: the controller's default.
+    pub seating: Option<bool>,
 }
 
 /// Largest step ramp rate accepted (N·m/s): above it a ramp is a step for any ΔT_a.
@@ -220,7 +221,7 @@ pub fn run(a: &Args) -> Result<(), String> {
         method: a.method,
         overcurrent_a,
         step_shape: step,
-        seating: a.no_seating.then_some(false),
+        seating: a.seating,
     })?;
     let wall = t0.elapsed().as_secs_f64();
     if let Some(path) = &a.csv {
@@ -231,14 +232,20 @@ pub fn run(a: &Args) -> Result<(), String> {
             dta_nm: a.dta[0],
             dt_s: rep.dt_s,
             drive: Some(crate::replay::MetaDrive::of(&rep.drive)),
-            // What the replay needs to run the same controller.
+            // What the replay needs to run the same controller, written out rather than left
+            // to the defaults of whichever version replays it.
             controller: crate::replay::MetaController {
                 estimator: Some(a.method),
-                step_ramp_nm_per_s: step.map(|s| match s {
-                    grasp::StepShape::Step => 0.0,
-                    grasp::StepShape::Ramp(r) => r,
-                }),
-                seating: a.no_seating.then_some(false),
+                step_ramp_nm_per_s: Some(
+                    match step.unwrap_or(grasp::ControllerConfig::DEFAULT.step_shape) {
+                        grasp::StepShape::Step => 0.0,
+                        grasp::StepShape::Ramp(r) => r,
+                    },
+                ),
+                seating: Some(
+                    a.seating
+                        .unwrap_or(grasp::ControllerConfig::DEFAULT.seating),
+                ),
                 ..Default::default()
             },
         };
@@ -469,7 +476,7 @@ fn sweep(a: &Args) -> Result<(), String> {
             method: a.method,
             overcurrent_a,
             step_shape: st,
-            seating: a.no_seating.then_some(false),
+            seating: a.seating,
         });
         let time_to_know_s = rep.as_ref().ok().and_then(SimReport::time_to_know_s);
         let (err, outcome) = match rep {

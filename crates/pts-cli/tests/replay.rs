@@ -31,7 +31,9 @@ fn json_of(o: &Output) -> Value {
     })
 }
 
-/// One closed-loop Table 2 grasp (ΔT_a = 0.8 N·m) recorded to CSV, shared by the tests.
+/// One closed-loop Table 2 grasp (ΔT_a = 0.8 N·m) recorded to CSV, shared by the tests: the
+/// seated controller on a 1 N·m/s ramp, whose static points the two-point method reads (the
+/// default's replay is `sim_status.rs`'s).
 fn recorded() -> &'static (PathBuf, Value) {
     static REC: OnceLock<(PathBuf, Value)> = OnceLock::new();
     REC.get_or_init(|| {
@@ -40,6 +42,9 @@ fn recorded() -> &'static (PathBuf, Value) {
             "sim",
             "--scene",
             "table2",
+            "--seating",
+            "--step-ramp",
+            "1",
             "--dta",
             "0.8",
             "--csv",

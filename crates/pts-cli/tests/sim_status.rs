@@ -20,7 +20,13 @@ fn plain_pts_sim_ends_with_an_estimate_and_exit_0() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(text.contains("estimate: distal, k2 ="), "{text}");
-    // Every event in words and SI units, none in the controller's Debug form.
+    // Every event in words and SI units, none in the controller's Debug form; the seated
+    // controller's events too.
+    assert!(text.contains("back-dated to t ="), "{text}");
+    assert!(!text.contains("{ tick"), "{text}");
+    let seated = pts(&["sim", "--seating"]);
+    let text = String::from_utf8_lossy(&seated.stdout);
+    assert!(seated.status.success(), "{text}");
     assert!(text.contains("first loading point: θa ="), "{text}");
     assert!(!text.contains("{ tick"), "{text}");
 }
@@ -126,11 +132,12 @@ fn a_bad_step_ramp_is_refused_with_its_range() {
     );
 }
 
-/// Without seating the controller steps from T_a,c at the detection: no `seated` event, the
-/// estimate known sooner, still close to the plant's contact, and a trace recorded that way
-/// replays (`pts estimate`, from its `# pts-sim` line) to the same answer.
+/// By default the controller steps from T_a,c at the detection: no `seated` event, the
+/// estimate known within 0.6 s of the first contact (issue 16) and about a second sooner than
+/// the seated controller's (`--seating`), still close to the plant's contact, and a trace
+/// recorded that way replays (`pts estimate`, from its `# pts-sim` line) to the same answer.
 #[test]
-fn without_seating_the_step_starts_at_the_detection() {
+fn by_default_the_step_starts_at_the_detection() {
     let events = |v: &serde_json::Value| -> Vec<String> {
         v["events"]
             .as_array()
@@ -139,11 +146,14 @@ fn without_seating_the_step_starts_at_the_detection() {
             .map(|e| e["event"].as_str().unwrap().to_string())
             .collect()
     };
-    let seated = json(&["sim", "--scene", "table2", "--json"]);
-    let direct = json(&["sim", "--scene", "table2", "--no-seating", "--json"]);
+    let seated = json(&["sim", "--scene", "table2", "--seating", "--json"]);
+    let direct = json(&["sim", "--scene", "table2", "--json"]);
+    let explicit = json(&["sim", "--scene", "table2", "--no-seating", "--json"]);
+    assert_eq!(direct["estimate"], explicit["estimate"]);
     assert!(events(&seated).iter().any(|e| e == "seated"), "{seated}");
     assert!(!events(&direct).iter().any(|e| e == "seated"), "{direct}");
     let know = |v: &serde_json::Value| v["time_to_know_s"].as_f64().expect("time to know");
+    assert!(know(&direct) < 0.6, "{}", know(&direct));
     // The seating stages take over a second on this scene.
     assert!(
         know(&direct) + 0.8 < know(&seated),
@@ -151,23 +161,13 @@ fn without_seating_the_step_starts_at_the_detection() {
         know(&direct),
         know(&seated)
     );
-    // Against the plant's own first contact (measured +0.01 %).
+    // Against the plant's own first contact (measured +1.06 %).
     let err = direct["error_pct_l2"]
         .as_f64()
         .expect("an error against the truth");
-    assert!(err.abs() < 1.0, "{err} % of l2");
-    // A 4 N·m/s ramp of 0.5 N·m is known within 0.6 s (measured 0.524 s, +0.91 % of l2).
-    let fast = json(&[
-        "sim",
-        "--scene",
-        "table2",
-        "--no-seating",
-        "--step-ramp",
-        "4",
-        "--dta",
-        "0.5",
-        "--json",
-    ]);
+    assert!(err.abs() < 1.5, "{err} % of l2");
+    // 0.5 N·m on the same ramp is known within 0.6 s too (measured 0.524 s, +0.91 % of l2).
+    let fast = json(&["sim", "--scene", "table2", "--dta", "0.5", "--json"]);
     assert!(know(&fast) < 0.6, "{}", know(&fast));
     let err = fast["error_pct_l2"]
         .as_f64()
@@ -177,14 +177,7 @@ fn without_seating_the_step_starts_at_the_detection() {
     let dir = std::env::temp_dir().join(format!("pts-no-seating-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let csv = dir.join("direct.csv");
-    let out = pts(&[
-        "sim",
-        "--scene",
-        "table2",
-        "--no-seating",
-        "--csv",
-        csv.to_str().unwrap(),
-    ]);
+    let out = pts(&["sim", "--scene", "table2", "--csv", csv.to_str().unwrap()]);
     assert!(out.status.success());
     let replay = json(&["estimate", "--trace", csv.to_str().unwrap(), "--json"]);
     assert_eq!(replay["exact_replay"], true, "{replay}");
