@@ -4,7 +4,7 @@
 //! |------|-------------|------------------------------|--------------------------------------------------|
 //! | 4    | `sample`    | hardware, `ADC` line, 10 kHz | read encoder + current, `ControlLoop::tick` (torque loop, fast faults), set the duty; decimated samples |
 //! | 3    | `supervise` | software (async)             | `Supervisor::handle` on what the loop handed over (the grasp state machine, once per 4 ms sample), forward events |
-//! | 2    | `estimate`  | software (async)             | `take_request`, `run_estimate`, `deliver`        |
+//! | 2    | `estimate`  | software (async)             | `take_request_into`, `run_estimate`, `deliver`   |
 //! | 1    | `telemetry` | software (async)             | defmt: every event, θa/T_a/state decimated to 50 Hz |
 //!
 //! Supervision: the loop drives only on a setpoint the supervisor stamped within
@@ -287,16 +287,23 @@ mod app {
 
     /// The estimate: the settled step → `run_estimate` → `deliver`. Preempted by `sample` and
     /// `supervise`.
-    #[task(priority = 2, shared = [sup, link], local = [est_tx, table, finger])]
+    #[task(
+        priority = 2,
+        shared = [sup, link],
+        local = [est_tx, table, finger, req: grasp::EstimateRequest = grasp::EstimateRequest::EMPTY]
+    )]
     async fn estimate(cx: estimate::Context) {
         let mut sup = cx.shared.sup;
         let mut link = cx.shared.link;
         let t0 = platform::stamp();
         let p0 = tm::PREEMPT.load(Ordering::Relaxed);
-        let Some(req) = sup.lock(|s| s.take_request()) else {
+        // Into the task's static slot: one copy of the samples taken, not three of the
+        // whole 3 KiB request.
+        let req = cx.local.req;
+        if !sup.lock(|s| s.take_request_into(req)) {
             return;
-        };
-        let result = ctl::run_estimate(cx.local.finger, &req, *cx.local.table);
+        }
+        let result = ctl::run_estimate(cx.local.finger, req, *cx.local.table);
         let work = platform::stamp()
             .wrapping_sub(t0)
             .wrapping_sub(tm::PREEMPT.load(Ordering::Relaxed).wrapping_sub(p0));

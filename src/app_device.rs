@@ -313,14 +313,21 @@ mod app {
     }
 
     /// The estimate with the estimator the grasp's settings named.
-    #[task(priority = 2, shared = [sup, link], local = [est_tx, table, finger])]
+    #[task(
+        priority = 2,
+        shared = [sup, link],
+        local = [est_tx, table, finger, req: grasp::EstimateRequest = grasp::EstimateRequest::EMPTY]
+    )]
     async fn estimate(cx: estimate::Context) {
         let mut sup = cx.shared.sup;
         let mut link = cx.shared.link;
-        let Some(req) = sup.lock(|s| s.take_request()) else {
+        // Into the task's static slot: one copy of the samples taken, not three of the
+        // whole 3 KiB request.
+        let req = cx.local.req;
+        if !sup.lock(|s| s.take_request_into(req)) {
             return;
-        };
-        let result = ctl::run_estimate_as(cx.local.finger, &req, *cx.local.table);
+        }
+        let result = ctl::run_estimate_as(cx.local.finger, req, *cx.local.table);
         // Events before the state is published (as in `supervise`): the END the loop sends
         // once it sees Holding or a fault must not overtake them in the telemetry queue.
         sup.lock(|s| s.deliver(result));

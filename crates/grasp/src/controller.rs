@@ -1023,6 +1023,15 @@ impl Supervisor {
     /// Moves the estimate request out, once, after the step reported it ready.
     /// Hand it to [`run_estimate`](crate::run_estimate) in a low-priority task.
     pub fn take_request(&mut self) -> Option<EstimateRequest> {
+        let mut req = EstimateRequest::EMPTY;
+        self.take_request_into(&mut req).then_some(req)
+    }
+
+    /// [`take_request`](Self::take_request) into a slot the caller keeps (the estimate task's
+    /// static one): the samples are copied once, as many as were taken, where returning the
+    /// request by value moves its whole capacity (3 KiB) several times. `false`, and `out`
+    /// untouched, unless a request is ready.
+    pub fn take_request_into(&mut self, out: &mut EstimateRequest) -> bool {
         let Phase::Estimating {
             loaded,
             end,
@@ -1030,7 +1039,7 @@ impl Supervisor {
             request_ready: true,
         } = self.phase
         else {
-            return None;
+            return false;
         };
         self.phase = Phase::Estimating {
             loaded,
@@ -1038,24 +1047,24 @@ impl Supervisor {
             since,
             request_ready: false,
         };
-        let mut pre = Vec::new();
-        core::mem::swap(&mut pre, &mut self.pre);
-        let mut path = Vec::new();
-        core::mem::swap(&mut path, &mut self.path.samples);
-        Some(EstimateRequest {
-            contact: loaded.contact.knee,
-            seat: loaded.seat,
-            seat2: loaded.seat2,
-            end,
-            pre,
-            path,
-            sample_ticks: self.p.sample_ticks,
-            path_stride: self.path.stride,
-            delta_ta_cmd_unm: self.p.delta_ta_unm,
-            estimator: self.p.estimator,
-            dt_ns: self.p.dt_ns,
-            detect_k_unm_per_rad: sat_i32(self.p.detect_k_unm_per_rad),
-        })
+        out.pre.clear();
+        out.path.clear();
+        // Same capacities on both sides: these cannot fail.
+        let _ = out.pre.extend_from_slice(&self.pre);
+        let _ = out.path.extend_from_slice(&self.path.samples);
+        self.pre.clear();
+        self.path.samples.clear();
+        out.contact = loaded.contact.knee;
+        out.seat = loaded.seat;
+        out.seat2 = loaded.seat2;
+        out.end = end;
+        out.sample_ticks = self.p.sample_ticks;
+        out.path_stride = self.path.stride;
+        out.delta_ta_cmd_unm = self.p.delta_ta_unm;
+        out.estimator = self.p.estimator;
+        out.dt_ns = self.p.dt_ns;
+        out.detect_k_unm_per_rad = sat_i32(self.p.detect_k_unm_per_rad);
+        true
     }
 
     /// Gives the estimate back (from the low-priority task). A refused estimate puts the

@@ -95,6 +95,25 @@ pub struct EstimateRequest {
     pub dt_ns: u32,
 }
 
+impl EstimateRequest {
+    /// No samples, every field zero (all zero bits: a static slot of it lands in `.bss`):
+    /// what [`Supervisor::take_request_into`](crate::Supervisor::take_request_into) fills.
+    pub const EMPTY: EstimateRequest = EstimateRequest {
+        contact: Sample::ZERO,
+        seat: Sample::ZERO,
+        seat2: Sample::ZERO,
+        end: Sample::ZERO,
+        pre: Vec::new(),
+        path: Vec::new(),
+        sample_ticks: 0,
+        path_stride: 0,
+        delta_ta_cmd_unm: 0,
+        detect_k_unm_per_rad: 0,
+        estimator: Estimator::TwoPoint,
+        dt_ns: 0,
+    };
+}
+
 /// Why the estimator refused the measurement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

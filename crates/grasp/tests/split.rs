@@ -472,3 +472,65 @@ fn an_overcurrent_limit_beyond_the_sensor_range_is_refused() {
         Err(grasp::config::ConfigError::OverCurrentBeyondSensor)
     );
 }
+
+/// The estimate task's static slot: `take_request_into` overwrites whatever an earlier grasp
+/// left in it (more samples than this one took, other fields), fills it with exactly what the
+/// supervisor collected, once, and leaves it alone when no request is ready.
+#[test]
+fn the_request_slot_is_refilled_whole_and_only_once() {
+    let cfg = toy_config();
+    let mut hw = Finger {
+        d: cfg.drive,
+        duty: 0.0,
+        off: true,
+        theta: cfg.drive.theta_a_rest_rad,
+    };
+    let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
+    let mut slot = grasp::EstimateRequest::EMPTY;
+    // A stale request, larger in every list than the one to come.
+    let junk = grasp::estimate::Sample {
+        tick: 7,
+        theta_a_urad: -1,
+        torque_unm: -2,
+        torque_ref_unm: -3,
+    };
+    while slot.pre.push(junk).is_ok() {}
+    while slot.path.push(junk).is_ok() {}
+    slot.end = junk;
+    slot.dt_ns = 1;
+    assert!(
+        !sup.take_request_into(&mut slot),
+        "no request before the step"
+    );
+    assert_eq!(slot.dt_ns, 1);
+    let mut ready = false;
+    for _ in 0..60_000u32 {
+        lp.tick(&mut hw, &mut link);
+        if sup.service(&mut link) {
+            ready = true;
+            break;
+        }
+    }
+    assert!(ready, "no request; state {:?}", sup.state());
+    assert!(sup.take_request_into(&mut slot));
+    let req = slot.clone();
+    assert!(!req.path.is_empty() && req.path.len() < req.path.capacity());
+    // The history before the contact is full by then: every entry must be this grasp's.
+    assert!(!req.pre.is_empty());
+    assert!(req.pre.iter().chain(req.path.iter()).all(|s| *s != junk));
+    assert_ne!(req.end, junk);
+    assert_eq!(req.dt_ns, cfg.params().unwrap().dt_ns);
+    // The path runs from the contact's detection to the settled end, in time order.
+    assert!(req.path.windows(2).all(|w| w[0].tick < w[1].tick));
+    assert!(req.pre.last().unwrap().tick <= req.path[0].tick);
+    // Taken once: a second call changes nothing, and the estimate on it is the one delivered.
+    assert!(!sup.take_request_into(&mut slot));
+    assert_eq!(slot, req);
+    sup.deliver(run_estimate(&pts::Finger::PAPER, &cfg.drive, &slot));
+    sup.publish(&mut link);
+    assert!(
+        matches!(sup.state(), State::Holding | State::Releasing),
+        "{:?}",
+        sup.state()
+    );
+}
