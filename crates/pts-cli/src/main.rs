@@ -142,13 +142,13 @@ enum BoardCmd {
     /// State, settings and counters.
     Status,
     /// One parameter (delta_ta_nm, step_ramp_nm_per_s, estimator, approach_speed_rad_s,
-    /// approach_max_nm, telemetry_hz, scene).
+    /// approach_max_nm, telemetry_hz, seating, scene).
     Get {
         /// Parameter name.
         name: String,
     },
     /// Set a parameter (idle only): `set delta_ta_nm 0.6`, `set estimator path-fit`,
-    /// `set step_ramp_nm_per_s step`, `set seating off`, `set scene cyl10_k2_20`.
+    /// `set step_ramp_nm_per_s step`, `set seating on`, `set scene cyl10_k2_20`.
     Set {
         /// Parameter name.
         name: String,
