@@ -30,14 +30,18 @@
 //! 3. **Contact**: the measured ΔT_a/Δθa over a 40 ms window exceeds 1.5 N·m/rad
 //!    (between free motion ≈ 0.55–0.9 and a proximal contact ≈ 2.6) twice in a row.
 //!    Detection delay on the plant: mean 37 ms, max 57 ms after the true contact.
-//! 4. **Seating**: the reference is held at T_a,c + δ (δ = 0.01 N·m) until θa is static
-//!    (first static point), then raised to T_a,c + max(2δ, ΔT_a/2) (second static point).
-//! 5. **Step**: raised to T_a,c + ΔT_a (ramp or step) and **Settling** until static (end
-//!    point). Static = θa within 50 µrad for 100 ms.
+//! 4. **Seating**, only with [`ControllerConfig::seating`] (off by default): the reference
+//!    is held at T_a,c + δ (δ = 0.01 N·m) until θa is static (first static point), then
+//!    raised until the drive slides forward and held for two loading points.
+//! 5. **Step**: raised to T_a,c + ΔT_a (by default a 4 N·m/s ramp from T_a,c at the
+//!    detection) and **Settling** until static (end point). Static = θa within 50 µrad for
+//!    100 ms.
 //! 6. **Estimating**: the request (static points, history before contact, path samples) is
-//!    out; the estimator back-dates θa,c/T_a,c where the parabola through the three static
-//!    points meets the model's free-motion curve shifted by the friction offset measured
-//!    during the approach, then inverts. **Holding** or **Releasing** → **Done**.
+//!    out; the path fit (the default) fits the whole loading path from the contact instant,
+//!    the two-point method inverts ΔT_a/Δθa between the static points. Without seating, a
+//!    refusal or an answer that locates no distal contact is first probed (**Step** again,
+//!    half a step higher) to name a finger locked at two points. **Holding** or
+//!    **Releasing** → **Done**.
 //!
 //! Faults (→ [`State::Fault`], bridge off, reason in [`FaultReason`]): encoder jump or
 //! encoder/back-EMF mismatch (stuck encoder), ADC code or offset, over-current, stall,
