@@ -905,6 +905,15 @@ fn host_stages(st: &mut Stages) {
             "warnings",
         ])
     });
+    // A broken intra-doc link is a wrong pointer in the reference a user reads.
+    st.run(
+        "rustdoc without warnings (cargo doc --workspace --no-deps)",
+        || {
+            with_env("RUSTDOCFLAGS", "-D warnings", || {
+                cargo(&["doc", "--workspace", "--no-deps"])
+            })
+        },
+    );
     st.run("cargo test --workspace", || {
         cargo(&["test", "--workspace", "--no-fail-fast"])
     });

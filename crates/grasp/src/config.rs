@@ -763,7 +763,7 @@ impl ControllerConfig {
 }
 
 /// What the contact detection has to tell apart on a finger
-/// ([`ControllerConfig::detection_stiffness`]).
+/// (`ControllerConfig::detection_stiffness`, with `std`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DetectionStiffness {
     /// Largest free-motion stiffness over the approach (N·m/rad).

@@ -1072,7 +1072,7 @@ impl Supervisor {
     /// setpoint afterwards ([`Supervisor::publish`]) so the loop acts on it at once.
     ///
     /// Without seating no static point lies inside the step, so a refusal or an answer that
-    /// does not locate a distal contact is first probed ([`Phase::Probing`]): a finger locked
+    /// does not locate a distal contact is first probed (the probing phase): a finger locked
     /// by a second contact is named as one, as the seated controller's late-half check does.
     pub fn deliver(&mut self, outcome: Result<EstimateResult, EstimateError>) {
         let Phase::Estimating { loaded, end, .. } = self.phase else {

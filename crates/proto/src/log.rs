@@ -3,7 +3,7 @@
 //! back. Each line is a marker word and `key=value` pairs; an event line is `E` and the
 //! event's `Debug`/`defmt::Format` text.
 //!
-//! The format of each line is one literal in [`log_line!`], which passes it to a logging
+//! The format of each line is one literal in `log_line!`, which passes it to a logging
 //! macro (defmt needs a literal) and gives the consts ([`SAMPLE`], [`PLANT`], [`TRUTH`],
 //! [`EVENT`]) that [`render`] fills on the host. The parsers ([`int`], [`word`],
 //! [`SampleLine::parse`], [`event_name`]) read the same keys.

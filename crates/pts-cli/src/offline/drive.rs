@@ -36,7 +36,7 @@ pub struct DriveId {
     pub sigma_offset_nm: f64,
     /// Stiction: how far the breakaway torque at the start of the approach lies above the
     /// sliding friction (N·m, static minus Coulomb), with its σ; `None` when the recording
-    /// does not start with the crank at rest ([`breakaway`]).
+    /// does not start with the crank at rest (`breakaway`).
     pub stiction_excess_nm: Option<(f64, f64)>,
     /// Robust σ of the residual about the model (N·m, per block).
     pub noise_nm: f64,
@@ -362,7 +362,7 @@ pub(super) fn speed_accel(blocks: &[Block], k: usize, span: usize) -> Option<(f6
 const POLY_DEGREE: usize = 4;
 
 /// Block `k`'s crank speed (rad/s) and acceleration (rad/s²) from the least-squares
-/// polynomial of degree [`POLY_DEGREE`] in time through the block means over ±`half` blocks
+/// polynomial of degree `POLY_DEGREE` in time through the block means over ±`half` blocks
 /// (a Savitzky–Golay differentiator on the blocks' own times); `None` at the ends, with fewer
 /// than `POLY_DEGREE`/2 blocks a side, on times that do not advance, or on a non-finite
 /// result.
