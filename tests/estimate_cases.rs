@@ -104,20 +104,7 @@ fn request_text(req: &EstimateRequest) -> String {
 }
 
 fn parse(text: &str) -> (EstimateRequest, Vec<String>) {
-    let mut req = EstimateRequest {
-        contact: Sample::ZERO,
-        seat: Sample::ZERO,
-        seat2: Sample::ZERO,
-        end: Sample::ZERO,
-        pre: Default::default(),
-        path: Default::default(),
-        sample_ticks: 0,
-        path_stride: 0,
-        delta_ta_cmd_unm: 0,
-        detect_k_unm_per_rad: 0,
-        estimator: Estimator::TwoPoint,
-        dt_ns: 0,
-    };
+    let mut req = EstimateRequest::EMPTY;
     let mut results = Vec::new();
     for line in text
         .lines()

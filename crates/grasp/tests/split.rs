@@ -212,6 +212,16 @@ impl Hardware for Finger {
 }
 
 impl Finger {
+    /// At rest, bridge off, for the drive of `cfg`.
+    fn at_rest(cfg: &ControllerConfig) -> Self {
+        Finger {
+            d: cfg.drive,
+            duty: 0.0,
+            off: true,
+            theta: cfg.drive.theta_a_rest_rad,
+        }
+    }
+
     fn settle(&mut self) {
         let (rest, theta_c, ta_c, kc) = (self.d.theta_a_rest_rad, -0.223_771, 0.340_821, 6.7249);
         let t = if self.off {
@@ -251,12 +261,7 @@ fn toy_config() -> ControllerConfig {
 fn a_late_supervisor_changes_nothing_while_the_link_has_room() {
     let cfg = toy_config();
     let run = |every: u32| -> (State, Option<i32>, u32) {
-        let mut hw = Finger {
-            d: cfg.drive,
-            duty: 0.0,
-            off: true,
-            theta: cfg.drive.theta_a_rest_rad,
-        };
+        let mut hw = Finger::at_rest(&cfg);
         let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
         let mut k2 = None;
         for tick in 1..=60_000u32 {
@@ -306,12 +311,7 @@ fn a_stalled_supervisor_switches_the_bridge_off_in_every_state() {
         State::Estimating,
         State::Holding,
     ] {
-        let mut hw = Finger {
-            d: cfg.drive,
-            duty: 0.0,
-            off: true,
-            theta: cfg.drive.theta_a_rest_rad,
-        };
+        let mut hw = Finger::at_rest(&cfg);
         let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
         let max_age = lp.max_setpoint_age_ticks();
         assert_eq!(
@@ -399,12 +399,7 @@ fn a_stalled_supervisor_switches_the_bridge_off_in_every_state() {
 fn a_supervisor_late_by_less_than_the_link_never_trips_the_heartbeat() {
     let cfg = toy_config();
     let p = cfg.params().unwrap();
-    let mut hw = Finger {
-        d: cfg.drive,
-        duty: 0.0,
-        off: true,
-        theta: cfg.drive.theta_a_rest_rad,
-    };
+    let mut hw = Finger::at_rest(&cfg);
     let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
     let every = p.sample_ticks * (LINK_SAMPLES as u32 - 1);
     for tick in 1..=60_000u32 {
@@ -479,12 +474,7 @@ fn an_overcurrent_limit_beyond_the_sensor_range_is_refused() {
 #[test]
 fn the_request_slot_is_refilled_whole_and_only_once() {
     let cfg = toy_config();
-    let mut hw = Finger {
-        d: cfg.drive,
-        duty: 0.0,
-        off: true,
-        theta: cfg.drive.theta_a_rest_rad,
-    };
+    let mut hw = Finger::at_rest(&cfg);
     let (mut lp, mut link, mut sup) = Controller::new(cfg).unwrap().into_parts();
     let mut slot = grasp::EstimateRequest::EMPTY;
     // A stale request, larger in every list than the one to come.

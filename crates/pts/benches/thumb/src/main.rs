@@ -220,20 +220,7 @@ fn build() -> Result<State, PtsError> {
         mock,
         fw_tp: grasp::two_point_table(&f)?,
         fw_pt: grasp::path_table(&f, &grasp::DriveConfig::DEFAULT, 100_000)?,
-        req: EstimateRequest {
-            contact: Sample::ZERO,
-            seat: Sample::ZERO,
-            seat2: Sample::ZERO,
-            end: Sample::ZERO,
-            pre: Default::default(),
-            path: Default::default(),
-            sample_ticks: 0,
-            path_stride: 0,
-            delta_ta_cmd_unm: 0,
-            detect_k_unm_per_rad: 0,
-            estimator: Estimator::TwoPoint,
-            dt_ns: 0,
-        },
+        req: EstimateRequest::EMPTY,
     })
 }
 
