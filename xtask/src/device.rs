@@ -505,17 +505,17 @@ fn watch_lines(s: &Session) -> Res<Vec<String>> {
     Ok(errs)
 }
 
-/// A grasp recorded at every control tick (`pts board record`, with a ΔT_a ramp, no seating
-/// and other settings unlike the defaults) replays through `pts estimate --trace` to the
+/// A grasp recorded at every control tick (`pts board record`, seated, on a 2 N·m/s ramp and
+/// with other settings unlike the defaults) replays through `pts estimate --trace` to the
 /// device's own k2, exactly: the replay's controller takes the recording's settings, so a
-/// device that seated anyway would not replay.
+/// replay that ran today's default (no seating, 4 N·m/s) instead would not.
 fn record_and_replay(s: &Session) -> Res<Vec<String>> {
     let mut errs = vec![];
     s.ok(&["set", "scene", "cyl10_k2_20"])?;
     s.ok(&["set", "delta_ta_nm", "0.7"])?;
     s.ok(&["set", "estimator", "two-point"])?;
-    s.ok(&["set", "step_ramp_nm_per_s", "4"])?;
-    s.ok(&["set", "seating", "off"])?;
+    s.ok(&["set", "step_ramp_nm_per_s", "2"])?;
+    s.ok(&["set", "seating", "on"])?;
     let csv = util::root().join("target").join("device-record.csv");
     let csv_s = csv.display().to_string();
     let t = Instant::now();
@@ -524,18 +524,21 @@ fn record_and_replay(s: &Session) -> Res<Vec<String>> {
         .as_i64()
         .ok_or_else(|| format!("record: no k2 in {v}"))?;
     s.ok(&["release"])?;
-    s.ok(&["set", "step_ramp_nm_per_s", "step"])?;
-    s.ok(&["set", "seating", "on"])?;
+    // Back to the build's defaults for what follows.
+    s.ok(&["set", "step_ramp_nm_per_s", "4"])?;
+    s.ok(&["set", "seating", "off"])?;
     let meta = std::fs::read_to_string(&csv)
         .map_err(|e| format!("{csv_s}: {e}"))?
         .lines()
         .find(|l| l.contains("source=pts-board-record"))
         .map(str::to_string)
         .unwrap_or_default();
-    if !meta.split_whitespace().any(|w| w == "seating=0") {
-        errs.push(format!(
-            "recorded grasp: no seating=0 in its settings line: {meta}"
-        ));
+    for want in ["seating=1", "step_ramp_nm_per_s=2"] {
+        if !meta.split_whitespace().any(|w| w == want) {
+            errs.push(format!(
+                "recorded grasp: no {want} in its settings line: {meta}"
+            ));
+        }
     }
     let out = Command::new(&s.pts)
         .args(["estimate", "--trace", &csv_s, "--json"])

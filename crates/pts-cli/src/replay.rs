@@ -29,8 +29,8 @@ pub struct TraceMeta {
     pub controller: MetaController,
 }
 
-/// The step ramp (N·m/s) of a `# pts-sim` line written before the seating was recorded, when
-/// the controller seated by default and ramped ΔT_a at this rate.
+/// The step ramp (N·m/s) of a `# pts-sim` line that does not state one: written before the
+/// ramp was always recorded, when the controller's default ramped ΔT_a at this rate.
 const LEGACY_STEP_RAMP_NM_PER_S: f64 = 1.0;
 
 /// Controller settings in a `# pts-sim` line (a device's settings at the recorded grasp);
@@ -214,15 +214,10 @@ impl TraceMeta {
             .split_whitespace()
             .find_map(|w| w.strip_prefix("estimator="))
             .and_then(|v| <crate::method::Method as clap::ValueEnum>::from_str(v, true).ok());
-        let (seating, step_ramp_nm_per_s) = match get("seating") {
-            Some(v) => (Some(v != 0.0), get("step_ramp_nm_per_s")),
-            // Written before the seating was recorded: every controller seated then, and a
-            // ramp left out was the default of that time.
-            None => (
-                Some(true),
-                get("step_ramp_nm_per_s").or(Some(LEGACY_STEP_RAMP_NM_PER_S)),
-            ),
-        };
+        // Both are written out now; a line without them was written when every controller
+        // seated unless told not to and ramped ΔT_a at the default of that time.
+        let seating = Some(get("seating").is_none_or(|v| v != 0.0));
+        let step_ramp_nm_per_s = get("step_ramp_nm_per_s").or(Some(LEGACY_STEP_RAMP_NM_PER_S));
         Some(TraceMeta {
             dta_nm: get("dta_nm").filter(|v| *v > 0.0)?,
             dt_s: get("dt_s").filter(|v| *v > 0.0)?,
@@ -1071,8 +1066,8 @@ mod tests {
     }
 
     /// A `# pts-sim` line says which controller made the recording: read back as written,
-    /// and a line from before the seating was recorded as the seated 1 N·m/s ramp every
-    /// controller ran then, not as today's default.
+    /// and what an older line leaves out as the controller of its time (seated, a 1 N·m/s
+    /// ramp), not as today's default.
     #[test]
     fn the_pts_sim_line_keeps_the_controller_and_reads_old_lines_as_seated() {
         let meta = TraceMeta {
@@ -1097,5 +1092,10 @@ mod tests {
         let old_step = TraceMeta::find("# pts-sim dta_nm=0.8 dt_s=0.0002 step_ramp_nm_per_s=0")
             .expect("an old line with a step");
         assert_eq!(old_step.controller.step_ramp_nm_per_s, Some(0.0));
+        // `pts sim --no-seating` before the ramp was written: unseated, at the old default.
+        let old_unseated = TraceMeta::find("# pts-sim dta_nm=0.8 dt_s=0.0002 seating=0")
+            .expect("an old unseated line");
+        assert_eq!(old_unseated.controller.seating, Some(false));
+        assert_eq!(old_unseated.controller.step_ramp_nm_per_s, Some(1.0));
     }
 }
