@@ -207,6 +207,11 @@ pub fn run(a: &Args) -> Result<(), String> {
         [one] => *one,
         _ => return Err("--step-ramp takes one value without --sweep".into()),
     };
+    // Resolved once: the run and the recording's `# pts-sim` line state the same controller.
+    let step = step.unwrap_or(grasp::ControllerConfig::DEFAULT.step_shape);
+    let seating = a
+        .seating
+        .unwrap_or(grasp::ControllerConfig::DEFAULT.seating);
     let (scene, overcurrent_a) = with_finger(a, sim::load_scene(&a.scene)?)?;
     if scene.command.mode != plant::scene::CommandMode::External {
         eprintln!("note: {OPEN_LOOP_NOTE}");
@@ -220,8 +225,8 @@ pub fn run(a: &Args) -> Result<(), String> {
         record: a.csv.is_some() || a.plot.is_some(),
         method: a.method,
         overcurrent_a,
-        step_shape: step,
-        seating: a.seating,
+        step_shape: Some(step),
+        seating: Some(seating),
     })?;
     let wall = t0.elapsed().as_secs_f64();
     if let Some(path) = &a.csv {
@@ -236,16 +241,11 @@ pub fn run(a: &Args) -> Result<(), String> {
             // to the defaults of whichever version replays it.
             controller: crate::replay::MetaController {
                 estimator: Some(a.method),
-                step_ramp_nm_per_s: Some(
-                    match step.unwrap_or(grasp::ControllerConfig::DEFAULT.step_shape) {
-                        grasp::StepShape::Step => 0.0,
-                        grasp::StepShape::Ramp(r) => r,
-                    },
-                ),
-                seating: Some(
-                    a.seating
-                        .unwrap_or(grasp::ControllerConfig::DEFAULT.seating),
-                ),
+                step_ramp_nm_per_s: Some(match step {
+                    grasp::StepShape::Step => 0.0,
+                    grasp::StepShape::Ramp(r) => r,
+                }),
+                seating: Some(seating),
                 ..Default::default()
             },
         };
