@@ -836,6 +836,13 @@ const LOADING_MIN_SWING_RAD: f64 = 0.03;
 /// value from 0.005 to 0.015 N·m.
 const DRY_FRICTION_MIN_NM: f64 = 0.01;
 
+/// A hysteresis of the contact path (N·m, [`crate::offline::path_hysteresis`]) above which the
+/// path has dry friction (at the drive or at the object), and is rebuilt from the loading rows
+/// on any swing back: the gap between loading and swinging back that a dry friction of
+/// [`DRY_FRICTION_MIN_NM`] opens (twice it). Counted only where it also exceeds three of its
+/// standard errors.
+const HYSTERESIS_MIN_NM: f64 = 2.0 * DRY_FRICTION_MIN_NM;
+
 /// The fit's envelope tolerance (rad) on a loading path rebuilt by
 /// `crate::offline::loading_path`: its samples are in order of θa, with the inertia already
 /// removed, so there is no overshoot left to drop.
@@ -935,22 +942,25 @@ fn foreign_path_fit(
     // With the drive identified and the crank swinging back (by any amount with dry friction,
     // by more than the envelope keeps without), the path is the loading rows with its
     // dynamics removed here (`crate::offline::loading_path`), and the fit is told neither
-    // inertia nor envelope.
+    // inertia nor envelope. Dry friction shows on the approach (the drive's) or as the
+    // hysteresis of the contact path (the drive's or the object's, which no approach sees).
     let loading = id.as_ref().and_then(|d| {
         let block_s = f64::from(seg.request.dt_ns) * 1e-9;
         let half = quartic_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
+        let drive = (d.inertia_kgm2, d.viscous_nm_s_per_rad);
+        let hysteretic = || {
+            crate::offline::path_hysteresis(blocks, seg.knee, seg.end.1, drive, half)
+                .is_some_and(|(gap, se)| gap > HYSTERESIS_MIN_NM && gap > 3.0 * se)
+        };
+        let dry = d.offset_nm > DRY_FRICTION_MIN_NM || hysteretic();
         crate::offline::loading_path(
             &seg.request,
             blocks,
             seg.knee,
             seg.end.1,
-            (d.inertia_kgm2, d.viscous_nm_s_per_rad),
+            drive,
             half,
-            if d.offset_nm > DRY_FRICTION_MIN_NM {
-                0.0
-            } else {
-                LOADING_MIN_SWING_RAD
-            },
+            if dry { 0.0 } else { LOADING_MIN_SWING_RAD },
         )
     });
     let (pcfg, req) = match loading {

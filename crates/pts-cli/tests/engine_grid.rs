@@ -538,7 +538,8 @@ fn engine_grid_default_method() {
         off.viscous_max_err
     );
     // The CI slice, measured (release): 16/16 distal positives answered, all within 3σ, mean
-    // 2.08 %, max 4.67 % of l2; the ten graded good mean 2.13 %, max 4.67 %; none answered as
+    // 2.13 %, max 4.67 % of l2; the 14 graded good mean 1.95 %, max 4.67 % (10 before the
+    // path's hysteresis counted as dry friction, `path_hysteresis`); none answered as
     // proximal; 8/8 negatives right. With θ̈a from the ±3-block second difference instead of
     // the quartic the max was 8.99 % (k2,c 0.65 l2 on the heavy drive with friction). The
     // bounds below are what holds with a margin, so that a regression shows.
@@ -554,7 +555,7 @@ fn engine_grid_default_method() {
         good.add(o);
     }
     assert!(
-        good.answered >= 8,
+        good.answered >= 12,
         "graded good {}/{}",
         good.answered,
         all.n
@@ -609,4 +610,35 @@ fn across_the_inertia_range_no_answer_is_wrong() {
     assert!(wrong_phalanx(&rows) == 0, "distal answered as proximal");
     let (right, neg) = negatives_right(&rows);
     assert!(right == neg, "negatives right {right}/{neg}");
+}
+
+/// Friction at the object shows in no approach, only as the hysteresis of the contact path: a
+/// heavy drive without friction of its own rings on a rough contact (µ 0.3) and its swings
+/// back lie below the loading path. Read as an oscillation about the path (the drive's
+/// friction alone decided that) these grasps erred 6.4–7.3 % of l2 inward, graded low signal
+/// at σ ≈ 7 mm; read on the loading rows (`offline::path_hysteresis`) they are within 2 %.
+#[test]
+fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path() {
+    let cs: Vec<Case> = cases(&FULL)
+        .into_iter()
+        .filter(|c| {
+            c.id.ends_with("_k80_dT08_mu03_J5e-3__ideal")
+                && (c.id.contains("_vtx_") || c.id.contains("_R10p0mm_"))
+        })
+        .collect();
+    assert_eq!(cs.len(), 2);
+    let rows = run_grid(&cs);
+    print_table(&rows);
+    for o in &rows {
+        let e = o.err_pct();
+        assert!(
+            o.good && e.is_some_and(|e| e.abs() <= 2.5) && o.within_3sigma(),
+            "{}: {} error {:?} % σ {:?} m, good {}",
+            o.id,
+            o.answer,
+            e,
+            o.sigma,
+            o.good
+        );
+    }
 }
