@@ -8,7 +8,7 @@
 use pts_cli::method::Method;
 use pts_cli::replay::{segment, Segmented};
 use serde_json::Value;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 const L2: f64 = 0.075;
 /// Bounds asserted on the path fit's error (% of l2): the issue's, a mean ≤ 1.5 and a max ≤ 4
@@ -21,14 +21,17 @@ const MIN_ANSWERED: usize = 24;
 
 /// Another directory of recordings with the same truth files (e.g. the engine grid written by
 /// `cargo run -p dynsim --release -- --out DIR --grid full`): its table is printed, the
-/// bounds below are not asserted.
+/// bounds below are not asserted. The bad-recording tests keep using the committed samples.
 const DIR_ENV: &str = "FOREIGN_TRACES_DIR";
 
-fn dir() -> PathBuf {
-    if let Ok(d) = std::env::var(DIR_ENV) {
-        return PathBuf::from(d);
-    }
+/// The committed sample recordings.
+fn samples_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces")
+}
+
+/// The recordings the table is made of.
+fn dir() -> PathBuf {
+    std::env::var(DIR_ENV).map_or_else(|_| samples_dir(), PathBuf::from)
 }
 
 fn ids() -> Vec<String> {
@@ -51,13 +54,13 @@ fn run_text(text: &str, method: Method) -> Result<Segmented, String> {
     segment(&tr, &file, method)
 }
 
-fn truth(id: &str) -> Value {
-    let t = std::fs::read_to_string(dir().join(format!("{id}.json"))).unwrap();
+fn truth(dir: &Path, id: &str) -> Value {
+    let t = std::fs::read_to_string(dir.join(format!("{id}.json"))).unwrap();
     serde_json::from_str(&t).unwrap()
 }
 
-fn csv(id: &str) -> String {
-    std::fs::read_to_string(dir().join(format!("{id}.csv"))).unwrap()
+fn csv(dir: &Path, id: &str) -> String {
+    std::fs::read_to_string(dir.join(format!("{id}.csv"))).unwrap()
 }
 
 /// One row of the table: (answer, k̂2 m, σ m, error % l2) for a method.
@@ -110,8 +113,8 @@ fn table() -> Vec<Row> {
     ids()
         .into_iter()
         .map(|id| {
-            let t = truth(&id);
-            let seg = run_text(&csv(&id), Method::Pathfit);
+            let t = truth(&dir(), &id);
+            let seg = run_text(&csv(&dir(), &id), Method::Pathfit);
             Row {
                 expected: t["expected"].as_str().unwrap().to_string(),
                 k2_true: t["truth"]["k2_c_m"].as_f64(),
@@ -240,9 +243,9 @@ fn outcome(text: &str) -> (String, Option<f64>) {
     }
 }
 
-/// CSV rows (t, θa, T) of a recording.
+/// CSV rows (t, θa, T) of a committed sample recording.
 fn rows(id: &str) -> Vec<[f64; 3]> {
-    csv(id)
+    csv(&samples_dir(), id)
         .lines()
         .skip(1)
         .map(|l| {
@@ -267,7 +270,9 @@ const BAD_ID: &str = "dyn02_vtx_k58_mu02_dT06__default";
 #[test]
 fn outlier_row_is_refused() {
     let clean = rows(BAD_ID);
-    let truth = truth(BAD_ID)["truth"]["t_contact_s"].as_f64().unwrap();
+    let truth = truth(&samples_dir(), BAD_ID)["truth"]["t_contact_s"]
+        .as_f64()
+        .unwrap();
     for t_spike in [truth - 0.3, truth + 0.1] {
         let mut r = clean.clone();
         let i = r.iter().position(|x| x[0] >= t_spike).unwrap();
