@@ -408,19 +408,8 @@ pub fn loading_path(
     let kin = |k: usize| super::drive::poly_speed_accel(blocks, k, half_width);
     // (θa, quasi-static T_a) of each usable block, in time order.
     let mut pts: std::vec::Vec<(f64, f64)> = std::vec::Vec::new();
-    for k in knee + 1..hi.min(blocks.len()) {
-        let Some(b) = blocks.get(k) else { break };
-        if b.moving_rows == 0 {
-            continue;
-        }
-        // The loading direction across the block's neighbours (the block itself moved).
-        let (Some(p), Some(n)) = (
-            k.checked_sub(1).and_then(|i| blocks.get(i)),
-            blocks.get(k + 1),
-        ) else {
-            continue;
-        };
-        if !(n.theta_a_rad > p.theta_a_rad) {
+    for (k, b, dir) in moving_after_contact(blocks, knee, hi) {
+        if dir != Some(core::cmp::Ordering::Greater) {
             continue;
         }
         // The ends of the record have no centred difference: the raw torque (no inertia
@@ -463,6 +452,23 @@ pub fn loading_path(
     Some(out)
 }
 
+/// The blocks after the contact block `knee` (up to `hi`) in which the crank moved, each with
+/// its index and the direction it turned in across its neighbours (θa of the next block
+/// against the previous: `Greater` loads the contact); the first and last blocks, which lack
+/// a neighbour, are left out.
+fn moving_after_contact(
+    blocks: &[Block],
+    knee: usize,
+    hi: usize,
+) -> impl Iterator<Item = (usize, &Block, Option<core::cmp::Ordering>)> {
+    (knee + 1..hi.min(blocks.len())).filter_map(move |k| {
+        let b = blocks.get(k).filter(|b| b.moving_rows > 0)?;
+        let p = blocks.get(k.checked_sub(1)?)?;
+        let n = blocks.get(k + 1)?;
+        Some((k, b, n.theta_a_rad.partial_cmp(&p.theta_a_rad)))
+    })
+}
+
 /// The hysteresis of the contact path (N·m, with its standard error): how far the quasi-static
 /// torque of the blocks that swing back lies below the loading path at the same θa. Each
 /// moving block after the contact block `knee` (up to `hi`) gives T_a − inertia·θ̈a −
@@ -482,17 +488,7 @@ pub fn path_hysteresis(
 ) -> Option<(f64, f64)> {
     let mut fwd: std::vec::Vec<(f64, f64)> = std::vec::Vec::new();
     let mut back: std::vec::Vec<(f64, f64)> = std::vec::Vec::new();
-    for k in knee + 1..hi.min(blocks.len()) {
-        let Some(b) = blocks.get(k) else { break };
-        if b.moving_rows == 0 {
-            continue;
-        }
-        let (Some(p), Some(n)) = (
-            k.checked_sub(1).and_then(|i| blocks.get(i)),
-            blocks.get(k + 1),
-        ) else {
-            continue;
-        };
+    for (k, b, dir) in moving_after_contact(blocks, knee, hi) {
         let Some((w, acc)) = super::drive::poly_speed_accel(blocks, k, half_width) else {
             continue;
         };
@@ -501,10 +497,10 @@ pub fn path_hysteresis(
         if !(t.is_finite() && th.is_finite()) {
             continue;
         }
-        if n.theta_a_rad > p.theta_a_rad {
-            fwd.push((th, t));
-        } else if n.theta_a_rad < p.theta_a_rad {
-            back.push((th, t));
+        match dir {
+            Some(core::cmp::Ordering::Greater) => fwd.push((th, t)),
+            Some(core::cmp::Ordering::Less) => back.push((th, t)),
+            _ => {}
         }
     }
     if fwd.len() < 4 || back.len() < 4 {
