@@ -320,6 +320,20 @@ fn run_segmented(
                         "blocks": d.blocks,
                     });
                 }
+                if let Some(p) = &c.path_reading {
+                    let (gap, sigma) = match p {
+                        crate::replay::PathReading::LoadingRows(
+                            crate::replay::LoadingReason::PathHysteresis { gap_nm, sigma_nm },
+                        ) => (Some(n(*gap_nm)), Some(n(*sigma_nm))),
+                        _ => (None, None),
+                    };
+                    v["path_read"] = json!({
+                        "samples": p.name(),
+                        "reason": p.reason(),
+                        "hysteresis_nm": gap,
+                        "sigma_hysteresis_nm": sigma,
+                    });
+                }
                 if let Some(tp) = &c.two_point {
                     let mut t = json!({});
                     match tp {
@@ -393,6 +407,9 @@ fn run_segmented(
                     "  stiction: not seen (the recording does not start with the crank at rest)"
                 ),
             }
+        }
+        if let Some(p) = &c.path_reading {
+            println!("  path read: {}", p.describe());
         }
         match &c.estimate {
             Ok(r) => println!("  {}", crate::sim::describe(r)),

@@ -499,6 +499,85 @@ pub struct SegmentedContact {
     /// Path fit: of the block phases the trace was segmented at, how many answered this
     /// contact on the distal phalanx (answered, phases).
     pub phases: Option<(u8, u8)>,
+    /// Path fit with the drive identified: which samples it read (block phase 0's).
+    pub path_reading: Option<PathReading>,
+}
+
+/// Which samples the path fit read on a recording our controller did not make, and why.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PathReading {
+    /// The samples as recorded, the drive's identified inertia removed by the fit and the
+    /// bounce dropped by its envelope: no swing back that lies off the loading path (none at
+    /// all, or one within the envelope without dry friction).
+    AsRecorded,
+    /// Only the rows that load the contact, with the drive's dynamics removed
+    /// (`crate::offline::loading_path`): the swing back lies off the loading path.
+    LoadingRows(LoadingReason),
+}
+
+/// Why the path fit read only the loading rows ([`PathReading::LoadingRows`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LoadingReason {
+    /// The approach shows dry friction in the drive: its offset (N·m).
+    DriveFriction {
+        /// The drive's offset identified on the approach (N·m).
+        offset_nm: f64,
+    },
+    /// The rows that swing back lie below those that load the contact (dry friction at the
+    /// drive or at the object): the gap and its standard error (N·m).
+    PathHysteresis {
+        /// Mean torque of the loading rows above the swinging-back ones at the same θa (N·m).
+        gap_nm: f64,
+        /// Its standard error (N·m).
+        sigma_nm: f64,
+    },
+    /// Without dry friction, the crank swung back further than the fit's envelope keeps.
+    Swing,
+}
+
+impl PathReading {
+    /// One line for people: what was read and why.
+    pub fn describe(&self) -> String {
+        match self {
+            PathReading::AsRecorded => {
+                "the samples as recorded (no swing back off the loading path)".into()
+            }
+            PathReading::LoadingRows(LoadingReason::DriveFriction { offset_nm }) => format!(
+                "the loading rows only (dry friction in the drive: offset {offset_nm:.4} N·m on the approach)"
+            ),
+            PathReading::LoadingRows(LoadingReason::PathHysteresis { gap_nm, sigma_nm }) => {
+                format!(
+                    "the loading rows only (dry friction on the contact path: the swing back \
+                     {gap_nm:.4} ± {sigma_nm:.1e} N·m below the loading)"
+                )
+            }
+            PathReading::LoadingRows(LoadingReason::Swing) => {
+                "the loading rows only (the crank swung back further than the envelope keeps)"
+                    .into()
+            }
+        }
+    }
+
+    /// The name in `--json` output: `as_recorded`, `loading_rows`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            PathReading::AsRecorded => "as_recorded",
+            PathReading::LoadingRows(_) => "loading_rows",
+        }
+    }
+
+    /// The reason's name in `--json` output, for the loading rows: `drive_friction`,
+    /// `path_hysteresis`, `swing`.
+    pub fn reason(&self) -> Option<&'static str> {
+        match self {
+            PathReading::AsRecorded => None,
+            PathReading::LoadingRows(LoadingReason::DriveFriction { .. }) => Some("drive_friction"),
+            PathReading::LoadingRows(LoadingReason::PathHysteresis { .. }) => {
+                Some("path_hysteresis")
+            }
+            PathReading::LoadingRows(LoadingReason::Swing) => Some("swing"),
+        }
+    }
 }
 
 /// What the segmenter found: the contacts, and the error that ended the search (if any).
@@ -684,20 +763,22 @@ fn segment_rows(
                 let (mut t_s, mut theta_a_c, mut ta_c) =
                     (seg.contact_t_s, seg.theta_a_c_rad, seg.ta_c_nm);
                 let mut sigma_k2_m = None;
+                let mut path_reading = None;
                 let (est, two_point, drive) = match method {
                     crate::method::Method::TwoPoint => (fw(&seg.request), None, None),
                     crate::method::Method::Pathfit => {
                         let fit = foreign_path_fit(&m64, &cfg, blocks, seg, finger, quantum_rad);
-                        if let Some((_, c)) = &fit.1 {
+                        if let Some((_, c)) = &fit.drive {
                             (t_s, theta_a_c, ta_c) = *c;
                         }
+                        path_reading = fit.reading;
                         let mut tp = seg.request.clone();
                         tp.estimator = grasp::Estimator::TwoPoint;
-                        let est = fit.0.map(|(r, s)| {
+                        let est = fit.estimate.map(|(r, s)| {
                             sigma_k2_m = s;
                             r
                         });
-                        (est, Some(fw(&tp)), fit.1.map(|f| f.0))
+                        (est, Some(fw(&tp)), fit.drive.map(|f| f.0))
                     }
                 };
                 out.contacts.push(SegmentedContact {
@@ -712,6 +793,7 @@ fn segment_rows(
                     drive,
                     sigma_k2_m,
                     phases: None,
+                    path_reading,
                 });
             }
             Err(e) => out.errors.push((e.kind(), e.to_string())),
@@ -865,13 +947,23 @@ fn quartic_half_width(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_n
 /// which a quartic still follows to a percent.
 const MAX_QUARTIC_HALF_WIDTH: usize = 12;
 
+/// What [`foreign_path_fit`] found on one contact.
+struct ForeignFit {
+    /// The estimate with its σ(k2,c) (m), or the refusal.
+    estimate: Result<(EstimateResult, Option<f64>), crate::sim::EstError>,
+    /// The drive identified on the approach, with the contact point used (t s, θa,c rad,
+    /// T_a,c N·m).
+    drive: Option<(crate::offline::DriveId, (f64, f64, f64))>,
+    /// Which samples the fit read (with the drive identified).
+    reading: Option<PathReading>,
+}
+
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
 /// term and friction offset identified from this contact's approach
 /// (`crate::offline::identify_drive`, the finger file's inertia as the prior), the contact
 /// point on the dynamics-corrected residual (`crate::offline::refine_contact`), then the
 /// firmware's integer path fit with that inertia and the finger file's backlash. Without an
 /// identification (too short an approach) the controller's defaults.
-#[allow(clippy::type_complexity)]
 fn foreign_path_fit(
     m64: &pts::Model<f64>,
     cfg: &crate::offline::OfflineConfig,
@@ -879,10 +971,7 @@ fn foreign_path_fit(
     seg: &crate::offline::Segment,
     finger: &FingerFile,
     quantum_rad: f64,
-) -> (
-    Result<(EstimateResult, Option<f64>), crate::sim::EstError>,
-    Option<(crate::offline::DriveId, (f64, f64, f64))>,
-) {
+) -> ForeignFit {
     use crate::offline::{identify_drive, path_fit_with, refine_contact, DrivePrior};
     let q = finger.rad_per_count();
     let prior = DrivePrior {
@@ -924,10 +1013,11 @@ fn foreign_path_fit(
              it left the object, or the contact lies earlier than the recording shows",
             contact.0
         );
-        return (
-            Err(crate::sim::EstError::new("end_behind_contact", &why)),
-            id.map(|i| (i, (contact.2, contact.0, contact.1))),
-        );
+        return ForeignFit {
+            estimate: Err(crate::sim::EstError::new("end_behind_contact", &why)),
+            drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
+            reading: None,
+        };
     }
     let pcfg = pathfit::PathFitConfig {
         inertia_kgm2: inertia,
@@ -944,24 +1034,44 @@ fn foreign_path_fit(
     // dynamics removed here (`crate::offline::loading_path`), and the fit is told neither
     // inertia nor envelope. Dry friction shows on the approach (the drive's) or as the
     // hysteresis of the contact path (the drive's or the object's, which no approach sees).
+    let mut reading = None;
     let loading = id.as_ref().and_then(|d| {
         let block_s = f64::from(seg.request.dt_ns) * 1e-9;
         let half = quartic_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
         let drive = (d.inertia_kgm2, d.viscous_nm_s_per_rad);
-        let hysteretic = || {
-            crate::offline::path_hysteresis(blocks, seg.knee, seg.end.1, drive, half)
-                .is_some_and(|(gap, se)| gap > HYSTERESIS_MIN_NM && gap > 3.0 * se)
+        let reason = if d.offset_nm > DRY_FRICTION_MIN_NM {
+            LoadingReason::DriveFriction {
+                offset_nm: d.offset_nm,
+            }
+        } else {
+            match crate::offline::path_hysteresis(blocks, seg.knee, seg.end.1, drive, half) {
+                Some((gap_nm, sigma_nm))
+                    if gap_nm > HYSTERESIS_MIN_NM && gap_nm > 3.0 * sigma_nm =>
+                {
+                    LoadingReason::PathHysteresis { gap_nm, sigma_nm }
+                }
+                _ => LoadingReason::Swing,
+            }
         };
-        let dry = d.offset_nm > DRY_FRICTION_MIN_NM || hysteretic();
-        crate::offline::loading_path(
+        let min_swing = match reason {
+            LoadingReason::Swing => LOADING_MIN_SWING_RAD,
+            _ => 0.0,
+        };
+        let req = crate::offline::loading_path(
             &seg.request,
             blocks,
             seg.knee,
             seg.end.1,
             drive,
             half,
-            if dry { 0.0 } else { LOADING_MIN_SWING_RAD },
-        )
+            min_swing,
+        );
+        reading = Some(if req.is_some() {
+            PathReading::LoadingRows(reason)
+        } else {
+            PathReading::AsRecorded
+        });
+        req
     });
     let (pcfg, req) = match loading {
         Some(req) => (
@@ -983,7 +1093,11 @@ fn foreign_path_fit(
         });
     let res = res
         .map(|(r, sigma)| widen_for_contact_friction(finger, &pcfg, dt, &req, contact, r, sigma));
-    (res, id.map(|i| (i, (contact.2, contact.0, contact.1))))
+    ForeignFit {
+        estimate: res,
+        drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
+        reading,
+    }
 }
 
 #[cfg(test)]
@@ -1019,6 +1133,7 @@ mod tests {
             drive: None,
             sigma_k2_m: k2_mm.map(|_| sigma_mm * 1e-3),
             phases: None,
+            path_reading: None,
         }
     }
 

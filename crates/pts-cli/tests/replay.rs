@@ -286,3 +286,38 @@ fn pathfit_method_on_the_replay_matches_the_closed_loop_one() {
         assert_eq!(c[k], est[k], "{k}: replay {c} vs sim {est}");
     }
 }
+
+/// On a recording it did not make, `pts estimate` says which samples the path fit read and
+/// why: the quasi-static stick-slip simulator's realistic drive shows its friction on the
+/// approach (only the loading rows are read), its ideal drive has none to show (the samples
+/// as recorded). The human report carries the same line.
+#[test]
+fn a_foreign_recording_reports_which_samples_the_fit_read() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    for (id, want, reason) in [
+        (
+            "qs02_vtx_k58_dT06__default",
+            "loading_rows",
+            Value::from("drive_friction"),
+        ),
+        ("qs01_vtx_k27_dT03__ideal", "as_recorded", Value::Null),
+    ] {
+        let path = samples.join(format!("{id}.csv"));
+        let v = json_of(&estimate(&path, &[]));
+        let read = &v["contacts"][0]["path_read"];
+        assert_eq!(read["samples"], want, "{id}: {read}");
+        assert_eq!(read["reason"], reason, "{id}: {read}");
+        let human = pts(&["estimate", "--trace", path.to_str().unwrap()]);
+        let text = String::from_utf8_lossy(&human.stdout);
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with("path read: "))
+            .unwrap_or_else(|| panic!("{id}: no 'path read' line in\n{text}"));
+        let expect = if want == "as_recorded" {
+            "as recorded"
+        } else {
+            "dry friction in the drive"
+        };
+        assert!(line.contains(expect), "{id}: {line}");
+    }
+}
