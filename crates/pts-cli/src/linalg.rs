@@ -34,3 +34,34 @@ pub fn invert(mut a: Vec<Vec<f64>>) -> Option<Vec<Vec<f64>>> {
     }
     Some(inv)
 }
+
+/// Least-squares polynomial y ≈ c₀ + c₁x + … + c_d x^d through `points` (x, y) by the normal
+/// equations: the coefficients c₀ … c_d, or `None` when they are not determined (fewer
+/// distinct x than d + 1). Keep x of order one (centred and scaled) for conditioning.
+pub fn polyfit(points: impl IntoIterator<Item = (f64, f64)>, degree: usize) -> Option<Vec<f64>> {
+    let n = degree + 1;
+    let mut ata = vec![vec![0.0f64; n]; n];
+    let mut atb = vec![0.0f64; n];
+    for (x, y) in points {
+        let mut p = 1.0;
+        let powers: Vec<f64> = (0..n)
+            .map(|_| {
+                let v = p;
+                p *= x;
+                v
+            })
+            .collect();
+        for ((row, r), &pi) in ata.iter_mut().zip(atb.iter_mut()).zip(&powers) {
+            for (a, &pj) in row.iter_mut().zip(&powers) {
+                *a += pi * pj;
+            }
+            *r += pi * y;
+        }
+    }
+    let inv = invert(ata)?;
+    Some(
+        inv.iter()
+            .map(|row| row.iter().zip(&atb).map(|(a, b)| a * b).sum::<f64>())
+            .collect(),
+    )
+}

@@ -1034,8 +1034,7 @@ fn foreign_path_fit(
     // dynamics removed here (`crate::offline::loading_path`), and the fit is told neither
     // inertia nor envelope. Dry friction shows on the approach (the drive's) or as the
     // hysteresis of the contact path (the drive's or the object's, which no approach sees).
-    let mut reading = None;
-    let loading = id.as_ref().and_then(|d| {
+    let (loading, reading) = id.as_ref().map_or((None, None), |d| {
         let block_s = f64::from(seg.request.dt_ns) * 1e-9;
         let half = quartic_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
         let drive = (d.inertia_kgm2, d.viscous_nm_s_per_rad);
@@ -1066,12 +1065,12 @@ fn foreign_path_fit(
             half,
             min_swing,
         );
-        reading = Some(if req.is_some() {
+        let reading = if req.is_some() {
             PathReading::LoadingRows(reason)
         } else {
             PathReading::AsRecorded
-        });
-        req
+        };
+        (req, Some(reading))
     });
     let (pcfg, req) = match loading {
         Some(req) => (

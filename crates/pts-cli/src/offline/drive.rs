@@ -378,29 +378,15 @@ pub fn poly_speed_accel(blocks: &[Block], k: usize, half: usize) -> Option<(f64,
     if !(h > 0.0) {
         return None;
     }
-    let n = POLY_DEGREE + 1;
-    let mut ata = vec![vec![0.0f64; n]; n];
-    let mut atb = vec![0.0f64; n];
-    for b in window {
-        let x = (b.t_s - centre.t_s) / h;
-        let y = b.theta_a_rad - centre.theta_a_rad;
-        let mut p = 1.0;
-        let powers: [f64; POLY_DEGREE + 1] = core::array::from_fn(|_| {
-            let v = p;
-            p *= x;
-            v
-        });
-        for ((row, r), &pi) in ata.iter_mut().zip(atb.iter_mut()).zip(&powers) {
-            for (a, &pj) in row.iter_mut().zip(&powers) {
-                *a += pi * pj;
-            }
-            *r += pi * y;
-        }
-    }
-    let inv = crate::linalg::invert(ata)?;
-    let coef = |i: usize| inv[i].iter().zip(&atb).map(|(a, b)| a * b).sum::<f64>();
-    let speed = coef(1) / h;
-    let accel = 2.0 * coef(2) / (h * h);
+    let coef = crate::linalg::polyfit(
+        window
+            .iter()
+            .map(|b| ((b.t_s - centre.t_s) / h, b.theta_a_rad - centre.theta_a_rad)),
+        POLY_DEGREE,
+    )?;
+    let (c1, c2) = (*coef.get(1)?, *coef.get(2)?);
+    let speed = c1 / h;
+    let accel = 2.0 * c2 / (h * h);
     (speed.is_finite() && accel.is_finite()).then_some((speed, accel))
 }
 

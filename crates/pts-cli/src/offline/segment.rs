@@ -511,28 +511,13 @@ pub fn path_hysteresis(
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
             (l.min(p.0), h.max(p.0))
         });
-    // Least squares T = c0 + c1 x + c2 x², x = θa − mid (centred for conditioning).
+    // The loading path T = c0 + c1 x + c2 x², x = θa − mid (centred for conditioning).
     let mid = 0.5 * (lo + hi_th);
-    let mut ata = vec![vec![0.0; 3]; 3];
-    let mut atb = [0.0; 3];
-    for &(th, t) in &fwd {
-        let x = th - mid;
-        let row = [1.0, x, x * x];
-        for (i, ri) in row.iter().enumerate() {
-            for (j, rj) in row.iter().enumerate() {
-                ata[i][j] += ri * rj;
-            }
-            atb[i] += ri * t;
-        }
-    }
-    let inv = crate::linalg::invert(ata)?;
-    let c: std::vec::Vec<f64> = inv
-        .iter()
-        .map(|r| r.iter().zip(atb).map(|(a, b)| a * b).sum())
-        .collect();
+    let c = crate::linalg::polyfit(fwd.iter().map(|&(th, t)| (th - mid, t)), 2)?;
+    let [c0, c1, c2] = c[..] else { return None };
     let eval = |th: f64| {
         let x = th - mid;
-        c[0] + c[1] * x + c[2] * x * x
+        c0 + c1 * x + c2 * x * x
     };
     let rf: std::vec::Vec<f64> = fwd.iter().map(|p| p.1 - eval(p.0)).collect();
     let rb: std::vec::Vec<f64> = back
