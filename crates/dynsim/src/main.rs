@@ -2,8 +2,8 @@
 //! and `<id>.json` (ground truth) per grasp, plus `index.csv` listing them.
 //!
 //! `dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID…]]`; progress on stderr. `--only`
-//! writes just the named cases of the grid (an unknown id is an error), to look at one grasp
-//! without simulating the rest.
+//! writes just the named cases of the grid, each given by its whole id or by its number's prefix
+//! (`rap193`; an unknown id is an error), to look at one grasp without simulating the rest.
 
 use dynsim::grasp::{self, Target};
 use dynsim::grid::{cases, FULL, INERTIA, SMALL};
@@ -41,11 +41,21 @@ fn main() {
     std::fs::create_dir_all(&dir).expect("create the output directory");
     let mut cases = cases(axes);
     if let Some(ids) = &only {
-        if let Some(unknown) = ids.iter().find(|id| !cases.iter().any(|c| &c.id == *id)) {
+        // `rap193` names the case whose id is `rap193_…`; a whole id names itself.
+        let named = |id: &str, case: &str| {
+            case == id
+                || case
+                    .strip_prefix(id)
+                    .is_some_and(|rest| rest.starts_with('_'))
+        };
+        if let Some(unknown) = ids
+            .iter()
+            .find(|id| !cases.iter().any(|c| named(id, &c.id)))
+        {
             eprintln!("--only {unknown}: no such case in the {grid} grid");
             std::process::exit(2);
         }
-        cases.retain(|c| ids.contains(&c.id));
+        cases.retain(|c| ids.iter().any(|id| named(id, &c.id)));
     }
     let start = std::time::Instant::now();
     let mut index =
