@@ -334,6 +334,10 @@ fn run_segmented(
                         "sigma_hysteresis_nm": sigma,
                     });
                 }
+                if let Some((j, sj)) = c.contact_inertia_kgm2 {
+                    v["contact_inertia_kgm2"] = n(j);
+                    v["sigma_contact_inertia_kgm2"] = n(sj);
+                }
                 if let Some(tp) = &c.two_point {
                     let mut t = json!({});
                     match tp {
@@ -410,6 +414,11 @@ fn run_segmented(
         }
         if let Some(p) = &c.path_reading {
             println!("  path read: {}", p.describe());
+        }
+        if let Some((j, sj)) = c.contact_inertia_kgm2 {
+            println!(
+                "  inertia on the contact path: {j:.3e} ± {sj:.1e} kg·m² (read there: the approach's differs by more than 3σ)"
+            );
         }
         match &c.estimate {
             Ok(r) => println!("  {}", crate::sim::describe(r)),

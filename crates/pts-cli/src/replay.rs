@@ -501,6 +501,10 @@ pub struct SegmentedContact {
     pub phases: Option<(u8, u8)>,
     /// Path fit with the drive identified: which samples it read (block phase 0's).
     pub path_reading: Option<PathReading>,
+    /// Path fit: the effective inertia at the crank read on the contact path itself (kg·m²,
+    /// with its standard error), where it replaced the approach's (block phase 0's; see
+    /// `crate::offline::contact_inertia`).
+    pub contact_inertia_kgm2: Option<(f64, f64)>,
 }
 
 /// Which samples the path fit read on a recording our controller did not make, and why.
@@ -763,7 +767,7 @@ fn segment_rows(
                 let (mut t_s, mut theta_a_c, mut ta_c) =
                     (seg.contact_t_s, seg.theta_a_c_rad, seg.ta_c_nm);
                 let mut sigma_k2_m = None;
-                let mut path_reading = None;
+                let (mut path_reading, mut contact_inertia_kgm2) = (None, None);
                 let (est, two_point, drive) = match method {
                     crate::method::Method::TwoPoint => (fw(&seg.request), None, None),
                     crate::method::Method::Pathfit => {
@@ -772,6 +776,7 @@ fn segment_rows(
                             (t_s, theta_a_c, ta_c) = *c;
                         }
                         path_reading = fit.reading;
+                        contact_inertia_kgm2 = fit.contact_inertia;
                         let mut tp = seg.request.clone();
                         tp.estimator = grasp::Estimator::TwoPoint;
                         let est = fit.estimate.map(|(r, s)| {
@@ -794,6 +799,7 @@ fn segment_rows(
                     sigma_k2_m,
                     phases: None,
                     path_reading,
+                    contact_inertia_kgm2,
                 });
             }
             Err(e) => out.errors.push((e.kind(), e.to_string())),
@@ -925,6 +931,18 @@ const DRY_FRICTION_MIN_NM: f64 = 0.01;
 /// standard errors.
 const HYSTERESIS_MIN_NM: f64 = 2.0 * DRY_FRICTION_MIN_NM;
 
+/// The largest relative standard error of the contact path's own inertia
+/// ([`crate::offline::contact_inertia`]) at which it replaces the approach's, which it must
+/// also differ from by more than three standard errors: where the oscillation on the contact
+/// determines it this well and shows the approach's wrong, it is the better of the two (the
+/// approach's misses the finger links' change of share, several percent on a light drive).
+const CONTACT_INERTIA_MAX_REL_SIGMA: f64 = 0.03;
+
+/// How far above the contact angle found (rad) the contact path's own inertia is read: the
+/// contact angle's own uncertainty (the path fit's prior σ of θa,c), so that a swing back
+/// off the object, which follows the free motion, stays out.
+const CONTACT_INERTIA_MARGIN_RAD: f64 = 3e-3;
+
 /// The fit's envelope tolerance (rad) on a loading path rebuilt by
 /// `crate::offline::loading_path`: its samples are in order of θa, with the inertia already
 /// removed, so there is no overshoot left to drop.
@@ -956,12 +974,16 @@ struct ForeignFit {
     drive: Option<(crate::offline::DriveId, (f64, f64, f64))>,
     /// Which samples the fit read (with the drive identified).
     reading: Option<PathReading>,
+    /// The contact path's own inertia (kg·m², σ), where the fit used it.
+    contact_inertia: Option<(f64, f64)>,
 }
 
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
 /// term and friction offset identified from this contact's approach
-/// (`crate::offline::identify_drive`, the finger file's inertia as the prior), the contact
-/// point on the dynamics-corrected residual (`crate::offline::refine_contact`), then the
+/// (`crate::offline::identify_drive`, the finger file's inertia as the prior), the inertia
+/// read again on the contact path where that rings without dry friction and shows the
+/// approach's wrong (`crate::offline::contact_inertia`), the contact point on the
+/// dynamics-corrected residual (`crate::offline::refine_contact`), then the
 /// firmware's integer path fit with that inertia and the finger file's backlash. Without an
 /// identification (too short an approach) the controller's defaults.
 fn foreign_path_fit(
@@ -972,7 +994,7 @@ fn foreign_path_fit(
     finger: &FingerFile,
     quantum_rad: f64,
 ) -> ForeignFit {
-    use crate::offline::{identify_drive, path_fit_with, refine_contact, DrivePrior};
+    use crate::offline::{identify_drive, path_fit_with, refine_contact, DriveId, DrivePrior};
     let q = finger.rad_per_count();
     let prior = DrivePrior {
         inertia_kgm2: finger.drive.inertia_kgm2,
@@ -988,7 +1010,50 @@ fn foreign_path_fit(
         quantum_rad,
         &prior,
     );
-    let (inertia, contact) = match id {
+    // With the drive identified: does the path show dry friction (the approach's, or the
+    // hysteresis of the contact path, the drive's or the object's, which no approach sees)?
+    // Without, the oscillation on the contact carries the inertia the fit removes: the
+    // contact path's own ([`crate::offline::contact_inertia`]) where it determines it.
+    let block_s = f64::from(seg.request.dt_ns) * 1e-9;
+    let judged = id.as_ref().map(|d| {
+        let half = quartic_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
+        let drive = (d.inertia_kgm2, d.viscous_nm_s_per_rad);
+        let reason = if d.offset_nm > DRY_FRICTION_MIN_NM {
+            LoadingReason::DriveFriction {
+                offset_nm: d.offset_nm,
+            }
+        } else {
+            match crate::offline::path_hysteresis(blocks, seg.knee, seg.end.1, drive, half) {
+                Some((gap_nm, sigma_nm))
+                    if gap_nm > HYSTERESIS_MIN_NM && gap_nm > 3.0 * sigma_nm =>
+                {
+                    LoadingReason::PathHysteresis { gap_nm, sigma_nm }
+                }
+                _ => LoadingReason::Swing,
+            }
+        };
+        let on_contact = match reason {
+            LoadingReason::Swing => {
+                let from = seg.theta_a_c_rad + CONTACT_INERTIA_MARGIN_RAD;
+                crate::offline::contact_inertia(blocks, seg.knee, seg.end.1, from, half).filter(
+                    |&(j, s)| {
+                        j > 0.0
+                            && s <= CONTACT_INERTIA_MAX_REL_SIGMA * j
+                            && (j - d.inertia_kgm2).abs() > 3.0 * s.hypot(d.sigma_inertia_kgm2)
+                    },
+                )
+            }
+            _ => None,
+        };
+        (half, d.viscous_nm_s_per_rad, reason, on_contact)
+    });
+    let contact_inertia = judged.and_then(|j| j.3);
+    // The contact point's hinge reads the impact through the inertia on the contact.
+    let id_on_contact = id.map(|d| DriveId {
+        inertia_kgm2: contact_inertia.map_or(d.inertia_kgm2, |(j, _)| j),
+        ..d
+    });
+    let (inertia, contact) = match id_on_contact {
         Some(id) => (
             id.inertia_kgm2,
             refine_contact(m64, cfg, blocks, seg, &id, q).unwrap_or((
@@ -1017,6 +1082,7 @@ fn foreign_path_fit(
             estimate: Err(crate::sim::EstError::new("end_behind_contact", &why)),
             drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
             reading: None,
+            contact_inertia,
         };
     }
     let pcfg = pathfit::PathFitConfig {
@@ -1029,29 +1095,10 @@ fn foreign_path_fit(
         },
         ..pathfit::PathFitConfig::DEFAULT
     };
-    // With the drive identified and the crank swinging back (by any amount with dry friction,
-    // by more than the envelope keeps without), the path is the loading rows with its
-    // dynamics removed here (`crate::offline::loading_path`), and the fit is told neither
-    // inertia nor envelope. Dry friction shows on the approach (the drive's) or as the
-    // hysteresis of the contact path (the drive's or the object's, which no approach sees).
-    let (loading, reading) = id.as_ref().map_or((None, None), |d| {
-        let block_s = f64::from(seg.request.dt_ns) * 1e-9;
-        let half = quartic_half_width(d.inertia_kgm2, quantum_rad, block_s, cfg.detect_excess_nm);
-        let drive = (d.inertia_kgm2, d.viscous_nm_s_per_rad);
-        let reason = if d.offset_nm > DRY_FRICTION_MIN_NM {
-            LoadingReason::DriveFriction {
-                offset_nm: d.offset_nm,
-            }
-        } else {
-            match crate::offline::path_hysteresis(blocks, seg.knee, seg.end.1, drive, half) {
-                Some((gap_nm, sigma_nm))
-                    if gap_nm > HYSTERESIS_MIN_NM && gap_nm > 3.0 * sigma_nm =>
-                {
-                    LoadingReason::PathHysteresis { gap_nm, sigma_nm }
-                }
-                _ => LoadingReason::Swing,
-            }
-        };
+    // With the crank swinging back (by any amount with dry friction, by more than the
+    // envelope keeps without), the path is the loading rows with its dynamics removed here
+    // (`crate::offline::loading_path`), and the fit is told neither inertia nor envelope.
+    let (loading, reading) = judged.map_or((None, None), |(half, viscous, reason, _)| {
         let min_swing = match reason {
             LoadingReason::Swing => LOADING_MIN_SWING_RAD,
             _ => 0.0,
@@ -1061,7 +1108,7 @@ fn foreign_path_fit(
             blocks,
             seg.knee,
             seg.end.1,
-            drive,
+            (inertia, viscous),
             half,
             min_swing,
         );
@@ -1083,7 +1130,7 @@ fn foreign_path_fit(
         ),
         None => (pcfg, seg.request.clone()),
     };
-    let dt = f64::from(seg.request.dt_ns) * 1e-9;
+    let dt = block_s;
     let res = pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
         .map_err(|e| err(grasp::EstimateError::Model(e)))
         .and_then(|table| {
@@ -1096,6 +1143,7 @@ fn foreign_path_fit(
         estimate: res,
         drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
         reading,
+        contact_inertia,
     }
 }
 
@@ -1133,6 +1181,7 @@ mod tests {
             sigma_k2_m: k2_mm.map(|_| sigma_mm * 1e-3),
             phases: None,
             path_reading: None,
+            contact_inertia_kgm2: None,
         }
     }
 

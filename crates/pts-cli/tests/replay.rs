@@ -321,3 +321,51 @@ fn a_foreign_recording_reports_which_samples_the_fit_read() {
         assert!(line.contains(expect), "{id}: {line}");
     }
 }
+
+/// On a frictionless drive ringing on its contact, the inertia the fit removes is read on the
+/// contact path, where the finger's links carry another share of it than in free motion: the
+/// other simulator's ideal dynamic sample `dyn01` reports it (below the approach's, which
+/// moves the links with the whole finger) and is answered within its σ; a drive with dry
+/// friction (`dyn02`), whose swings carry the friction too, keeps the approach's.
+#[test]
+fn a_frictionless_ringing_contact_reads_its_inertia_on_the_contact_path() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    let id = "dyn01_vtx_k27_mu00_dT03__ideal";
+    let path = samples.join(format!("{id}.csv"));
+    let v = json_of(&estimate(&path, &[]));
+    let c = &v["contacts"][0];
+    let j = c["contact_inertia_kgm2"]
+        .as_f64()
+        .unwrap_or_else(|| panic!("{id}: {c}"));
+    let sj = c["sigma_contact_inertia_kgm2"].as_f64().expect("its σ");
+    let approach = c["drive"]["inertia_kgm2"]
+        .as_f64()
+        .expect("approach inertia");
+    assert!(
+        j > 0.0 && j + 3.0 * sj < approach,
+        "{id}: {j} ± {sj} vs {approach}"
+    );
+    let truth: Value = serde_json::from_str(
+        &std::fs::read_to_string(samples.join(format!("{id}.json"))).expect("truth"),
+    )
+    .expect("json");
+    let k2c = truth["truth"]["k2_c_m"].as_f64().expect("k2,c");
+    let (k2, s) = (
+        c["k2"].as_f64().expect("k2"),
+        c["sigma_k2"].as_f64().expect("σ"),
+    );
+    assert!((k2 - k2c).abs() <= s, "{id}: {k2} ± {s} vs {k2c}");
+    let human = pts(&["estimate", "--trace", path.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&human.stdout);
+    assert!(
+        text.lines()
+            .any(|l| l.trim_start().starts_with("inertia on the contact path: ")),
+        "{id}: {text}"
+    );
+    let rough = samples.join("dyn02_vtx_k58_mu02_dT06__default.csv");
+    let v = json_of(&estimate(&rough, &[]));
+    assert!(
+        v["contacts"][0].get("contact_inertia_kgm2").is_none(),
+        "{v}"
+    );
+}

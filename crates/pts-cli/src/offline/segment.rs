@@ -539,6 +539,68 @@ pub fn path_hysteresis(
     Some((mf - mb, (vf + vb).sqrt()))
 }
 
+/// The effective inertia at the crank while the finger presses on its contact (kg·m², with
+/// its standard error), identified on the contact path itself. The finger's own links move
+/// differently on a contact than in free motion, so the approach's inertia is off by their
+/// share (about a tenth of a light drive's). Each moving block after the contact block
+/// `knee` (up to `hi`) whose local quartic (half-width `half_width` blocks,
+/// [`poly_speed_accel`](super::drive::poly_speed_accel)) no longer reaches back to the
+/// impact, and whose θa lies at or above `theta_from_rad` (on the object: a swing back off it
+/// follows the free motion, another function of θa), gives a row of T_a = p(θa) + J·θ̈a + b·θ̇a + F·sgn θ̇a, p a cubic in θa (the
+/// quasi-static path), b a viscous term, F a dry friction: an oscillation on the contact,
+/// whose θ̈a no function of θa can follow, is what determines J. `None` with fewer than
+/// [`CONTACT_INERTIA_MIN_BLOCKS`] rows or regressors that are not independent (a path
+/// loaded without swinging cannot tell J from the path's curvature).
+pub fn contact_inertia(
+    blocks: &[Block],
+    knee: usize,
+    hi: usize,
+    theta_from_rad: f64,
+    half_width: usize,
+) -> Option<(f64, f64)> {
+    let mut pts: std::vec::Vec<(f64, f64, f64, f64, f64)> = std::vec::Vec::new();
+    for (k, b, dir) in moving_after_contact(blocks, knee + half_width, hi) {
+        let sign = match dir {
+            Some(core::cmp::Ordering::Greater) => 1.0,
+            Some(core::cmp::Ordering::Less) => -1.0,
+            _ => continue,
+        };
+        let Some((w, acc)) = super::drive::poly_speed_accel(blocks, k, half_width) else {
+            continue;
+        };
+        let (th, t) = (b.moving_theta_a_rad, b.moving_torque_nm);
+        if th >= theta_from_rad && [th, t, w, acc].iter().all(|v| v.is_finite()) {
+            pts.push((th, t, w, acc, sign));
+        }
+    }
+    if pts.len() < CONTACT_INERTIA_MIN_BLOCKS {
+        return None;
+    }
+    let (lo, hi_th) = pts
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
+            (l.min(p.0), h.max(p.0))
+        });
+    let (mid, half_span) = (0.5 * (lo + hi_th), 0.5 * (hi_th - lo));
+    if !(half_span > 0.0) {
+        return None;
+    }
+    let rows: std::vec::Vec<(std::vec::Vec<f64>, f64)> = pts
+        .iter()
+        .map(|&(th, t, w, acc, sign)| {
+            let x = (th - mid) / half_span;
+            (std::vec![1.0, x, x * x, x * x * x, acc, w, sign], t)
+        })
+        .collect();
+    let fit = crate::linalg::least_squares(&rows, 7)?;
+    let j = *fit.coef.get(4)?;
+    let sigma = fit.std_error(4)?;
+    (j.is_finite() && sigma.is_finite()).then_some((j, sigma))
+}
+
+/// Fewest blocks [`contact_inertia`] fits its seven terms to.
+pub const CONTACT_INERTIA_MIN_BLOCKS: usize = 16;
+
 /// Every contact in the blocks, in order: calls `each` with each result (a contact's
 /// [`Segment`], or the error that ended the search; the first `NoContact`/`NoFreeMotion`
 /// after a contact is not reported). Returns the number of segments found.
@@ -736,6 +798,77 @@ mod tests {
                 })
                 .collect();
         assert!(path_hysteresis(&mono, 1, 60, (0.0, 0.0), 3).is_none());
+    }
+
+    #[test]
+    fn the_contact_path_gives_back_the_inertia_it_carries() {
+        // A decaying 12 Hz, 15 mrad ring about a path that stiffens (T = K x + K₂ x², x the
+        // travel past the contact at −0.2 rad), loaded at 40 mrad/s, with inertia J and
+        // viscous term b: T = path(θ) + J θ̈ + b θ̇. The ring dips up to 5 mrad below the
+        // contact, where the finger is off the object and the torque follows the free motion
+        // (a constant 0.35 N·m here), which the rows read must leave out.
+        let (k, k2, b) = (6.0, 40.0, 0.004);
+        let (w, lam, amp) = (2.0 * core::f64::consts::PI * 12.0, 2.0, 0.015);
+        let run = |j: f64| {
+            let blk: std::vec::Vec<Block> = (0..200)
+                .map(|i| {
+                    let t = 0.004 * i as f64;
+                    let e = (-lam * t).exp();
+                    let (sn, cs) = (w * t).sin_cos();
+                    let x = 0.04 * t - 0.005 + amp * e * sn;
+                    let v = 0.04 + amp * e * (w * cs - lam * sn);
+                    let acc = amp * e * ((lam * lam - w * w) * sn - 2.0 * lam * w * cs);
+                    let path = if x > 0.0 {
+                        0.35 + k * x + k2 * x * x
+                    } else {
+                        0.35
+                    };
+                    let tq = path + j * acc + b * v;
+                    let th = -0.2 + x;
+                    Block {
+                        index: i as u32,
+                        t_s: t,
+                        theta_a_rad: th,
+                        torque_nm: tq,
+                        moving_rows: 4,
+                        moving_theta_a_rad: th,
+                        moving_torque_nm: tq,
+                        ..Block::default()
+                    }
+                })
+                .collect();
+            (
+                contact_inertia(&blk, 1, 200, -0.2 + 3e-3, 3),
+                contact_inertia(&blk, 1, 200, f64::NEG_INFINITY, 3),
+            )
+        };
+        for j in [5e-4, 5.3e-4, 5e-3] {
+            let (on, all) = run(j);
+            let (got, se) = on.expect("the ring determines J");
+            assert!((got - j).abs() < 0.01 * j, "J {j}: {got} ± {se}");
+            assert!(se < 0.01 * j, "J {j}: σ {se}");
+            // The rows off the object, read as if on it, bias a light drive's J by more than
+            // the 1 % (a heavy one's ring torque dwarfs the kink).
+            let (biased, _) = all.expect("fitted");
+            if j < 1e-3 {
+                assert!((biased - j).abs() > 0.01 * j, "J {j}: all rows {biased}");
+            }
+        }
+        // A path loaded without ringing: J is not told apart from the path's curvature.
+        let mono: std::vec::Vec<Block> = blocks(
+            |i| -0.2 + 1e-3 * i as f64,
+            |i| 0.35 + 6.0 * 1e-3 * i as f64,
+            60,
+        )
+        .into_iter()
+        .map(|b| Block {
+            moving_rows: 4,
+            moving_theta_a_rad: b.theta_a_rad,
+            moving_torque_nm: b.torque_nm,
+            ..b
+        })
+        .collect();
+        assert!(contact_inertia(&mono, 1, 60, -0.2, 3).is_none_or(|(j, se)| se > 0.03 * j.abs()));
     }
 
     #[test]
