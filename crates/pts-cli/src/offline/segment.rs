@@ -683,6 +683,20 @@ mod tests {
             .collect()
     }
 
+    /// A block whose four rows all moved, at mean θa `th` (rad) and T_a `tq` (N·m).
+    fn moving_block(i: usize, t: f64, th: f64, tq: f64) -> Block {
+        Block {
+            index: i as u32,
+            t_s: t,
+            theta_a_rad: th,
+            torque_nm: tq,
+            moving_rows: 4,
+            moving_theta_a_rad: th,
+            moving_torque_nm: tq,
+            ..Block::default()
+        }
+    }
+
     #[test]
     fn the_path_carries_the_moving_rows_only() {
         // Blocks 0..20; from the detection (block 4) on, every third block stuck (no moving
@@ -764,16 +778,7 @@ mod tests {
                     let acc = -w * w * 0.02 * (w * t).sin();
                     let v = 0.01 + w * 0.02 * (w * t).cos();
                     let tq = k * (th + 0.2) + j * acc + f * v.signum();
-                    Block {
-                        index: i as u32,
-                        t_s: t,
-                        theta_a_rad: th,
-                        torque_nm: tq,
-                        moving_rows: 4,
-                        moving_theta_a_rad: th,
-                        moving_torque_nm: tq,
-                        ..Block::default()
-                    }
+                    moving_block(i, t, th, tq)
                 })
                 .collect();
             path_hysteresis(&b, 1, 150, (j, 0.0), 3).expect("swings both ways")
@@ -790,12 +795,7 @@ mod tests {
         let mono: std::vec::Vec<Block> =
             blocks(|k| -0.2 + 1e-4 * k as f64, |k| 0.4 + 0.01 * k as f64, 60)
                 .into_iter()
-                .map(|b| Block {
-                    moving_rows: 4,
-                    moving_theta_a_rad: b.theta_a_rad,
-                    moving_torque_nm: b.torque_nm,
-                    ..b
-                })
+                .map(|b| moving_block(b.index as usize, b.t_s, b.theta_a_rad, b.torque_nm))
                 .collect();
         assert!(path_hysteresis(&mono, 1, 60, (0.0, 0.0), 3).is_none());
     }
@@ -825,16 +825,7 @@ mod tests {
                     };
                     let tq = path + j * acc + b * v;
                     let th = -0.2 + x;
-                    Block {
-                        index: i as u32,
-                        t_s: t,
-                        theta_a_rad: th,
-                        torque_nm: tq,
-                        moving_rows: 4,
-                        moving_theta_a_rad: th,
-                        moving_torque_nm: tq,
-                        ..Block::default()
-                    }
+                    moving_block(i, t, th, tq)
                 })
                 .collect();
             (
@@ -861,12 +852,7 @@ mod tests {
             60,
         )
         .into_iter()
-        .map(|b| Block {
-            moving_rows: 4,
-            moving_theta_a_rad: b.theta_a_rad,
-            moving_torque_nm: b.torque_nm,
-            ..b
-        })
+        .map(|b| moving_block(b.index as usize, b.t_s, b.theta_a_rad, b.torque_nm))
         .collect();
         assert!(contact_inertia(&mono, 1, 60, -0.2, 3).is_none_or(|(j, se)| se > 0.03 * j.abs()));
     }
