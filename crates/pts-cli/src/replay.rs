@@ -965,6 +965,19 @@ fn quartic_half_width(inertia_kgm2: f64, quantum_rad: f64, block_s: f64, noise_n
 /// which a quartic still follows to a percent.
 const MAX_QUARTIC_HALF_WIDTH: usize = 12;
 
+/// How [`foreign_path_fit`] reads a contact path once the drive is identified.
+#[derive(Clone, Copy)]
+struct PathJudgement {
+    /// Half-width (blocks) of the local quartic for θ̇a and θ̈a.
+    half_width: usize,
+    /// The approach's viscous term (N·m·s/rad).
+    viscous_nm_s_per_rad: f64,
+    /// Why the loading rows would be read alone (`Swing`: no dry friction seen).
+    reason: LoadingReason,
+    /// The contact path's own inertia (kg·m², σ), where it replaces the approach's.
+    contact_inertia: Option<(f64, f64)>,
+}
+
 /// What [`foreign_path_fit`] found on one contact.
 struct ForeignFit {
     /// The estimate with its σ(k2,c) (m), or the refusal.
@@ -1045,9 +1058,14 @@ fn foreign_path_fit(
             }
             _ => None,
         };
-        (half, d.viscous_nm_s_per_rad, reason, on_contact)
+        PathJudgement {
+            half_width: half,
+            viscous_nm_s_per_rad: d.viscous_nm_s_per_rad,
+            reason,
+            contact_inertia: on_contact,
+        }
     });
-    let contact_inertia = judged.and_then(|j| j.3);
+    let contact_inertia = judged.and_then(|j| j.contact_inertia);
     // The contact point's hinge reads the impact through the inertia on the contact.
     let id_on_contact = id.map(|d| DriveId {
         inertia_kgm2: contact_inertia.map_or(d.inertia_kgm2, |(j, _)| j),
@@ -1098,8 +1116,8 @@ fn foreign_path_fit(
     // With the crank swinging back (by any amount with dry friction, by more than the
     // envelope keeps without), the path is the loading rows with its dynamics removed here
     // (`crate::offline::loading_path`), and the fit is told neither inertia nor envelope.
-    let (loading, reading) = judged.map_or((None, None), |(half, viscous, reason, _)| {
-        let min_swing = match reason {
+    let (loading, reading) = judged.map_or((None, None), |j| {
+        let min_swing = match j.reason {
             LoadingReason::Swing => LOADING_MIN_SWING_RAD,
             _ => 0.0,
         };
@@ -1108,12 +1126,12 @@ fn foreign_path_fit(
             blocks,
             seg.knee,
             seg.end.1,
-            (inertia, viscous),
-            half,
+            (inertia, j.viscous_nm_s_per_rad),
+            j.half_width,
             min_swing,
         );
         let reading = if req.is_some() {
-            PathReading::LoadingRows(reason)
+            PathReading::LoadingRows(j.reason)
         } else {
             PathReading::AsRecorded
         };
@@ -1130,15 +1148,15 @@ fn foreign_path_fit(
         ),
         None => (pcfg, seg.request.clone()),
     };
-    let dt = block_s;
-    let res = pathfit::q::PathTable::new(&finger.finger, &pcfg, dt)
+    let res = pathfit::q::PathTable::new(&finger.finger, &pcfg, block_s)
         .map_err(|e| err(grasp::EstimateError::Model(e)))
         .and_then(|table| {
             path_fit_with(&table, &req, contact.0, contact.1)
                 .map_err(|e| err(grasp::EstimateError::PathFit(e)))
         });
-    let res = res
-        .map(|(r, sigma)| widen_for_contact_friction(finger, &pcfg, dt, &req, contact, r, sigma));
+    let res = res.map(|(r, sigma)| {
+        widen_for_contact_friction(finger, &pcfg, block_s, &req, contact, r, sigma)
+    });
     ForeignFit {
         estimate: res,
         drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
