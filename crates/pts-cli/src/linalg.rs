@@ -134,8 +134,8 @@ pub fn polyfit(points: impl IntoIterator<Item = (f64, f64)>, degree: usize) -> O
 mod tests {
     use super::*;
 
-    /// An exact linear model is recovered, and the standard errors match the textbook
-    /// straight line's: σ(slope)² = s² / Σ(x − x̄)².
+    /// The fit through noisy points is the closed-form straight line, and its standard error
+    /// the textbook one: σ(slope)² = s² / Σ(x − x̄)².
     #[test]
     fn least_squares_recovers_a_line_and_its_standard_error() {
         let xs: Vec<f64> = (0..20).map(|i| f64::from(i) * 0.5).collect();

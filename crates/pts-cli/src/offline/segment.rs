@@ -469,6 +469,13 @@ fn moving_after_contact(
     })
 }
 
+/// The least and greatest of `values` (±∞ reversed when there are none).
+fn span(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    values.fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+        (l.min(v), h.max(v))
+    })
+}
+
 /// The hysteresis of the contact path (N·m, with its standard error): how far the quasi-static
 /// torque of the blocks that swing back lies below the loading path at the same θa. Each
 /// moving block after the contact block `knee` (up to `hi`) gives T_a − inertia·θ̈a −
@@ -506,11 +513,7 @@ pub fn path_hysteresis(
     if fwd.len() < 4 || back.len() < 4 {
         return None;
     }
-    let (lo, hi_th) = fwd
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
-            (l.min(p.0), h.max(p.0))
-        });
+    let (lo, hi_th) = span(fwd.iter().map(|p| p.0));
     // The loading path T = c0 + c1 x + c2 x², x = θa − mid (centred for conditioning).
     let mid = 0.5 * (lo + hi_th);
     let c = crate::linalg::polyfit(fwd.iter().map(|&(th, t)| (th - mid, t)), 2)?;
@@ -577,11 +580,7 @@ pub fn contact_inertia(
     if pts.len() < CONTACT_INERTIA_MIN_BLOCKS {
         return None;
     }
-    let (lo, hi_th) = pts
-        .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
-            (l.min(p.0), h.max(p.0))
-        });
+    let (lo, hi_th) = span(pts.iter().map(|p| p.0));
     let (mid, half_span) = (0.5 * (lo + hi_th), 0.5 * (hi_th - lo));
     if !(half_span > 0.0) {
         return None;
