@@ -10,7 +10,8 @@
 //! and R 10 mm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.5 × µ 0.3 × both inertias × friction off /
 //! realistic, plus the negatives); `ENGINE_GRID=small` runs dynsim's small grid,
 //! `ENGINE_GRID=full` the grid (608 grasps) and `ENGINE_GRID=inertia` drive inertias
-//! from 1e-4 to 0.1 kg·m² (84 grasps), printed the same way.
+//! from 1e-4 to 0.1 kg·m² (84 grasps), printed the same way; `ENGINE_GRID_RATE_HZ=250` (or
+//! 500) records any of them at that rate instead of the engine's 1 kHz.
 
 use dynsim::grasp as engine;
 use dynsim::grid::{cases, Axes, Case, FULL, INERTIA, SMALL};
@@ -95,7 +96,7 @@ fn run_case(c: &Case) -> Option<Outcome> {
     if rec.truth.both_phalanges {
         return None;
     }
-    let csv = engine::to_csv(&rec, &c.sensor);
+    let csv = decimate(&engine::to_csv(&rec, &c.sensor), rate_step());
     let file = pts::config::FingerFile::paper();
     let seg = pts_cli::trace::read_csv(&csv, &|i| file.torque_from_current(i))
         .and_then(|tr| segment(&tr, &file, Method::Pathfit));
@@ -448,6 +449,33 @@ fn wrong_phalanx(rows: &[Outcome]) -> usize {
         .count()
 }
 
+/// Every how many of the engine's 1 kHz rows the recording keeps: `ENGINE_GRID_RATE_HZ`
+/// (a divisor of 1000 from 250 up; default 1000) records the grid at that rate.
+fn rate_step() -> usize {
+    match std::env::var("ENGINE_GRID_RATE_HZ") {
+        Ok(v) => {
+            let hz: usize = v.parse().expect("ENGINE_GRID_RATE_HZ: a rate in Hz");
+            assert!(
+                (250..=1000).contains(&hz) && 1000 % hz == 0,
+                "ENGINE_GRID_RATE_HZ = {hz}: a divisor of 1000 from 250 to 1000"
+            );
+            1000 / hz
+        }
+        Err(_) => 1,
+    }
+}
+
+/// The CSV with its header and every `step`-th row from the first: the same grasp recorded at
+/// a lower rate.
+fn decimate(csv: &str, step: usize) -> String {
+    let mut lines = csv.lines();
+    let header = lines.next().unwrap_or_default();
+    std::iter::once(header)
+        .chain(lines.step_by(step))
+        .flat_map(|l| [l, "\n"])
+        .collect()
+}
+
 /// The grid the environment asks for: `ENGINE_GRID=small|full|inertia`, else the CI slice.
 fn grid() -> (&'static str, &'static Axes) {
     match std::env::var("ENGINE_GRID").as_deref() {
@@ -467,7 +495,8 @@ fn engine_grid_default_method() {
     let start = std::time::Instant::now();
     let rows = run_grid(&cs);
     println!(
-        "engine grid `{name}`: {} grasps ({} skipped by the engine) in {:.1} s",
+        "engine grid `{name}` recorded at {} Hz: {} grasps ({} skipped by the engine) in {:.1} s",
+        1000 / rate_step(),
         rows.len(),
         cs.len() - rows.len(),
         start.elapsed().as_secs_f64()
@@ -489,7 +518,9 @@ fn engine_grid_default_method() {
         assert!(!(o.answer == "distal" && o.good), "{}: {}", o.id, o.answer);
     }
     let [off, realistic] = print_drive_table(&rows);
-    if name != "ci" {
+    // The bounds below hold the CI slice as the engine records it; other grids and rates are
+    // measurements.
+    if name != "ci" || rate_step() != 1 {
         return;
     }
     // The drive from the approach. With noise (the realistic level), σ covers the error: the
