@@ -622,19 +622,86 @@ pub fn segment(
             torque_nm: trace.torque_nm[i],
         })
         .collect();
-    let base = segment_rows(&rows, finger, method)?;
+    // The recording's encoder step: its smallest θa change between rows (of the rows as
+    // recorded: interpolated ones below step by fractions of it).
+    let quantum_rad = smallest_step(&rows);
+    let mut base = segment_rows(&rows, finger, method, quantum_rad)?;
     if method != crate::method::Method::Pathfit {
         return Ok(base);
     }
+    // With fewer rows than phases in a block, the phases would average the same rows into
+    // the same blocks: the rows are interpolated onto the phases' grid first.
+    let phase_s = base.block_s / BLOCK_PHASES as f64;
+    let rows = match interpolated(&rows, phase_s) {
+        Some(fine) => {
+            base = segment_rows(&fine, finger, method, quantum_rad)?;
+            fine
+        }
+        None => rows,
+    };
     let t0 = rows.first().map_or(0.0, |r| r.t_s);
     let others: Vec<Segmented> = (1..BLOCK_PHASES)
         .filter_map(|j| {
-            let shift = base.block_s * j as f64 / BLOCK_PHASES as f64;
+            let shift = phase_s * j as f64;
             let from = rows.partition_point(|r| r.t_s < t0 + shift);
-            segment_rows(rows.get(from..)?, finger, method).ok()
+            segment_rows(rows.get(from..)?, finger, method, quantum_rad).ok()
         })
         .collect();
     Ok(combine_phases(base, &others))
+}
+
+/// The smallest θa change between consecutive rows (rad), 0 when θa never changes.
+fn smallest_step(rows: &[crate::offline::TraceSample]) -> f64 {
+    let q = rows
+        .windows(2)
+        .map(|w| (w[1].theta_a_rad - w[0].theta_a_rad).abs())
+        .filter(|d| *d > 1e-12)
+        .fold(f64::INFINITY, f64::min);
+    if q.is_finite() {
+        q
+    } else {
+        0.0
+    }
+}
+
+/// The rows linearly interpolated onto a grid of `step_s` from the first row's time, where
+/// the recording is sparser than that (its mean row spacing above 1.25 `step_s`); `None`
+/// where it is not. A block of a 250 Hz recording holds one row: averaged at four phases, the
+/// contact angle the path fit finds and its k̂2 follow where the rows fall about the contact
+/// (one engine grasp: k̂2 13.3–18.3 mm over the four ways to decimate it, truth 15.0 mm), and
+/// the phases that average that out at 1 kHz would all see the same blocks.
+fn interpolated(
+    rows: &[crate::offline::TraceSample],
+    step_s: f64,
+) -> Option<Vec<crate::offline::TraceSample>> {
+    let (first, last) = (rows.first()?, rows.last()?);
+    let span = last.t_s - first.t_s;
+    let spacing = span / rows.len().saturating_sub(1).max(1) as f64;
+    if !(step_s > 0.0 && spacing > 1.25 * step_s) {
+        return None;
+    }
+    let n = (span / step_s) as usize + 1;
+    let mut out = Vec::with_capacity(n);
+    let mut i = 0usize;
+    for k in 0..n {
+        let t = first.t_s + step_s * k as f64;
+        while i + 2 < rows.len() && rows[i + 1].t_s <= t {
+            i += 1;
+        }
+        let (a, b) = (rows[i], rows[(i + 1).min(rows.len() - 1)]);
+        let dt = b.t_s - a.t_s;
+        let w = if dt > 0.0 {
+            ((t - a.t_s) / dt).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        out.push(crate::offline::TraceSample {
+            t_s: t,
+            theta_a_rad: a.theta_a_rad + w * (b.theta_a_rad - a.theta_a_rad),
+            torque_nm: a.torque_nm + w * (b.torque_nm - a.torque_nm),
+        });
+    }
+    Some(out)
 }
 
 /// Block phases the path fit runs at: the trace is averaged into blocks starting
@@ -711,11 +778,13 @@ fn combine_phases(mut base: Segmented, others: &[Segmented]) -> Segmented {
     base
 }
 
-/// [`segment`] on rows already cut, at the block phase their first row sets.
+/// [`segment`] on rows already cut, at the block phase their first row sets; `quantum_rad` is
+/// the recording's encoder step ([`smallest_step`] of the rows as recorded).
 fn segment_rows(
     rows: &[crate::offline::TraceSample],
     finger: &FingerFile,
     method: crate::method::Method,
+    quantum_rad: f64,
 ) -> Result<Segmented, String> {
     use crate::offline::{for_each_contact, make_blocks, Block, OfflineConfig};
     let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
@@ -733,17 +802,6 @@ fn segment_rows(
     let mut scratch = vec![Block::default(); 1 << 16];
     let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch)
         .map_err(|e| format!("segmenting the trace: {} ({e})", e.kind()))?;
-    // The recording's encoder step: its smallest θa change between rows.
-    let quantum_rad = rows
-        .windows(2)
-        .map(|w| (w[1].theta_a_rad - w[0].theta_a_rad).abs())
-        .filter(|d| *d > 1e-12)
-        .fold(f64::INFINITY, f64::min);
-    let quantum_rad = if quantum_rad.is_finite() {
-        quantum_rad
-    } else {
-        0.0
-    };
     if method == crate::method::Method::Pathfit {
         dynamics_corrected_residual(&m64, &cfg, &mut scratch[..nb], block_s, finger, quantum_rad);
     }
@@ -1208,6 +1266,42 @@ mod tests {
             contacts: vec![c],
             ..Segmented::default()
         }
+    }
+
+    #[test]
+    fn sparse_rows_are_interpolated_onto_the_phase_grid() {
+        use crate::offline::TraceSample;
+        let row = |t: f64| TraceSample {
+            t_s: t,
+            theta_a_rad: -0.3 + 0.5 * t,
+            torque_nm: 0.2 + 2.0 * t,
+        };
+        // 250 Hz onto 1 ms: every grid time, exact on a line, the last row kept.
+        let sparse: Vec<TraceSample> = (0..6).map(|i| row(0.004 * i as f64)).collect();
+        let fine = interpolated(&sparse, 0.001).expect("sparser than the grid");
+        assert_eq!(fine.len(), 21);
+        for (k, r) in fine.iter().enumerate() {
+            let want = row(0.001 * k as f64);
+            assert!((r.t_s - want.t_s).abs() < 1e-12, "{k}");
+            assert!((r.theta_a_rad - want.theta_a_rad).abs() < 1e-12, "{k}");
+            assert!((r.torque_nm - want.torque_nm).abs() < 1e-12, "{k}");
+        }
+        // A row repeated at one time takes the later value, and nothing panics.
+        let mut dup = sparse.clone();
+        dup.insert(
+            2,
+            TraceSample {
+                torque_nm: 9.0,
+                ..sparse[2]
+            },
+        );
+        let fine = interpolated(&dup, 0.001).expect("sparser than the grid");
+        assert!((fine[8].torque_nm - row(0.008).torque_nm).abs() < 1e-12);
+        // Rows as dense as the grid, or a single row, stay as they are.
+        let dense: Vec<TraceSample> = (0..20).map(|i| row(0.001 * i as f64)).collect();
+        assert!(interpolated(&dense, 0.001).is_none());
+        assert!(interpolated(&sparse[..1], 0.001).is_none());
+        assert!(interpolated(&[], 0.001).is_none());
     }
 
     #[test]
