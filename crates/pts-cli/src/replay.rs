@@ -665,22 +665,24 @@ fn smallest_step(rows: &[crate::offline::TraceSample]) -> f64 {
 }
 
 /// The rows linearly interpolated onto a grid of `step_s` from the first row's time, where
-/// the recording is sparser than that (its mean row spacing above 1.25 `step_s`); `None`
-/// where it is not. A block of a 250 Hz recording holds one row: averaged at four phases, the
-/// contact angle the path fit finds and its k̂2 follow where the rows fall about the contact
-/// (one engine grasp: k̂2 13.3–18.3 mm over the four ways to decimate it, truth 15.0 mm), and
-/// the phases that average that out at 1 kHz would all see the same blocks.
+/// the recording is sparser than that (its median row spacing above 1.25 `step_s`); `None`
+/// where it is not. A block of a 250 Hz recording holds one row, and the block phases that
+/// average where the rows fall about the contact would all see the same blocks (the engine
+/// grid's `a_250_hz_recording_reads_alike_however_its_rows_fall`). Nothing is made up inside
+/// a gap of more than twice the median spacing (rows the recording lost): grid times there
+/// are left out.
 fn interpolated(
     rows: &[crate::offline::TraceSample],
     step_s: f64,
 ) -> Option<Vec<crate::offline::TraceSample>> {
     let (first, last) = (rows.first()?, rows.last()?);
-    let span = last.t_s - first.t_s;
-    let spacing = span / rows.len().saturating_sub(1).max(1) as f64;
+    let mut gaps: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
+    gaps.sort_by(f64::total_cmp);
+    let spacing = *gaps.get(gaps.len() / 2)?;
     if !(step_s > 0.0 && spacing > 1.25 * step_s) {
         return None;
     }
-    let n = (span / step_s) as usize + 1;
+    let n = ((last.t_s - first.t_s) / step_s) as usize + 1;
     let mut out = Vec::with_capacity(n);
     let mut i = 0usize;
     for k in 0..n {
@@ -690,6 +692,9 @@ fn interpolated(
         }
         let (a, b) = (rows[i], rows[(i + 1).min(rows.len() - 1)]);
         let dt = b.t_s - a.t_s;
+        if dt > 2.0 * spacing && t > a.t_s {
+            continue;
+        }
         let w = if dt > 0.0 {
             ((t - a.t_s) / dt).clamp(0.0, 1.0)
         } else {
@@ -1297,6 +1302,12 @@ mod tests {
         );
         let fine = interpolated(&dup, 0.001).expect("sparser than the grid");
         assert!((fine[8].torque_nm - row(0.008).torque_nm).abs() < 1e-12);
+        // A lost stretch (12 ms between two rows) gets no rows made up inside it.
+        let mut lost = sparse.clone();
+        lost.extend((0..6).map(|i| row(0.032 + 0.004 * i as f64)));
+        let fine = interpolated(&lost, 0.001).expect("sparser than the grid");
+        assert!(fine.iter().all(|r| !(r.t_s > 0.0201 && r.t_s < 0.0319)));
+        assert_eq!(fine.len(), 21 + 21);
         // Rows as dense as the grid, or a single row, stay as they are.
         let dense: Vec<TraceSample> = (0..20).map(|i| row(0.001 * i as f64)).collect();
         assert!(interpolated(&dense, 0.001).is_none());
