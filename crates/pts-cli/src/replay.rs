@@ -625,20 +625,18 @@ pub fn segment(
     // The recording's encoder step: its smallest θa change between rows (of the rows as
     // recorded: interpolated ones below step by fractions of it).
     let quantum_rad = smallest_step(&rows);
-    let mut base = segment_rows(&rows, finger, method, quantum_rad)?;
     if method != crate::method::Method::Pathfit {
-        return Ok(base);
+        return segment_rows(&rows, finger, method, quantum_rad);
     }
     // With fewer rows than phases in a block, the phases would average the same rows into
-    // the same blocks: the rows are interpolated onto the phases' grid first.
-    let phase_s = base.block_s / BLOCK_PHASES as f64;
-    let rows = match interpolated(&rows, phase_s) {
-        Some(fine) => {
-            base = segment_rows(&fine, finger, method, quantum_rad)?;
-            fine
-        }
-        None => rows,
-    };
+    // the same blocks: the rows (checked as recorded) are interpolated onto the phases' grid
+    // first.
+    let block_s =
+        crate::offline::block_length(&offline_config(finger, method), &rows, SCRATCH_BLOCKS)
+            .map_err(segmenting_error)?;
+    let phase_s = block_s / BLOCK_PHASES as f64;
+    let rows = interpolated(&rows, phase_s).unwrap_or(rows);
+    let base = segment_rows(&rows, finger, method, quantum_rad)?;
     let t0 = rows.first().map_or(0.0, |r| r.t_s);
     let others: Vec<Segmented> = (1..BLOCK_PHASES)
         .filter_map(|j| {
@@ -783,6 +781,24 @@ fn combine_phases(mut base: Segmented, others: &[Segmented]) -> Segmented {
     base
 }
 
+/// The most blocks a recording is averaged into (longer ones get longer blocks).
+const SCRATCH_BLOCKS: usize = 1 << 16;
+
+/// The segmenter's settings for this finger and method.
+fn offline_config(
+    finger: &FingerFile,
+    method: crate::method::Method,
+) -> crate::offline::OfflineConfig {
+    crate::offline::OfflineConfig::DEFAULT
+        .with_estimator(method.estimator())
+        .with_encoder_count(finger.rad_per_count())
+}
+
+/// A recording the blocks cannot be made from, as the message `segment` returns.
+fn segmenting_error(e: crate::offline::OfflineError) -> String {
+    format!("segmenting the trace: {} ({e})", e.kind())
+}
+
 /// [`segment`] on rows already cut, at the block phase their first row sets; `quantum_rad` is
 /// the recording's encoder step ([`smallest_step`] of the rows as recorded).
 fn segment_rows(
@@ -791,22 +807,19 @@ fn segment_rows(
     method: crate::method::Method,
     quantum_rad: f64,
 ) -> Result<Segmented, String> {
-    use crate::offline::{for_each_contact, make_blocks, Block, OfflineConfig};
+    use crate::offline::{for_each_contact, make_blocks, Block};
     let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
     let mfw = pts::Model::<grasp::EstReal>::new(&finger.finger)
         .map_err(|e| format!("finger on the firmware back end: {e}"))?;
-    let cfg = OfflineConfig::DEFAULT
-        .with_estimator(method.estimator())
-        .with_encoder_count(finger.rad_per_count());
+    let cfg = offline_config(finger, method);
     // The file's drive as the firmware's estimate sees it (the two-point method reads none of it).
     let drive_fw = grasp::DriveConfig {
         inertia_kgm2: finger.drive.inertia_kgm2,
         backlash_rad: finger.drive.backlash_rad,
         ..grasp::DriveConfig::DEFAULT
     };
-    let mut scratch = vec![Block::default(); 1 << 16];
-    let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch)
-        .map_err(|e| format!("segmenting the trace: {} ({e})", e.kind()))?;
+    let mut scratch = vec![Block::default(); SCRATCH_BLOCKS];
+    let (nb, block_s) = make_blocks(&m64, &cfg, rows, &mut scratch).map_err(segmenting_error)?;
     if method == crate::method::Method::Pathfit {
         dynamics_corrected_residual(&m64, &cfg, &mut scratch[..nb], block_s, finger, quantum_rad);
     }

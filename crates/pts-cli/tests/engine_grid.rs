@@ -96,10 +96,7 @@ fn run_case(c: &Case) -> Option<Outcome> {
     if rec.truth.both_phalanges {
         return None;
     }
-    let csv = decimate(&engine::to_csv(&rec, &c.sensor), rate_step(), 0);
-    let file = pts::config::FingerFile::paper();
-    let seg = pts_cli::trace::read_csv(&csv, &|i| file.torque_from_current(i))
-        .and_then(|tr| segment(&tr, &file, Method::Pathfit));
+    let seg = estimate(&decimate(&engine::to_csv(&rec, &c.sensor), rate_step(), 0));
     let first = seg.as_ref().ok().and_then(|s| s.contacts.first());
     let j_hat = first.and_then(|c| c.drive).map(|d| d.inertia_kgm2);
     let phases = first.and_then(|c| c.phases);
@@ -449,6 +446,14 @@ fn wrong_phalanx(rows: &[Outcome]) -> usize {
         .count()
 }
 
+/// `pts estimate`'s code path on a recording (CSV text) with the paper's finger file: read,
+/// segmented, the default method (the path fit).
+fn estimate(csv: &str) -> Result<pts_cli::replay::Segmented, String> {
+    let file = pts::config::FingerFile::paper();
+    pts_cli::trace::read_csv(csv, &|i| file.torque_from_current(i))
+        .and_then(|tr| segment(&tr, &file, Method::Pathfit))
+}
+
 /// Every how many of the engine's 1 kHz rows the recording keeps: `ENGINE_GRID_RATE_HZ`
 /// (a divisor of 1000 from 250 up; default 1000) records the grid at that rate.
 fn rate_step() -> usize {
@@ -712,13 +717,9 @@ fn a_250_hz_recording_reads_alike_however_its_rows_fall() {
     let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
     let truth = rec.truth.k_c_m.expect("a distal contact");
     let csv = engine::to_csv(&rec, &c.sensor);
-    let file = pts::config::FingerFile::paper();
     let k2: Vec<f64> = (0..4)
         .map(|offset| {
-            let rows = decimate(&csv, 4, offset);
-            let seg = pts_cli::trace::read_csv(&rows, &|i| file.torque_from_current(i))
-                .and_then(|tr| segment(&tr, &file, Method::Pathfit))
-                .expect("segmented");
+            let seg = estimate(&decimate(&csv, 4, offset)).expect("segmented");
             let first = seg.contacts.first().expect("a contact");
             let r = first.estimate.as_ref().expect("answered");
             assert_eq!(r.located, grasp::Located::Distal, "offset {offset}");

@@ -14,53 +14,10 @@ pub fn make_blocks<R: pts::Real>(
     rows: &[TraceSample],
     scratch: &mut [Block],
 ) -> Result<(usize, f64), OfflineError> {
-    let positive = |v: f64| v.is_finite() && v > 0.0;
-    if !(positive(cfg.block_s) && positive(cfg.encoder_count_rad)) || scratch.is_empty() {
-        return Err(OfflineError::BadConfig);
-    }
-    let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+    let block = block_length(cfg, rows, scratch.len())?;
+    let Some(first) = rows.first() else {
         return Err(OfflineError::TooShort);
     };
-    let mut prev = first.t_s;
-    for (i, r) in rows.iter().enumerate() {
-        if !(r.t_s.is_finite() && r.theta_a_rad.is_finite() && r.torque_nm.is_finite()) {
-            return Err(OfflineError::NonFinite { row: i as u32 });
-        }
-        if r.t_s < prev {
-            return Err(OfflineError::NonMonotoneTime { row: i as u32 });
-        }
-        prev = r.t_s;
-    }
-    for (i, w) in rows.windows(3).enumerate() {
-        if let [a, b, c] = w {
-            let (d1, d2) = (b.theta_a_rad - a.theta_a_rad, b.theta_a_rad - c.theta_a_rad);
-            if d1.abs() > OUTLIER_RAD
-                && d2.abs() > OUTLIER_RAD
-                && d1.signum() == d2.signum()
-                && (c.theta_a_rad - a.theta_a_rad).abs() < 0.25 * OUTLIER_RAD
-            {
-                return Err(OfflineError::Outlier { row: i as u32 + 1 });
-            }
-        }
-    }
-    let span = last.t_s - first.t_s;
-    if rows.len() > 1 && span > 0.0 {
-        let rate = (rows.len() - 1) as f64 / span;
-        if rate < MIN_RATE_HZ * 0.98 {
-            return Err(OfflineError::SampleRateTooLow {
-                rate_hz: rate as u32,
-            });
-        }
-    }
-    let cap = scratch.len() as f64;
-    let block = if span / cfg.block_s > cap - 1.0 {
-        span / (cap - 1.0)
-    } else {
-        cfg.block_s
-    };
-    if !(block > 0.0) {
-        return Err(OfflineError::TooShort);
-    }
     let mut n = 0usize;
     let mut cur: Option<Acc> = None;
     let mut flush = |c: Acc, n: &mut usize| {
@@ -124,6 +81,64 @@ pub fn make_blocks<R: pts::Real>(
         flush(c, &mut n);
     }
     Ok((n, block))
+}
+
+/// The block length (s) the trace is averaged into, for at most `capacity` blocks, once its
+/// rows pass the checks every recording must: finite, in non-decreasing time, no lone θa
+/// outlier, at least [`MIN_RATE_HZ`] rows per second.
+pub fn block_length(
+    cfg: &OfflineConfig,
+    rows: &[TraceSample],
+    capacity: usize,
+) -> Result<f64, OfflineError> {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !(positive(cfg.block_s) && positive(cfg.encoder_count_rad)) || capacity == 0 {
+        return Err(OfflineError::BadConfig);
+    }
+    let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+        return Err(OfflineError::TooShort);
+    };
+    let mut prev = first.t_s;
+    for (i, r) in rows.iter().enumerate() {
+        if !(r.t_s.is_finite() && r.theta_a_rad.is_finite() && r.torque_nm.is_finite()) {
+            return Err(OfflineError::NonFinite { row: i as u32 });
+        }
+        if r.t_s < prev {
+            return Err(OfflineError::NonMonotoneTime { row: i as u32 });
+        }
+        prev = r.t_s;
+    }
+    for (i, w) in rows.windows(3).enumerate() {
+        if let [a, b, c] = w {
+            let (d1, d2) = (b.theta_a_rad - a.theta_a_rad, b.theta_a_rad - c.theta_a_rad);
+            if d1.abs() > OUTLIER_RAD
+                && d2.abs() > OUTLIER_RAD
+                && d1.signum() == d2.signum()
+                && (c.theta_a_rad - a.theta_a_rad).abs() < 0.25 * OUTLIER_RAD
+            {
+                return Err(OfflineError::Outlier { row: i as u32 + 1 });
+            }
+        }
+    }
+    let span = last.t_s - first.t_s;
+    if rows.len() > 1 && span > 0.0 {
+        let rate = (rows.len() - 1) as f64 / span;
+        if rate < MIN_RATE_HZ * 0.98 {
+            return Err(OfflineError::SampleRateTooLow {
+                rate_hz: rate as u32,
+            });
+        }
+    }
+    let cap = capacity as f64;
+    let block = if span / cfg.block_s > cap - 1.0 {
+        span / (cap - 1.0)
+    } else {
+        cfg.block_s
+    };
+    if !(block > 0.0) {
+        return Err(OfflineError::TooShort);
+    }
+    Ok(block)
 }
 
 /// Sums over the rows of one block.

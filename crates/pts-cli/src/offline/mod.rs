@@ -61,7 +61,7 @@ pub mod drive;
 pub mod estimate;
 pub mod segment;
 
-pub use blocks::make_blocks;
+pub use blocks::{block_length, make_blocks};
 pub use contact::refine_contact;
 pub use drive::{identify_drive, identify_drive_dynamics, DriveId, DrivePrior};
 pub use estimate::path_fit_with;
