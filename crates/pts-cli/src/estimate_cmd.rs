@@ -360,6 +360,7 @@ fn run_segmented(
             "exact_replay": false,
             "contacts": contacts,
             "segment_errors": errors,
+            "gaps_s": seg.gaps_s.iter().map(|(a, b)| [n(*a), n(*b)]).collect::<Vec<_>>(),
             "warnings": warnings,
         });
         println!("{out}");
@@ -376,6 +377,12 @@ fn run_segmented(
         seg.block_s * 1e3,
         method.name(),
     );
+    for (a, b) in &seg.gaps_s {
+        println!(
+            "no rows from t = {a:.4} to {b:.4} s (more than {} s): read as two recordings",
+            replay::GAP_SPLIT_S
+        );
+    }
     for (i, c) in seg.contacts.iter().enumerate() {
         let (thc, tac) = match &c.estimate {
             Ok(r) => (
@@ -444,6 +451,8 @@ fn run_segmented(
             "{}: {kind} ({detail})",
             if seg.contacts.is_empty() {
                 "no contact found"
+            } else if !seg.gaps_s.is_empty() {
+                "not read"
             } else {
                 "after the last contact"
             }

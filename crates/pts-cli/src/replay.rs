@@ -591,37 +591,109 @@ pub struct Segmented {
     pub contacts: Vec<SegmentedContact>,
     /// Why (more) contacts could not be used, as `kind: detail`.
     pub errors: Vec<(&'static str, String)>,
-    /// Block length the trace was averaged into (s).
+    /// Block length the trace was averaged into (s); the longest of its stretches'.
     pub block_s: f64,
+    /// The gaps (first and last time, s) of more than [`GAP_SPLIT_S`] without rows at which
+    /// the file was read as separate recordings.
+    pub gaps_s: Vec<(f64, f64)>,
 }
+
+/// A stretch without rows longer than this (s) separates two recordings in one file (a logger
+/// paused between grasps): each is segmented on its own. As long as the idle kept before a
+/// grasp's first motion: nothing the segmentation reads spans it.
+pub const GAP_SPLIT_S: f64 = 2.0;
 
 /// Finds every contact of a recorded grasp with `crate::offline` (no controller replay: the
 /// trace may come from any profile, sample rate or driver) and runs the firmware's estimator
-/// on the request built for each.
+/// on the request built for each. A file whose rows stop for more than [`GAP_SPLIT_S`] is read
+/// as the recordings on either side of each such gap ([`Segmented::gaps_s`]); one that cannot
+/// be segmented leaves its reason in [`Segmented::errors`] and the others are still read.
 pub fn segment(
     trace: &Trace,
     finger: &FingerFile,
     method: crate::method::Method,
 ) -> Result<Segmented, String> {
     use crate::offline::TraceSample;
-    // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
-    // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
-    const IDLE_KEEP_S: f64 = 2.0;
-    let th = &trace.theta_a_rad;
-    let start = th.first().map_or(0, |th0| {
-        let moved = th.iter().position(|v| (v - th0).abs() > 1e-3);
-        moved.map_or(0, |m| {
-            let t_keep = trace.t_s[m] - IDLE_KEEP_S;
-            trace.t_s.partition_point(|t| *t < t_keep)
-        })
-    });
-    let rows: Vec<TraceSample> = (start..trace.len())
+    let rows: Vec<TraceSample> = (0..trace.len())
         .map(|i| TraceSample {
             t_s: trace.t_s[i],
             theta_a_rad: trace.theta_a_rad[i],
             torque_nm: trace.torque_nm[i],
         })
         .collect();
+    let mut stretches: Vec<&[TraceSample]> = Vec::new();
+    let mut gaps_s = Vec::new();
+    let mut from = 0;
+    for (i, w) in rows.windows(2).enumerate() {
+        if w[1].t_s - w[0].t_s > GAP_SPLIT_S {
+            stretches.push(&rows[from..=i]);
+            gaps_s.push((w[0].t_s, w[1].t_s));
+            from = i + 1;
+        }
+    }
+    stretches.push(&rows[from..]);
+    if let [only] = stretches[..] {
+        return segment_stretch(only, finger, method);
+    }
+    let mut out = Segmented {
+        gaps_s,
+        ..Segmented::default()
+    };
+    let (mut first_error, mut read_any) = (None, false);
+    for stretch in stretches {
+        let (t0, t1) = (
+            stretch.first().map_or(0.0, |r| r.t_s),
+            stretch.last().map_or(0.0, |r| r.t_s),
+        );
+        match segment_stretch(stretch, finger, method) {
+            Ok(seg) => {
+                out.contacts.extend(seg.contacts);
+                out.errors
+                    .extend(seg.errors.into_iter().map(|(kind, detail)| {
+                        (
+                            kind,
+                            format!("the rows from t = {t0:.4} to {t1:.4} s: {detail}"),
+                        )
+                    }));
+                out.block_s = out.block_s.max(seg.block_s);
+                read_any = true;
+            }
+            Err(e) => {
+                let e = format!("the rows from t = {t0:.4} to {t1:.4} s: {e}");
+                first_error.get_or_insert_with(|| e.clone());
+                out.errors.push(("stretch_unreadable", e));
+            }
+        }
+    }
+    match first_error {
+        Some(e) if !read_any => Err(format!(
+            "none of the {} stretches between gaps of more than {GAP_SPLIT_S} s could be \
+             segmented; first: {e}",
+            out.gaps_s.len() + 1
+        )),
+        _ => Ok(out),
+    }
+}
+
+/// [`segment`] on one stretch of rows without a gap of more than [`GAP_SPLIT_S`].
+fn segment_stretch(
+    rows: &[crate::offline::TraceSample],
+    finger: &FingerFile,
+    method: crate::method::Method,
+) -> Result<Segmented, String> {
+    // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
+    // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
+    const IDLE_KEEP_S: f64 = GAP_SPLIT_S;
+    let start = rows.first().map_or(0, |r0| {
+        let moved = rows
+            .iter()
+            .position(|r| (r.theta_a_rad - r0.theta_a_rad).abs() > 1e-3);
+        moved.map_or(0, |m| {
+            let t_keep = rows[m].t_s - IDLE_KEEP_S;
+            rows.partition_point(|r| r.t_s < t_keep)
+        })
+    });
+    let rows = rows.get(start..).unwrap_or_default().to_vec();
     // The recording's encoder step: its smallest θa change between rows (of the rows as
     // recorded: interpolated ones below step by fractions of it).
     let quantum_rad = smallest_step(&rows);
@@ -674,9 +746,7 @@ fn interpolated(
     step_s: f64,
 ) -> Option<Vec<crate::offline::TraceSample>> {
     let (first, last) = (rows.first()?, rows.last()?);
-    let mut gaps: Vec<f64> = rows.windows(2).map(|w| w[1].t_s - w[0].t_s).collect();
-    gaps.sort_by(f64::total_cmp);
-    let spacing = *gaps.get(gaps.len() / 2)?;
+    let spacing = crate::offline::median_spacing(rows)?;
     if !(step_s > 0.0 && spacing > 1.25 * step_s) {
         return None;
     }

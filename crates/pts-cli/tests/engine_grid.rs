@@ -702,6 +702,18 @@ fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path(
     }
 }
 
+/// One engine grasp as its CSV and the engine's k2,c (m): light frictionless drive, R 20 mm,
+/// k2,c 0.2 l2, ΔT_a 0.5 N·m.
+fn light_frictionless_grasp() -> (String, f64) {
+    let c = cases(&FULL)
+        .into_iter()
+        .find(|c| c.id == "rap368_R20p0mm_k20_dT05_mu00_J5e-4__ideal")
+        .expect("the grid holds the grasp");
+    let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
+    let truth = rec.truth.k_c_m.expect("a distal contact");
+    (engine::to_csv(&rec, &c.sensor), truth)
+}
+
 /// A recording sparser than the estimator's block phases (250 Hz: one row per 4 ms block) is
 /// read alike however its rows fall about the contact. One engine grasp (light frictionless
 /// drive, R 20 mm, k2,c 0.2 l2, ΔT_a 0.5 N·m) decimated to 250 Hz at each of its four offsets:
@@ -710,13 +722,7 @@ fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path(
 /// phases' grid (`replay::segment`) the four read 14.9–15.0 mm.
 #[test]
 fn a_250_hz_recording_reads_alike_however_its_rows_fall() {
-    let c = cases(&FULL)
-        .into_iter()
-        .find(|c| c.id == "rap368_R20p0mm_k20_dT05_mu00_J5e-4__ideal")
-        .expect("the grid holds the grasp");
-    let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
-    let truth = rec.truth.k_c_m.expect("a distal contact");
-    let csv = engine::to_csv(&rec, &c.sensor);
+    let (csv, truth) = light_frictionless_grasp();
     let k2: Vec<f64> = (0..4)
         .map(|offset| {
             let seg = estimate(&decimate(&csv, 4, offset)).expect("segmented");
@@ -750,4 +756,77 @@ fn a_250_hz_recording_reads_alike_however_its_rows_fall() {
         hi * 1e3,
         truth * 1e3
     );
+}
+
+/// The CSV's rows with `shift_s` added to their times, without the header.
+fn shifted_rows(csv: &str, shift_s: f64) -> String {
+    csv.lines()
+        .skip(1)
+        .map(|l| {
+            let (t, rest) = l.split_once(',').expect("a CSV row");
+            let t: f64 = t.parse().expect("a time");
+            format!("{:.4},{rest}\n", t + shift_s)
+        })
+        .collect()
+}
+
+/// A file whose rows stop for a while is read as the recordings on either side (a logger that
+/// paused between grasps, or lost rows): a 1000 s pause between two recordings of one grasp
+/// gives both contacts, each within 3σ of the engine's, and a 250 Hz recording that lost
+/// 0.2 s of its approach is still read at 250 Hz. Both were refused as recorded below 250
+/// rows per second when the rate was the rows over the file's whole span.
+#[test]
+fn a_file_with_gaps_is_read_as_the_recordings_between_them() {
+    let (csv, truth) = light_frictionless_grasp();
+    let distal_within_3_sigma = |seg: &pts_cli::replay::Segmented, what: &str| {
+        for (i, contact) in seg.contacts.iter().enumerate() {
+            let r = contact.estimate.as_ref().expect("answered");
+            assert_eq!(r.located, grasp::Located::Distal, "{what}, contact {i}");
+            let k = f64::from(r.k2_um.expect("k2")) * 1e-6;
+            let sigma = contact.sigma_k2_m.expect("σ");
+            println!(
+                "{what}, contact {i} at t = {:.3} s: k2 {:.2} mm ± {:.2} mm (truth {:.2} mm)",
+                contact.t_s,
+                k * 1e3,
+                sigma * 1e3,
+                truth * 1e3
+            );
+            assert!((k - truth).abs() <= 3.0 * sigma, "{what}, contact {i}");
+        }
+    };
+
+    let last_s: f64 = csv
+        .lines()
+        .last()
+        .and_then(|l| l.split(',').next())
+        .and_then(|t| t.parse().ok())
+        .expect("the last row's time");
+    let twice = format!("{csv}{}", shifted_rows(&csv, last_s + 1000.0));
+    let seg = estimate(&twice).expect("segmented");
+    assert_eq!(seg.gaps_s.len(), 1, "one gap: {:?}", seg.gaps_s);
+    assert_eq!(seg.contacts.len(), 2, "both grasps: {:?}", seg.errors);
+    distal_within_3_sigma(&seg, "two recordings 1000 s apart");
+    let t_second = seg.contacts[1].t_s - seg.contacts[0].t_s;
+    assert!(
+        (t_second - (last_s + 1000.0)).abs() < 0.01,
+        "the second contact {t_second} s after the first"
+    );
+
+    let lost = decimate(&csv, 4, 0)
+        .lines()
+        .filter(|l| {
+            l.split(',')
+                .next()
+                .and_then(|t| t.parse::<f64>().ok())
+                .is_none_or(|t| !(0.2..0.4).contains(&t))
+        })
+        .flat_map(|l| [l, "\n"])
+        .collect::<String>();
+    let seg = estimate(&lost).expect("a 250 Hz recording with a lost stretch is read");
+    assert!(
+        seg.gaps_s.is_empty(),
+        "0.2 s is no pause between recordings"
+    );
+    assert_eq!(seg.contacts.len(), 1, "{:?}", seg.errors);
+    distal_within_3_sigma(&seg, "250 Hz, 0.2 s of the approach lost");
 }

@@ -85,7 +85,7 @@ pub fn make_blocks<R: pts::Real>(
 
 /// The block length (s) the trace is averaged into, for at most `capacity` blocks, once its
 /// rows pass the checks every recording must: finite, in non-decreasing time, no lone θa
-/// outlier, at least [`MIN_RATE_HZ`] rows per second.
+/// outlier, recorded at [`MIN_RATE_HZ`] or more (of the median row spacing).
 pub fn block_length(
     cfg: &OfflineConfig,
     rows: &[TraceSample],
@@ -121,8 +121,10 @@ pub fn block_length(
         }
     }
     let span = last.t_s - first.t_s;
-    if rows.len() > 1 && span > 0.0 {
-        let rate = (rows.len() - 1) as f64 / span;
+    // The rate the rows were recorded at: of their median spacing, so rows a recording lost
+    // (a gap) do not lower it.
+    if let Some(spacing) = median_spacing(rows) {
+        let rate = 1.0 / spacing;
         if rate < MIN_RATE_HZ * 0.98 {
             return Err(OfflineError::SampleRateTooLow {
                 rate_hz: rate as u32,
@@ -139,6 +141,17 @@ pub fn block_length(
         return Err(OfflineError::TooShort);
     }
     Ok(block)
+}
+
+/// The median time between consecutive rows with distinct times (s); `None` without two.
+pub fn median_spacing(rows: &[TraceSample]) -> Option<f64> {
+    let mut d: Vec<f64> = rows
+        .windows(2)
+        .map(|w| w[1].t_s - w[0].t_s)
+        .filter(|d| *d > 0.0)
+        .collect();
+    d.sort_by(f64::total_cmp);
+    d.get(d.len() / 2).copied()
 }
 
 /// Sums over the rows of one block.

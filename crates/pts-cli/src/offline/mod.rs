@@ -61,7 +61,7 @@ pub mod drive;
 pub mod estimate;
 pub mod segment;
 
-pub use blocks::{block_length, make_blocks};
+pub use blocks::{block_length, make_blocks, median_spacing};
 pub use contact::refine_contact;
 pub use drive::{identify_drive, identify_drive_dynamics, DriveId, DrivePrior};
 pub use estimate::path_fit_with;
@@ -292,7 +292,8 @@ impl core::fmt::Display for OfflineError {
             ),
             OfflineError::SampleRateTooLow { rate_hz } => write!(
                 f,
-                "{rate_hz} rows per second, below the {MIN_RATE_HZ} the contact detection needs"
+                "recorded at {rate_hz} rows per second (of the median row spacing), below the \
+                 {MIN_RATE_HZ} the contact detection needs"
             ),
             OfflineError::Model(e) => write!(f, "the model: {e}"),
         }
