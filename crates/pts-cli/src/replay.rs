@@ -387,17 +387,7 @@ impl Hardware for TraceHw {
 /// The control period of a trace: the median time step, snapped to 1 ns so that a period
 /// written as 1e-4 reads back as exactly 1e-4.
 pub fn median_dt(trace: &Trace) -> Option<f64> {
-    let mut d: Vec<f64> = trace
-        .t_s
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .filter(|d| *d > 0.0)
-        .collect();
-    if d.is_empty() {
-        return None;
-    }
-    d.sort_by(|a, b| a.partial_cmp(b).unwrap_or(std::cmp::Ordering::Equal));
-    let m = d[d.len() / 2];
+    let m = crate::offline::median_spacing(trace.t_s.iter().copied())?;
     format!("{m:.9}").parse().ok().filter(|v: &f64| *v > 0.0)
 }
 
@@ -746,7 +736,7 @@ fn interpolated(
     step_s: f64,
 ) -> Option<Vec<crate::offline::TraceSample>> {
     let (first, last) = (rows.first()?, rows.last()?);
-    let spacing = crate::offline::median_spacing(rows)?;
+    let spacing = crate::offline::median_spacing(rows.iter().map(|r| r.t_s))?;
     if !(step_s > 0.0 && spacing > 1.25 * step_s) {
         return None;
     }

@@ -123,7 +123,7 @@ pub fn block_length(
     let span = last.t_s - first.t_s;
     // The rate the rows were recorded at: of their median spacing, so rows a recording lost
     // (a gap) do not lower it.
-    if let Some(spacing) = median_spacing(rows) {
+    if let Some(spacing) = median_spacing(rows.iter().map(|r| r.t_s)) {
         let rate = 1.0 / spacing;
         if rate < MIN_RATE_HZ * 0.98 {
             return Err(OfflineError::SampleRateTooLow {
@@ -143,11 +143,13 @@ pub fn block_length(
     Ok(block)
 }
 
-/// The median time between consecutive rows with distinct times (s); `None` without two.
-pub fn median_spacing(rows: &[TraceSample]) -> Option<f64> {
-    let mut d: Vec<f64> = rows
-        .windows(2)
-        .map(|w| w[1].t_s - w[0].t_s)
+/// The median time between consecutive rows with distinct times (s), of the rows' times in
+/// order; `None` without two.
+pub fn median_spacing(times_s: impl IntoIterator<Item = f64>) -> Option<f64> {
+    let mut prev = None;
+    let mut d: Vec<f64> = times_s
+        .into_iter()
+        .filter_map(|t| prev.replace(t).map(|p| t - p))
         .filter(|d| *d > 0.0)
         .collect();
     d.sort_by(f64::total_cmp);
