@@ -727,10 +727,7 @@ fn a_250_hz_recording_reads_alike_however_its_rows_fall() {
         .map(|offset| {
             let seg = estimate(&decimate(&csv, 4, offset)).expect("segmented");
             let first = seg.contacts.first().expect("a contact");
-            let r = first.estimate.as_ref().expect("answered");
-            assert_eq!(r.located, grasp::Located::Distal, "offset {offset}");
-            let k = f64::from(r.k2_um.expect("k2")) * 1e-6;
-            let sigma = first.sigma_k2_m.expect("σ");
+            let (k, sigma) = distal_k2(first, &format!("offset {offset}"));
             println!(
                 "250 Hz, offset {offset} ms: k2 {:.2} mm ± {:.2} mm (truth {:.2} mm)",
                 k * 1e3,
@@ -758,6 +755,14 @@ fn a_250_hz_recording_reads_alike_however_its_rows_fall() {
     );
 }
 
+/// k̂2 and σ(k2,c) (m) of a contact that must be answered on the distal phalanx.
+fn distal_k2(contact: &pts_cli::replay::SegmentedContact, what: &str) -> (f64, f64) {
+    let r = contact.estimate.as_ref().expect("answered");
+    assert_eq!(r.located, grasp::Located::Distal, "{what}");
+    let k = f64::from(r.k2_um.expect("k2")) * 1e-6;
+    (k, contact.sigma_k2_m.expect("σ"))
+}
+
 /// The CSV's rows with `shift_s` added to their times, without the header.
 fn shifted_rows(csv: &str, shift_s: f64) -> String {
     csv.lines()
@@ -780,10 +785,7 @@ fn a_file_with_gaps_is_read_as_the_recordings_between_them() {
     let (csv, truth) = light_frictionless_grasp();
     let distal_within_3_sigma = |seg: &pts_cli::replay::Segmented, what: &str| {
         for (i, contact) in seg.contacts.iter().enumerate() {
-            let r = contact.estimate.as_ref().expect("answered");
-            assert_eq!(r.located, grasp::Located::Distal, "{what}, contact {i}");
-            let k = f64::from(r.k2_um.expect("k2")) * 1e-6;
-            let sigma = contact.sigma_k2_m.expect("σ");
+            let (k, sigma) = distal_k2(contact, &format!("{what}, contact {i}"));
             println!(
                 "{what}, contact {i} at t = {:.3} s: k2 {:.2} mm ± {:.2} mm (truth {:.2} mm)",
                 contact.t_s,
