@@ -72,6 +72,23 @@ impl SensorSpec {
         torque_offset_nm: 0.0,
         seed: 0,
     };
+
+    /// The same sensor with another draw `draw` of its noise and quantiser phase (draw 0 is
+    /// this one): the same grasp recorded again, to tell an error that depends on the sensor's
+    /// draw from one that does not. The seeds lie far from the grids' own (1000 + case number).
+    #[must_use]
+    pub fn redrawn(self, draw: u64) -> Self {
+        Self {
+            seed: self.seed.wrapping_add(draw.wrapping_mul(1_000_000)),
+            ..self
+        }
+    }
+
+    /// Whether the sensor draws anything (noise or a quantiser phase): a perfect sensor
+    /// records a grasp one way only.
+    pub fn is_noisy(&self) -> bool {
+        self.torque_sigma_nm > 0.0 || self.counts_per_turn > 0
+    }
 }
 
 /// Ground truth of a grasp, from the engine.

@@ -1,9 +1,13 @@
 //! Writes a grid of engine-simulated grasp traces: `<id>.csv` (t_s,theta_a_rad,torque_nm at 1 kHz)
 //! and `<id>.json` (ground truth) per grasp, plus `index.csv` listing them.
 //!
-//! `dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID…]]`; progress on stderr. `--only`
-//! writes just the named cases of the grid, each given by its whole id or by its number's prefix
-//! (`rap193`; an unknown id is an error), to look at one grasp without simulating the rest.
+//! `dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID…]] [--replicas N]`; progress on
+//! stderr. `--only` writes just the named cases of the grid, each given by its whole id or by its
+//! number's prefix (`rap193`; an unknown id is an error), to look at one grasp without simulating
+//! the rest. `--replicas N` writes each case with a realistic sensor N more times as
+//! `<id>__r<i>` (i = 1…N): the same simulated grasp recorded with other draws of the torque
+//! noise and of the encoder's quantiser phase, which tells an error that is the sensor's draw
+//! from one the estimator makes on every draw.
 
 use dynsim::grasp::{self, Target};
 use dynsim::grid::{cases, FULL, INERTIA, SMALL};
@@ -11,7 +15,9 @@ use std::io::Write as _;
 use std::path::PathBuf;
 
 fn usage() -> ! {
-    eprintln!("usage: dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID...]]");
+    eprintln!(
+        "usage: dynsim --out DIR [--grid small|full|inertia] [--only ID[,ID...]] [--replicas N]"
+    );
     std::process::exit(2);
 }
 
@@ -19,6 +25,7 @@ fn main() {
     let mut out: Option<PathBuf> = None;
     let mut grid = "small".to_string();
     let mut only: Option<Vec<String>> = None;
+    let mut replicas = 0u64;
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -27,6 +34,15 @@ fn main() {
             "--only" => {
                 let list = args.next().unwrap_or_else(|| usage());
                 only = Some(list.split(',').map(str::to_string).collect());
+            }
+            "--replicas" => {
+                replicas = match args.next().map(|n| n.parse::<u64>()) {
+                    Some(Ok(n)) if n <= 1000 => n,
+                    _ => {
+                        eprintln!("--replicas: expected a count from 0 to 1000");
+                        std::process::exit(2);
+                    }
+                }
             }
             _ => usage(),
         }
@@ -77,25 +93,34 @@ fn main() {
             skipped += 1;
             continue;
         }
-        let csv = grasp::to_csv(&rec, &c.sensor);
-        let json = grasp::to_json(&c.id, c.level, &c.spec, &rec);
-        std::fs::write(dir.join(format!("{}.csv", c.id)), csv).expect("write csv");
-        std::fs::write(dir.join(format!("{}.json", c.id)), json).expect("write json");
-        let f = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v:.6}"));
-        index.push_str(&format!(
-            "{},{},{},{},{},{},{:.3e}\n",
-            c.id,
-            match c.spec.target {
-                Target::None => "none",
-                Target::Object { distal: true, .. } => "distal",
-                Target::Object { distal: false, .. } => "proximal",
-            },
-            rec.truth.phalanx,
-            f(rec.truth.k_c_m),
-            f(rec.truth.k_end_m),
-            rec.truth.contact_losses,
-            rec.max_loop_gap_m
-        ));
+        // Replicas only where there is noise to draw: a perfect sensor records one trace.
+        let draws = if c.sensor.is_noisy() { replicas } else { 0 };
+        for r in 0..=draws {
+            let (id, sensor) = if r == 0 {
+                (c.id.clone(), c.sensor)
+            } else {
+                (format!("{}__r{r}", c.id), c.sensor.redrawn(r))
+            };
+            let csv = grasp::to_csv(&rec, &sensor);
+            let json = grasp::to_json(&id, c.level, &c.spec, &rec);
+            std::fs::write(dir.join(format!("{id}.csv")), csv).expect("write csv");
+            std::fs::write(dir.join(format!("{id}.json")), json).expect("write json");
+            let f = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v:.6}"));
+            index.push_str(&format!(
+                "{},{},{},{},{},{},{:.3e}\n",
+                id,
+                match c.spec.target {
+                    Target::None => "none",
+                    Target::Object { distal: true, .. } => "distal",
+                    Target::Object { distal: false, .. } => "proximal",
+                },
+                rec.truth.phalanx,
+                f(rec.truth.k_c_m),
+                f(rec.truth.k_end_m),
+                rec.truth.contact_losses,
+                rec.max_loop_gap_m
+            ));
+        }
         written += 1;
     }
     std::fs::write(dir.join("index.csv"), index).expect("write index");

@@ -106,6 +106,45 @@ fn the_sensor_quantises_and_adds_noise() {
     assert!((sd - 0.004).abs() < 0.0012, "{sd}");
 }
 
+/// Another draw of a sensor records the same grasp: torques differing by the noise alone
+/// (their difference has σ √2·0.004 N·m about zero) and θa by at most one encoder count
+/// (another quantiser phase), while draw 0 is the sensor itself and a perfect sensor has
+/// nothing to draw.
+#[test]
+fn a_redrawn_sensor_records_the_same_grasp_with_other_noise() {
+    let rec = grasp::run(&spec()).unwrap();
+    let sensor = SensorSpec {
+        counts_per_turn: 16384,
+        torque_sigma_nm: 0.004,
+        torque_offset_nm: 0.003,
+        seed: 1007,
+    };
+    assert_eq!(sensor.redrawn(0), sensor);
+    assert!(sensor.is_noisy() && !SensorSpec::IDEAL.is_noisy());
+    let a = parse(&grasp::to_csv(&rec, &sensor));
+    let b = parse(&grasp::to_csv(&rec, &sensor.redrawn(3)));
+    assert_eq!(a.len(), b.len());
+    let q = 2.0 * std::f64::consts::PI / 16384.0;
+    let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| y[2] - x[2]).collect();
+    let n = d.len() as f64;
+    let mean = d.iter().sum::<f64>() / n;
+    let sd = (d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+    let expected = 2f64.sqrt() * 0.004;
+    assert!(
+        mean.abs() < 4.0 * expected / n.sqrt(),
+        "mean difference {mean}"
+    );
+    assert!(
+        (sd - expected).abs() < 0.1 * expected,
+        "σ of the difference {sd}"
+    );
+    assert!(a
+        .iter()
+        .zip(&b)
+        .all(|(x, y)| (y[1] - x[1]).abs() <= q * 1.001));
+    assert!(a.iter().zip(&b).any(|(x, y)| x[2] != y[2]));
+}
+
 #[test]
 fn the_truth_file_carries_the_shared_fields() {
     let s = spec();

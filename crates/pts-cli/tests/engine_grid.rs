@@ -11,7 +11,10 @@
 //! realistic, plus the negatives); `ENGINE_GRID=small` runs dynsim's small grid,
 //! `ENGINE_GRID=full` the issue's grid (608 grasps) and `ENGINE_GRID=inertia` drive inertias
 //! from 1e-4 to 0.1 kg·m² (84 grasps), printed the same way; `ENGINE_GRID_RATE_HZ=250` (or
-//! 500) records any of them at that rate instead of the engine's 1 kHz.
+//! 500) records any of them at that rate instead of the engine's 1 kHz. `ENGINE_GRID_DRAWS=N`
+//! records every grasp with a realistic sensor N more times, with other draws of its noise
+//! (`dynsim::grasp::SensorSpec::redrawn`; ids `…__rN`), pools them into the tables and prints
+//! how far the error moves between draws of the same grasp.
 
 use dynsim::grasp as engine;
 use dynsim::grid::{cases, Axes, Case, FULL, INERTIA, SMALL};
@@ -38,6 +41,8 @@ type DriveVsTruth = ([f64; 3], [f64; 3], Option<[f64; 3]>);
 /// What the command answered on one grasp.
 struct Outcome {
     id: String,
+    /// The id of the grasp whichever sensor draw recorded it.
+    grasp: String,
     expected: &'static str,
     radius_m: f64,
     mu: f64,
@@ -57,8 +62,11 @@ struct Outcome {
     phases: Option<(u8, u8)>,
     /// Drive inertia identified from the approach (kg·m²).
     j_hat: Option<f64>,
-    /// θa,c used minus the engine's θa at first contact (rad).
+    /// θa,c found on the recording (the fit's prior) minus the engine's θa at first contact
+    /// (rad).
     dtheta_c: Option<f64>,
+    /// θa,c the path fit ended on minus the engine's θa at first contact (rad).
+    dtheta_fit: Option<f64>,
     /// The drive identified from the approach against the engine's own, each as (identified,
     /// σ, truth): the offset (N·m; the drive's Coulomb friction plus the sensor's offset, one
     /// constant to a one-way approach), the viscous term (N·m·s/rad) and, where the recording
@@ -91,12 +99,34 @@ impl Outcome {
 /// The engine's grasp, recorded and estimated by the command's code path; None when the engine
 /// could not set the grasp up (object cannot be placed) or both phalanges touched (the binary
 /// skips those too).
-fn run_case(c: &Case) -> Option<Outcome> {
-    let rec = engine::run(&c.spec)?;
+fn run_case(c: &Case) -> Vec<Outcome> {
+    let Some(rec) = engine::run(&c.spec) else {
+        return Vec::new();
+    };
     if rec.truth.both_phalanges {
-        return None;
+        return Vec::new();
     }
-    let seg = estimate(&decimate(&engine::to_csv(&rec, &c.sensor), rate_step(), 0));
+    let draws = if c.sensor.is_noisy() { draws() } else { 0 };
+    (0..=draws)
+        .map(|d| {
+            let id = if d == 0 {
+                c.id.clone()
+            } else {
+                format!("{}__r{d}", c.id)
+            };
+            record_case(c, &rec, &c.sensor.redrawn(d), id)
+        })
+        .collect()
+}
+
+/// One recording of the engine's grasp `rec` of case `c` through `sensor`, estimated.
+fn record_case(
+    c: &Case,
+    rec: &engine::Recording,
+    sensor: &engine::SensorSpec,
+    id: String,
+) -> Outcome {
+    let seg = estimate(&decimate(&engine::to_csv(rec, sensor), rate_step(), 0));
     let first = seg.as_ref().ok().and_then(|s| s.contacts.first());
     let j_hat = first.and_then(|c| c.drive).map(|d| d.inertia_kgm2);
     let phases = first.and_then(|c| c.phases);
@@ -108,7 +138,7 @@ fn run_case(c: &Case) -> Option<Outcome> {
             [
                 d.offset_nm,
                 d.sigma_offset_nm,
-                f.coulomb_nm + c.sensor.torque_offset_nm,
+                f.coulomb_nm + sensor.torque_offset_nm,
             ],
             [
                 d.viscous_nm_s_per_rad,
@@ -122,6 +152,10 @@ fn run_case(c: &Case) -> Option<Outcome> {
     let dtheta_c = first
         .zip(rec.truth.theta_a_c_rad)
         .map(|(c, t)| c.theta_a_c - t);
+    let dtheta_fit = first
+        .and_then(|c| c.estimate.as_ref().ok())
+        .zip(rec.truth.theta_a_c_rad)
+        .map(|(r, t)| f64::from(r.theta_a_c_urad) * 1e-6 - t);
     let good = first.is_some_and(|c| {
         c.estimate
             .as_ref()
@@ -151,8 +185,9 @@ fn run_case(c: &Case) -> Option<Outcome> {
             radius_m, distal, ..
         } => (radius_m, if distal { "distal" } else { "proximal" }),
     };
-    Some(Outcome {
-        id: c.id.clone(),
+    Outcome {
+        id,
+        grasp: c.id.clone(),
         expected,
         radius_m,
         mu: c.spec.finger.contact_mu,
@@ -170,8 +205,9 @@ fn run_case(c: &Case) -> Option<Outcome> {
         phases,
         j_hat,
         dtheta_c,
+        dtheta_fit,
         drive_vs_truth,
-    })
+    }
 }
 
 /// The engine's structural damping in the two spring joints (`damping` N·m·s/rad each) as a
@@ -208,13 +244,13 @@ fn run_grid(cases: &[Case]) -> Vec<Outcome> {
                     *n - 1
                 };
                 let Some(c) = cases.get(i) else { break };
-                if let Some(o) = run_case(c) {
-                    out.lock().unwrap().push((i, o));
-                }
+                let rows = run_case(c);
+                out.lock().unwrap().extend(rows.into_iter().map(|o| (i, o)));
             });
         }
     });
     let mut v = out.into_inner().unwrap();
+    // Stable: a case's draws stay in draw order.
     v.sort_by_key(|x| x.0);
     v.into_iter().map(|x| x.1).collect()
 }
@@ -470,6 +506,93 @@ fn rate_step() -> usize {
     }
 }
 
+/// How many more sensor draws each noisy grasp is recorded with: `ENGINE_GRID_DRAWS` (0 to
+/// 100; default 0).
+fn draws() -> u64 {
+    match std::env::var("ENGINE_GRID_DRAWS") {
+        Ok(v) => {
+            let n: u64 = v.parse().expect("ENGINE_GRID_DRAWS: a count");
+            assert!(n <= 100, "ENGINE_GRID_DRAWS = {n}: from 0 to 100");
+            n
+        }
+        Err(_) => 0,
+    }
+}
+
+/// How far the error moves between sensor draws of the same grasp, per ΔT_a: over the distal
+/// grasps answered on at least 3 draws, the median and largest standard deviation of the error
+/// across draws and the median of the mean error's magnitude (what every draw shares), then over all draws the
+/// largest error and the share above 5 % of l2; and the pooled slope of the error against the
+/// fitted contact angle's (θa,c the fit ended on − the engine's first contact), % of l2 per
+/// mrad: how much of the error is the fit trading k2,c against θa,c.
+fn print_draw_spread(rows: &[Outcome]) {
+    // Per grasp: ΔT_a, and (error % l2, θa,c error rad) of each draw answered.
+    type Draws = (f64, Vec<(f64, Option<f64>)>);
+    let mut by_grasp: BTreeMap<&str, Draws> = BTreeMap::new();
+    for o in rows.iter().filter(|o| o.expected == "distal") {
+        let e = by_grasp.entry(&o.grasp).or_insert((o.dta, Vec::new()));
+        if let Some(err) = o.err_pct() {
+            e.1.push((err, o.dtheta_fit));
+        }
+    }
+    println!();
+    println!(
+        "| ΔT_a N·m | grasps | draws answered | median sd % l2 | max sd % l2 | median abs mean % l2 | max % l2 | > 5 % of l2 |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    let mut dtas: Vec<f64> = by_grasp.values().map(|v| v.0).collect();
+    dtas.sort_by(f64::total_cmp);
+    dtas.dedup();
+    let median = |mut v: Vec<f64>| -> f64 {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let (mut sxy, mut sxx, mut sx, mut sy, mut syy, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for dta in dtas {
+        let groups: Vec<&Vec<(f64, Option<f64>)>> = by_grasp
+            .values()
+            .filter(|v| v.0 == dta && v.1.len() >= 3)
+            .map(|v| &v.1)
+            .collect();
+        let (mut sds, mut means, mut all) = (Vec::new(), Vec::new(), Vec::new());
+        for g in &groups {
+            let k = g.len() as f64;
+            let mean = g.iter().map(|x| x.0).sum::<f64>() / k;
+            let var = g.iter().map(|x| (x.0 - mean).powi(2)).sum::<f64>() / (k - 1.0);
+            sds.push(var.sqrt());
+            means.push(mean.abs());
+            for &(e, d) in g.iter() {
+                all.push(e.abs());
+                if let Some(d) = d {
+                    let d = d * 1e3;
+                    (sxy, sxx, sx, sy, syy) =
+                        (sxy + d * e, sxx + d * d, sx + d, sy + e, syy + e * e);
+                    n += 1.0;
+                }
+            }
+        }
+        let max_sd = sds.iter().copied().fold(0.0, f64::max);
+        let max = all.iter().copied().fold(0.0, f64::max);
+        let over = all.iter().filter(|&&e| e > 5.0).count();
+        println!(
+            "| {dta:.1} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {over} ({:.1} %) |",
+            groups.len(),
+            all.len(),
+            median(sds),
+            max_sd,
+            median(means),
+            max,
+            100.0 * over as f64 / all.len().max(1) as f64
+        );
+    }
+    let slope = (n * sxy - sx * sy) / (n * sxx - sx * sx);
+    let corr = (n * sxy - sx * sy) / ((n * sxx - sx * sx) * (n * syy - sy * sy)).sqrt();
+    println!(
+        "error against the fitted contact angle's error, all draws: {slope:+.2} % of l2 per mrad, \
+         correlation {corr:+.2} ({n} answers)"
+    );
+}
+
 /// The CSV with its header and every `step`-th row from row `offset`: the same grasp recorded
 /// at a lower rate, its rows falling `offset` engine rows later.
 fn decimate(csv: &str, step: usize, offset: usize) -> String {
@@ -499,14 +622,20 @@ fn engine_grid_default_method() {
     let cs = cases(axes);
     let start = std::time::Instant::now();
     let rows = run_grid(&cs);
+    let grasps = rows.iter().filter(|o| o.id == o.grasp).count();
     println!(
-        "engine grid `{name}` recorded at {} Hz: {} grasps ({} skipped by the engine) in {:.1} s",
+        "engine grid `{name}` recorded at {} Hz: {grasps} grasps ({} skipped by the engine), {} \
+         recordings with {} more sensor draws of each noisy grasp, in {:.1} s",
         1000 / rate_step(),
+        cs.len() - grasps,
         rows.len(),
-        cs.len() - rows.len(),
+        draws(),
         start.elapsed().as_secs_f64()
     );
     let all = print_table(&rows);
+    if draws() > 0 {
+        print_draw_spread(&rows);
+    }
     println!(
         "issue targets: answered ≥ 95 %, mean ≤ 2 %, max ≤ 5 % of l2, within 3σ ≥ 99 %; \
          here {:.1} %, {:.2} %, {:.2} %, {:.1} %",
