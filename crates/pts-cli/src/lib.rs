@@ -64,13 +64,17 @@ pub fn finger_derived(file: &FingerFile) -> Result<String, String> {
          {:.4} N·m there (the rest check)\n\
          #   contact detection at {thr} N·m/rad: free motion up to {:.3} N·m/rad over the \
          approach (allowed: up to {:.3}), softest contact {:.3} N·m/rad, {} (allowed: from \
-         {thr})",
+         {thr})\n\
+         #   contact.mu_max = {mu}: `pts estimate` on a recording widens σ(k2,c) over a contact \
+         friction µ from 0 to {mu}; the firmware's estimate is fitted at µ = 0 and its σ does \
+         not carry µ",
         check.stop_from_rest_rad,
         check.stop_spring_nm,
         d.free_max_nm_per_rad,
         0.5 * thr,
         d.contact_min_nm_per_rad,
         d.softest,
+        mu = file.contact.mu_max,
     ))
 }
 

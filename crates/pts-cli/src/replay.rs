@@ -1005,17 +1005,14 @@ fn dynamics_corrected_residual(
 /// inertia the fit is only told.
 const IDENTIFIED_ENVELOPE_TOL_RAD: f64 = 0.02;
 
-/// The largest Coulomb friction coefficient at the object the estimate allows for: dry
-/// contacts of hard pads on everyday objects (0.2–0.4); a rubber pad needs its own value.
-const CONTACT_MU_MAX: f64 = 0.4;
-
 /// σ(k2,c) of a distal answer widened by the contact friction the recording cannot show.
 /// Friction at the object resists the contact's outward slide while loading and reads as a
 /// contact further out (MODEL.md §7); one loading path cannot tell µ from k2,c (χ² is flat
-/// over µ), and the fit assumes µ = 0. So the same request is fitted again with
-/// µ = [`CONTACT_MU_MAX`]: over a µ anywhere in 0..µmax the true k2,c lies between the two
-/// answers, and the spread δ between them enters σ as a uniform one, δ/√3 from the end the
-/// answer reports. A request the second fit refuses keeps its σ.
+/// over µ), and the fit assumes µ = 0. So the same request is fitted again with the finger
+/// file's largest friction coefficient (`contact.mu_max`, [`pts::config::Contact`]): over a µ
+/// anywhere in 0..µmax the true k2,c lies between the two answers, and the spread δ between
+/// them enters σ as a uniform one, δ/√3 from the end the answer reports. A request the second
+/// fit refuses keeps its σ, and so does a finger whose pads hold no friction (µmax = 0).
 fn widen_for_contact_friction(
     finger: &FingerFile,
     pcfg: &pathfit::PathFitConfig,
@@ -1028,8 +1025,11 @@ fn widen_for_contact_friction(
     let (Some(s0), Some(k0), grasp::Located::Distal) = (sigma, r.k2_um, r.located) else {
         return (r, sigma);
     };
+    if finger.contact.mu_max <= 0.0 {
+        return (r, sigma);
+    }
     let cfg_mu = pathfit::PathFitConfig {
-        contact_mu: CONTACT_MU_MAX,
+        contact_mu: finger.contact.mu_max,
         ..*pcfg
     };
     let k_mu = pathfit::q::PathTable::new(&finger.finger, &cfg_mu, dt)

@@ -961,3 +961,48 @@ fn a_file_with_gaps_is_read_as_the_recordings_between_them() {
     assert_eq!(seg.contacts.len(), 1, "{:?}", seg.errors);
     distal_within_3_sigma(&seg, "250 Hz, 0.2 s of the approach lost");
 }
+
+/// The finger file's contact friction prior (`contact.mu_max`) reaches `pts estimate`. On a
+/// rough contact (vertex, k2,c 0.35 l2, ΔT_a 0.8 N·m, µ 0.3, light drive without friction)
+/// the answer is the µ = 0 fit whatever the prior, read outward by the friction, and σ(k2,c)
+/// grows with the prior, from the fit's own at µmax 0; the default prior (0.4, above the
+/// engine's 0.3) covers the truth within 3σ. Measured: 27.47 mm against 26.25 mm, σ 1.40 /
+/// 1.90 / 3.69 mm at µmax 0 / 0.4 / 0.8.
+#[test]
+fn the_finger_file_s_contact_friction_prior_sets_sigma() {
+    let c = cases(&FULL)
+        .into_iter()
+        .find(|c| c.id == "rap044_vtx_k35_dT08_mu03_J5e-4__ideal")
+        .expect("the grid holds the grasp");
+    let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
+    let truth = rec.truth.k_c_m.expect("a distal contact");
+    let csv = engine::to_csv(&rec, &c.sensor);
+    let read = |mu_max: f64| {
+        let mut file = pts::config::FingerFile::paper();
+        file.contact.mu_max = mu_max;
+        let seg = pts_cli::trace::read_csv(&csv, &|i| file.torque_from_current(i))
+            .and_then(|tr| segment(&tr, &file, Method::Pathfit))
+            .expect("segmented");
+        distal_k2(seg.contacts.first().expect("a contact"), "rough vertex")
+    };
+    let (k0, s0) = read(0.0);
+    let (k4, s4) = read(0.4);
+    let (k8, s8) = read(0.8);
+    println!(
+        "k2,c {:.2} mm; µmax 0: {:.2} ± {:.2} mm, 0.4: {:.2} ± {:.2}, 0.8: {:.2} ± {:.2}",
+        truth * 1e3,
+        k0 * 1e3,
+        s0 * 1e3,
+        k4 * 1e3,
+        s4 * 1e3,
+        k8 * 1e3,
+        s8 * 1e3
+    );
+    assert!(k0 == k4 && k4 == k8, "the answer is the µ = 0 fit");
+    assert!(k0 > truth, "contact friction reads outward");
+    assert!(s0 < s4 && s4 < s8, "σ grows with the prior");
+    assert!(
+        (k4 - truth).abs() <= 3.0 * s4,
+        "the default prior covers µ 0.3"
+    );
+}

@@ -37,6 +37,8 @@
 //! amps_per_count = 0.00016113281
 //! zero_count = 2048
 //! adc_bits = 12
+//! [contact]
+//! mu_max = 0.4          # largest friction coefficient at the object the estimate allows for
 //! ```
 
 extern crate std;
@@ -149,6 +151,18 @@ pub struct CurrentSense {
     pub adc_bits: u32,
 }
 
+/// The finger's contact with objects: priors an estimate needs and a recording cannot show.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Contact {
+    /// Largest Coulomb friction coefficient between the distal phalanx and an object that the
+    /// estimate allows for; in [0, 1.5]. Friction at the object resists the contact point's
+    /// slide under the step and reads as a contact further out, and one loading path cannot
+    /// tell µ from k2,c: `pts estimate` fits a recording at µ = 0 and at this µ, and σ(k2,c)
+    /// spans the two. Hard pads on everyday objects: 0.2–0.4; rubber: higher; 0 when the pads
+    /// cannot hold friction.
+    pub mu_max: f64,
+}
+
 /// A validated finger description: what [`FingerFile::from_toml_str`] returns.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FingerFile {
@@ -166,6 +180,8 @@ pub struct FingerFile {
     pub current_sense: CurrentSense,
     /// Extension stops.
     pub stops: Stops,
+    /// Contact priors of the estimate.
+    pub contact: Contact,
 }
 
 impl Default for FingerFile {
@@ -196,6 +212,8 @@ impl FingerFile {
     };
     /// Encoder defaults of the prototype.
     pub const PAPER_ENCODER: Encoder = Encoder { counts_per_rev: 64 };
+    /// Contact defaults of the prototype: hard pads, dry friction up to 0.4.
+    pub const PAPER_CONTACT: Contact = Contact { mu_max: 0.4 };
     /// Current-sense defaults of the prototype: ±0.33 A over a 12-bit ADC.
     pub const PAPER_CURRENT_SENSE: CurrentSense = CurrentSense {
         amps_per_count: 1.0 / (0.5 * 10.0 * 4096.0 / 3.3),
@@ -214,6 +232,7 @@ impl FingerFile {
             encoder: Self::PAPER_ENCODER,
             current_sense: Self::PAPER_CURRENT_SENSE,
             stops: Stops::below_rest(&Finger::PAPER),
+            contact: Self::PAPER_CONTACT,
         }
     }
 
@@ -292,7 +311,8 @@ impl FingerFile {
              [motor]\nkt_nm_per_a = {kt:?}\nresistance_ohm = {r:?}\nsupply_v = {v:?}\nmax_current_a = {imax:?}\n\n\
              [encoder]\ncounts_per_rev = {cpr}\n\n\
              [current_sense]\namps_per_count = {apc:?}\nzero_count = {zc}\nadc_bits = {bits}\n\n\
-             [stops]\ntheta1_min_rad = {s1:?}\ntheta2_min_rad = {s2:?}\nstiffness_nm_per_rad = {sk:?}\n",
+             [stops]\ntheta1_min_rad = {s1:?}\ntheta2_min_rad = {s2:?}\nstiffness_nm_per_rad = {sk:?}\n\n\
+             [contact]\nmu_max = {mu:?}\n",
             name = self.name,
             l1 = f.l1,
             l2 = f.l2,
@@ -319,6 +339,7 @@ impl FingerFile {
             s1 = self.stops.theta1_min_rad,
             s2 = self.stops.theta2_min_rad,
             sk = self.stops.stiffness_nm_per_rad,
+            mu = self.contact.mu_max,
         )
     }
 }
@@ -340,6 +361,13 @@ struct RawFile {
     encoder: RawEncoder,
     current_sense: RawCurrentSense,
     stops: RawStops,
+    contact: RawContact,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawContact {
+    mu_max: Option<f64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -454,6 +482,17 @@ impl RawFile {
             )?,
         };
         let stops = self.stops(&finger)?;
+        let contact = Contact {
+            mu_max: real(
+                "contact.mu_max",
+                self.contact.mu_max,
+                FingerFile::PAPER_CONTACT.mu_max,
+                0.0,
+                true,
+                1.5,
+                "(Coulomb coefficient)",
+            )?,
+        };
         Ok(FingerFile {
             name: self.name.unwrap_or_else(|| "unnamed finger".to_string()),
             finger,
@@ -462,6 +501,7 @@ impl RawFile {
             encoder,
             current_sense,
             stops,
+            contact,
         })
     }
 
@@ -735,6 +775,7 @@ mod tests {
         f.finger.k1 = 0.5;
         f.drive.gear_ratio = 100.0;
         f.stops.theta2_min_rad = -0.125;
+        f.contact.mu_max = 0.85;
         let g = FingerFile::from_toml_str(&f.to_toml_string()).unwrap();
         assert_eq!(f, g);
     }
@@ -790,6 +831,27 @@ mod tests {
             let e = FingerFile::from_toml_str(text).unwrap_err();
             assert_eq!(e.key(), key, "{text}: {e}");
             assert!(e.to_string().contains(range), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_contact_friction_prior_is_read_and_checked() {
+        assert_eq!(FingerFile::from_toml_str("").unwrap().contact.mu_max, 0.4);
+        let f = FingerFile::from_toml_str("[contact]\nmu_max = 0.0\n").unwrap();
+        assert_eq!(f.contact.mu_max, 0.0);
+        let f = FingerFile::from_toml_str("[contact]\nmu_max = 1.5\n").unwrap();
+        assert_eq!(f.contact.mu_max, 1.5);
+        for (text, key) in [
+            ("[contact]\nmu_max = -0.1", "contact.mu_max"),
+            ("[contact]\nmu_max = 1.6", "contact.mu_max"),
+            ("[contact]\nmu_max = inf", "contact.mu_max"),
+            ("[contact]\nmu = 0.3", "contact.mu"),
+        ] {
+            let e = FingerFile::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key(), key, "{text}: {e}");
+            if key == "contact.mu_max" {
+                assert!(e.to_string().contains("[0, 1.5]"), "{text}: {e}");
+            }
         }
     }
 
