@@ -65,6 +65,18 @@ pub struct Case {
     pub sensor: SensorSpec,
 }
 
+impl Case {
+    /// The id and sensor of the case's recording with sensor draw `draw`
+    /// ([`SensorSpec::redrawn`]): draw 0 is the case itself, draw i its id with `__r<i>`.
+    pub fn drawn(&self, draw: u64) -> (String, SensorSpec) {
+        if draw == 0 {
+            (self.id.clone(), self.sensor)
+        } else {
+            (format!("{}__r{draw}", self.id), self.sensor.redrawn(draw))
+        }
+    }
+}
+
 fn spec(target: Target, delta: f64, mu: f64, inertia: f64, realistic: bool, n: usize) -> GraspSpec {
     GraspSpec {
         target,

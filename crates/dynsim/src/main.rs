@@ -96,11 +96,7 @@ fn main() {
         // Replicas only where there is noise to draw: a perfect sensor records one trace.
         let draws = if c.sensor.is_noisy() { replicas } else { 0 };
         for r in 0..=draws {
-            let (id, sensor) = if r == 0 {
-                (c.id.clone(), c.sensor)
-            } else {
-                (format!("{}__r{r}", c.id), c.sensor.redrawn(r))
-            };
+            let (id, sensor) = c.drawn(r);
             let csv = grasp::to_csv(&rec, &sensor);
             let json = grasp::to_json(&id, c.level, &c.spec, &rec);
             std::fs::write(dir.join(format!("{id}.csv")), csv).expect("write csv");

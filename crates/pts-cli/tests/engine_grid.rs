@@ -109,12 +109,8 @@ fn run_case(c: &Case) -> Vec<Outcome> {
     let draws = if c.sensor.is_noisy() { draws() } else { 0 };
     (0..=draws)
         .map(|d| {
-            let id = if d == 0 {
-                c.id.clone()
-            } else {
-                format!("{}__r{d}", c.id)
-            };
-            record_case(c, &rec, &c.sensor.redrawn(d), id)
+            let (id, sensor) = c.drawn(d);
+            record_case(c, &rec, &sensor, id)
         })
         .collect()
 }
