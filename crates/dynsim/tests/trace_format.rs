@@ -33,6 +33,16 @@ fn spec() -> GraspSpec {
     }
 }
 
+/// The grids' realistic sensor (2π/16384 encoder steps, 0.004 N·m noise, 0.003 N·m offset).
+fn realistic_sensor(seed: u64) -> SensorSpec {
+    SensorSpec {
+        counts_per_turn: 16384,
+        torque_sigma_nm: 0.004,
+        torque_offset_nm: 0.003,
+        seed,
+    }
+}
+
 fn parse(csv: &str) -> Vec<[f64; 3]> {
     let mut lines = csv.lines();
     assert_eq!(lines.next(), Some("t_s,theta_a_rad,torque_nm"));
@@ -83,12 +93,7 @@ fn a_grasp_is_written_as_a_recording() {
 #[test]
 fn the_sensor_quantises_and_adds_noise() {
     let rec = grasp::run(&spec()).unwrap();
-    let sensor = SensorSpec {
-        counts_per_turn: 16384,
-        torque_sigma_nm: 0.004,
-        torque_offset_nm: 0.003,
-        seed: 7,
-    };
+    let sensor = realistic_sensor(7);
     let rows = parse(&grasp::to_csv(&rec, &sensor));
     let q = 2.0 * std::f64::consts::PI / 16384.0;
     for r in &rows {
@@ -113,12 +118,7 @@ fn the_sensor_quantises_and_adds_noise() {
 #[test]
 fn a_redrawn_sensor_records_the_same_grasp_with_other_noise() {
     let rec = grasp::run(&spec()).unwrap();
-    let sensor = SensorSpec {
-        counts_per_turn: 16384,
-        torque_sigma_nm: 0.004,
-        torque_offset_nm: 0.003,
-        seed: 1007,
-    };
+    let sensor = realistic_sensor(1007);
     assert_eq!(sensor.redrawn(0), sensor);
     assert!(sensor.is_noisy() && !SensorSpec::IDEAL.is_noisy());
     let a = parse(&grasp::to_csv(&rec, &sensor));

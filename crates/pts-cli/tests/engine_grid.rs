@@ -96,9 +96,9 @@ impl Outcome {
     }
 }
 
-/// The engine's grasp, recorded and estimated by the command's code path; None when the engine
-/// could not set the grasp up (object cannot be placed) or both phalanges touched (the binary
-/// skips those too).
+/// The engine's grasp, recorded (once per sensor draw) and estimated by the command's code
+/// path; none when the engine could not set the grasp up (object cannot be placed) or both
+/// phalanges touched (the binary skips those too).
 fn run_case(c: &Case) -> Vec<Outcome> {
     let Some(rec) = engine::run(&c.spec) else {
         return Vec::new();
@@ -481,9 +481,16 @@ fn wrong_phalanx(rows: &[Outcome]) -> usize {
 /// `pts estimate`'s code path on a recording (CSV text) with the paper's finger file: read,
 /// segmented, the default method (the path fit).
 fn estimate(csv: &str) -> Result<pts_cli::replay::Segmented, String> {
-    let file = pts::config::FingerFile::paper();
+    estimate_with(csv, &pts::config::FingerFile::paper())
+}
+
+/// [`estimate`] with the finger file `file`.
+fn estimate_with(
+    csv: &str,
+    file: &pts::config::FingerFile,
+) -> Result<pts_cli::replay::Segmented, String> {
     pts_cli::trace::read_csv(csv, &|i| file.torque_from_current(i))
-        .and_then(|tr| segment(&tr, &file, Method::Pathfit))
+        .and_then(|tr| segment(&tr, file, Method::Pathfit))
 }
 
 /// Every how many of the engine's 1 kHz rows the recording keeps: `ENGINE_GRID_RATE_HZ`
@@ -830,9 +837,14 @@ fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path(
 /// One engine grasp as its CSV and the engine's k2,c (m): light frictionless drive, R 20 mm,
 /// k2,c 0.2 l2, ΔT_a 0.5 N·m.
 fn light_frictionless_grasp() -> (String, f64) {
+    full_grid_grasp("rap368_R20p0mm_k20_dT05_mu00_J5e-4__ideal")
+}
+
+/// The full grid's grasp `id` as its CSV and the engine's k2,c (m).
+fn full_grid_grasp(id: &str) -> (String, f64) {
     let c = cases(&FULL)
         .into_iter()
-        .find(|c| c.id == "rap368_R20p0mm_k20_dT05_mu00_J5e-4__ideal")
+        .find(|c| c.id == id)
         .expect("the grid holds the grasp");
     let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
     let truth = rec.truth.k_c_m.expect("a distal contact");
@@ -966,19 +978,11 @@ fn a_file_with_gaps_is_read_as_the_recordings_between_them() {
 /// 1.90 / 3.69 mm at µmax 0 / 0.4 / 0.8.
 #[test]
 fn the_finger_file_s_contact_friction_prior_sets_sigma() {
-    let c = cases(&FULL)
-        .into_iter()
-        .find(|c| c.id == "rap044_vtx_k35_dT08_mu03_J5e-4__ideal")
-        .expect("the grid holds the grasp");
-    let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
-    let truth = rec.truth.k_c_m.expect("a distal contact");
-    let csv = engine::to_csv(&rec, &c.sensor);
+    let (csv, truth) = full_grid_grasp("rap044_vtx_k35_dT08_mu03_J5e-4__ideal");
     let read = |mu_max: f64| {
         let mut file = pts::config::FingerFile::paper();
         file.contact.mu_max = mu_max;
-        let seg = pts_cli::trace::read_csv(&csv, &|i| file.torque_from_current(i))
-            .and_then(|tr| segment(&tr, &file, Method::Pathfit))
-            .expect("segmented");
+        let seg = estimate_with(&csv, &file).expect("segmented");
         distal_k2(seg.contacts.first().expect("a contact"), "rough vertex")
     };
     let (k0, s0) = read(0.0);
