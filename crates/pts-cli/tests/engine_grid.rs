@@ -14,7 +14,9 @@
 //! 500) records any of them at that rate instead of the engine's 1 kHz. `ENGINE_GRID_DRAWS=N`
 //! records every grasp with a realistic sensor N more times, with other draws of its noise
 //! (`dynsim::grasp::SensorSpec::redrawn`; ids `…__rN`), pools them into the tables and prints
-//! how far the error moves between draws of the same grasp.
+//! how far the error moves between draws of the same grasp. `ENGINE_GRID_MU_MAX=µ` estimates
+//! with that contact friction prior instead of the paper file's (0: σ without the friction
+//! widening, as the firmware reports it); the table of σ against the error shows what it does.
 
 use dynsim::grasp as engine;
 use dynsim::grid::{cases, Axes, Case, FULL, INERTIA, SMALL};
@@ -479,9 +481,28 @@ fn wrong_phalanx(rows: &[Outcome]) -> usize {
 }
 
 /// `pts estimate`'s code path on a recording (CSV text) with the paper's finger file: read,
-/// segmented, the default method (the path fit).
+/// segmented, the default method (the path fit). `ENGINE_GRID_MU_MAX` replaces the file's
+/// contact friction prior (`contact.mu_max`).
 fn estimate(csv: &str) -> Result<pts_cli::replay::Segmented, String> {
-    estimate_with(csv, &pts::config::FingerFile::paper())
+    let mut file = pts::config::FingerFile::paper();
+    if let Some(mu) = mu_max() {
+        file.contact.mu_max = mu;
+    }
+    estimate_with(csv, &file)
+}
+
+/// `ENGINE_GRID_MU_MAX`: the largest contact friction σ(k2,c) is widened over (the finger
+/// file's `contact.mu_max`, 0 to 1.5); 0 leaves σ the fit's own, as the firmware reports it.
+fn mu_max() -> Option<f64> {
+    let v = std::env::var("ENGINE_GRID_MU_MAX").ok()?;
+    let mu: f64 = v
+        .parse()
+        .expect("ENGINE_GRID_MU_MAX: a friction coefficient");
+    assert!(
+        (0.0..=1.5).contains(&mu),
+        "ENGINE_GRID_MU_MAX = {mu}: from 0 to 1.5"
+    );
+    Some(mu)
 }
 
 /// [`estimate`] with the finger file `file`.
@@ -519,6 +540,38 @@ fn draws() -> u64 {
             n
         }
         Err(_) => 0,
+    }
+}
+
+/// How well σ(k2,c) states the error, per contact friction µ of the engine's object: over the
+/// distal answers, the median of |error|/σ, the shares within 1σ and 2σ (a Gaussian σ puts
+/// 68 % and 95 % there), and the largest |error|/σ. Run with `ENGINE_GRID_MU_MAX=0` it
+/// measures σ without the contact friction widening.
+fn print_sigma_calibration(rows: &[Outcome]) {
+    let mut by_mu: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    for o in rows.iter().filter(|o| o.expected == "distal") {
+        if let (Some(e), Some(s)) = (o.err_pct(), o.sigma) {
+            let z = (e * L2 / 100.0).abs() / s;
+            by_mu.entry(format!("{:.2}", o.mu)).or_default().push(z);
+        }
+    }
+    println!(
+        "σ(k2,c) against the error, contact friction prior µmax = {}:",
+        mu_max().unwrap_or(pts::config::FingerFile::PAPER_CONTACT.mu_max)
+    );
+    println!("| object µ | answers | median error/σ | within 1σ | within 2σ | max error/σ |");
+    println!("|---|---|---|---|---|---|");
+    for (mu, mut z) in by_mu {
+        z.sort_by(f64::total_cmp);
+        let n = z.len();
+        let share = |k: f64| 100.0 * z.iter().filter(|&&v| v <= k).count() as f64 / n as f64;
+        println!(
+            "| {mu} | {n} | {:.2} | {:.1} % | {:.1} % | {:.2} |",
+            z[n / 2],
+            share(1.0),
+            share(2.0),
+            z[n - 1]
+        );
     }
 }
 
@@ -636,6 +689,7 @@ fn engine_grid_default_method() {
         start.elapsed().as_secs_f64()
     );
     let all = print_table(&rows);
+    print_sigma_calibration(&rows);
     if draws() > 0 {
         print_draw_spread(&rows);
     }
