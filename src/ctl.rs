@@ -24,9 +24,10 @@ pub const ESTIMATOR: Estimator = match crate::config::ESTIMATOR {
 };
 
 /// The torque step ΔT_a after contact (N·m): `FINGER_FW_DELTA_TA_NM` at build time, default
-/// 0.8 N·m. The controller's own default (0.2) lies inside the realistic drive's stiction
-/// band (≈ 0.11 N·m), where grasp reports a step that does not move the finger (NoMotion);
-/// 0.8 is what grasp's closed-loop Table 2 test uses.
+/// 0.8 N·m, what grasp's closed-loop Table 2 test uses and the more accurate step. The
+/// controller's own default (0.2) is answered without seating; with seating (`seating on`) it
+/// mostly lies inside the realistic drive's stiction band (≈ 0.11 N·m) once the contact is
+/// seated, and grasp reports a step that does not move the finger (NoMotion).
 pub const DELTA_TA_NM: f64 = match crate::config::DELTA_TA_NM {
     Some(v) => v,
     None => 0.8,

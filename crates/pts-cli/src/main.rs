@@ -246,9 +246,9 @@ struct SimArgs {
     /// List the built-in scenes and exit.
     #[arg(long)]
     list: bool,
-    /// Torque step after contact ΔT_a (N·m); a list with --sweep. The default is the firmware's:
-    /// 0.2 N·m lies inside the realistic drive's stiction band, where the step does not move the
-    /// finger (fault: no motion).
+    /// Torque step after contact ΔT_a (N·m); a list with --sweep. The default is the firmware's.
+    /// With --seating a 0.2 N·m step mostly lies inside the realistic drive's stiction band once
+    /// the contact is seated, and ends in the fault no_motion.
     #[arg(long, value_delimiter = ',', default_value = "0.8")]
     dta: Vec<f64>,
     /// Write every control tick to this CSV (input of `pts estimate` and `pts plot signals`).
