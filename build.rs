@@ -103,7 +103,7 @@ fn finger_consts(src: &mut String) {
          pub struct DriveConsts {{ pub gear_ratio: f64, pub efficiency: f64, pub kt_nm_per_a: f64, \
          pub resistance_ohm: f64, pub supply_v: f64, pub counts_per_rev: f64, \
          pub amps_per_count: f64, pub zero_count: f64, pub max_current_a: f64, \
-         pub inertia_kgm2: f64, pub backlash_rad: f64 }}"
+         pub inertia_kgm2: f64, pub backlash_rad: f64, pub priors: pathfit::FitPriors }}"
     );
     if given.is_some() {
         let _ = writeln!(
@@ -112,7 +112,7 @@ fn finger_consts(src: &mut String) {
              pub const FINGER_DRIVE: Option<DriveConsts> = Some(DriveConsts {{ gear_ratio: {:?}, \
              efficiency: {:?}, kt_nm_per_a: {:?}, resistance_ohm: {:?}, supply_v: {:?}, \
              counts_per_rev: {:?}, amps_per_count: {:?}, zero_count: {:?}, max_current_a: {:?}, \
-             inertia_kgm2: {:?}, backlash_rad: {:?} }});",
+             inertia_kgm2: {:?}, backlash_rad: {:?}, priors: pathfit::{:?} }});",
             file.drive.gear_ratio,
             file.drive.efficiency,
             file.motor.kt_nm_per_a,
@@ -123,7 +123,8 @@ fn finger_consts(src: &mut String) {
             f64::from(file.current_sense.zero_count),
             file.motor.max_current_a,
             file.drive.inertia_kgm2,
-            file.drive.backlash_rad
+            file.drive.backlash_rad,
+            cfg.drive.priors
         );
     } else {
         let _ = writeln!(

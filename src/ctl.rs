@@ -272,6 +272,7 @@ pub fn file_drive() -> DriveConfig {
         d.adc_zero_code = f.zero_count;
         d.inertia_kgm2 = f.inertia_kgm2;
         d.backlash_rad = f.backlash_rad;
+        d.priors = f.priors;
     }
     d.theta_a_rest_rad = crate::config::FINGER_THETA_A_REST_RAD;
     d
@@ -301,7 +302,11 @@ pub fn finger_scene(scene: plant::Scene) -> plant::Scene {
 /// The controller's view of a simulated scene's drive and sensors (nominal constants).
 #[cfg(any(feature = "qemu", not(target_os = "none")))]
 pub fn scene_drive(scene: &plant::Scene) -> DriveConfig {
-    sim_board::scene_drive(scene, crate::config::FINGER_THETA_A_REST_RAD)
+    DriveConfig {
+        // The estimate's priors are the build's finger file's, whatever the scene.
+        priors: file_drive().priors,
+        ..sim_board::scene_drive(scene, crate::config::FINGER_THETA_A_REST_RAD)
+    }
 }
 
 /// Whether this build finds the rest pose before the encoder is zeroed (grasp::rest):

@@ -39,6 +39,9 @@ pub struct DriveConfig {
     /// the finger by half of it while the drive loads in flexion (the path fit's measurement
     /// model). Read by the path fit's table only, which checks it.
     pub backlash_rad: f64,
+    /// The path fit's priors for this finger and drive (the finger file's `[estimate]`):
+    /// the contact angle's and the friction offset's σ. Read by the path fit's table only.
+    pub priors: pathfit::FitPriors,
 }
 
 impl DriveConfig {
@@ -60,6 +63,7 @@ impl DriveConfig {
         // defaults (`pts::config::FingerFile::PAPER_DRIVE`).
         inertia_kgm2: 0.6175 * 7.0e-9 * 3072.0 * 3072.0,
         backlash_rad: 3e-3,
+        priors: pathfit::FitPriors::DEFAULT,
     };
 
     /// Actuator torque per ampere of motor current: kt × ratio × efficiency (N·m/A).
@@ -73,9 +77,11 @@ impl DriveConfig {
     }
 
     /// The path fit's configuration for this drive: the default fit with the drive's inertia
-    /// and backlash ([`pathfit::PathFitConfig::with_drive_model`]).
+    /// and backlash ([`pathfit::PathFitConfig::with_drive_model`]) and its priors.
     pub const fn path_fit_config(&self) -> pathfit::PathFitConfig {
-        pathfit::PathFitConfig::DEFAULT.with_drive_model(self.inertia_kgm2, self.backlash_rad)
+        pathfit::PathFitConfig::DEFAULT
+            .with_drive_model(self.inertia_kgm2, self.backlash_rad)
+            .with_priors(self.priors)
     }
 }
 
@@ -635,6 +641,7 @@ impl ControllerConfig {
                 theta_a_rest_rad,
                 inertia_kgm2: file.drive.inertia_kgm2,
                 backlash_rad: file.drive.backlash_rad,
+                priors: fit_priors(&file.estimate),
             },
             overcurrent_a: file.motor.max_current_a,
             ..self
@@ -834,6 +841,17 @@ impl FingerRest {
     }
 }
 
+/// The path fit's priors of a finger file's `[estimate]` section, to the µrad and µN·m (the
+/// file's ranges keep them within 50,000 µrad and 500,000 µN·m).
+#[cfg(feature = "std")]
+pub fn fit_priors(p: &pts::config::EstimatePriors) -> pathfit::FitPriors {
+    let micro = |v: f64| (v * 1e6).round().clamp(0.0, f64::from(u32::MAX)) as u32;
+    pathfit::FitPriors {
+        contact_angle_sigma_urad: micro(p.contact_angle_sigma_rad),
+        friction_offset_sigma_unm: micro(p.friction_offset_sigma_nm),
+    }
+}
+
 /// The input-crank angle θa at the finger's rest pose (θ1 = θ0,1, θ2 = θ0,2), in rad: where the
 /// firmware zeroes its encoder.
 pub fn finger_rest_theta_a_rad(finger: &Finger) -> Result<f64, ConfigError> {
@@ -998,6 +1016,27 @@ fn libm_round(x: f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// The finger file's default priors are the path fit's defaults: a file that leaves
+    /// `[estimate]` out builds the same table as before.
+    #[cfg(feature = "std")]
+    #[test]
+    fn the_finger_file_s_default_priors_are_the_path_fit_s() {
+        let p = fit_priors(&pts::config::FingerFile::PAPER_ESTIMATE);
+        assert_eq!(p, pathfit::FitPriors::DEFAULT);
+        assert_eq!(
+            pathfit::PathFitConfig::DEFAULT.with_priors(p),
+            pathfit::PathFitConfig::DEFAULT,
+            "the default priors give the default fit, bit for bit"
+        );
+        assert_eq!(
+            DriveConfig::DEFAULT.path_fit_config(),
+            pathfit::PathFitConfig::DEFAULT.with_drive_model(
+                DriveConfig::DEFAULT.inertia_kgm2,
+                DriveConfig::DEFAULT.backlash_rad
+            )
+        );
+    }
+
     /// The rest angle from the model agrees with the reference value of the model document
     /// (θa = −0.8503608 rad at θ1 = π/4, θ2 = 0 for the paper's finger).
     #[test]
@@ -1080,11 +1119,19 @@ mod file_tests {
         f.encoder.counts_per_rev = 128;
         f.current_sense.amps_per_count = 1.5e-4;
         f.current_sense.zero_count = 2000;
+        f.estimate.contact_angle_sigma_rad = 1.5e-3;
+        f.estimate.friction_offset_sigma_nm = 0.02;
         let c = ControllerConfig::DEFAULT
             .with_finger_file(&f, 1e-4)
             .unwrap();
         assert_eq!(c.finger, f.finger);
         let d = c.drive;
+        // The priors reach the path fit's configuration (and with it the table's constants).
+        let pf = d.path_fit_config();
+        assert_eq!(
+            (pf.contact_angle_sigma_rad, pf.friction_prior_sigma_nm),
+            (1.5e-3, 0.02)
+        );
         assert_eq!(
             (
                 d.gear_ratio,

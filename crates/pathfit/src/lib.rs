@@ -261,6 +261,44 @@ impl PathFitConfig {
             ..self
         }
     }
+
+    /// This configuration with the priors of a finger ([`FitPriors`]).
+    pub const fn with_priors(self, priors: FitPriors) -> Self {
+        PathFitConfig {
+            contact_angle_sigma_rad: priors.contact_angle_sigma_urad as f64 / 1e6,
+            friction_prior_sigma_nm: priors.friction_offset_sigma_unm as f64 / 1e6,
+            ..self
+        }
+    }
+}
+
+/// The priors of a fit that belong to a finger and its drive rather than to the algorithm
+/// (a finger file's `[estimate]` section), in micro-units: the firmware carries them in its
+/// drive configuration, where they cost 8 bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FitPriors {
+    /// How far the contact angle a detection finds may lie from the true one (µrad at the
+    /// crank): [`PathFitConfig::contact_angle_sigma_rad`]. 0: taken as exact.
+    pub contact_angle_sigma_urad: u32,
+    /// How far the transmission's friction offset while loading may differ from the one read
+    /// on the approach (µN·m at the base link): [`PathFitConfig::friction_prior_sigma_nm`].
+    /// 0: no prior.
+    pub friction_offset_sigma_unm: u32,
+}
+
+impl FitPriors {
+    /// The priors of [`PathFitConfig::DEFAULT`] (the paper's finger and drive): 3 mrad and
+    /// 3 mN·m.
+    pub const DEFAULT: FitPriors = FitPriors {
+        contact_angle_sigma_urad: 3000,
+        friction_offset_sigma_unm: 3000,
+    };
+}
+
+impl Default for FitPriors {
+    fn default() -> Self {
+        Self::DEFAULT
+    }
 }
 
 impl Default for PathFitConfig {

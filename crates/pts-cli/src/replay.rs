@@ -876,6 +876,7 @@ fn segment_rows(
     let drive_fw = grasp::DriveConfig {
         inertia_kgm2: finger.drive.inertia_kgm2,
         backlash_rad: finger.drive.backlash_rad,
+        priors: grasp::config::fit_priors(&finger.estimate),
         ..grasp::DriveConfig::DEFAULT
     };
     let mut scratch = vec![Block::default(); SCRATCH_BLOCKS];
@@ -1075,8 +1076,9 @@ const HYSTERESIS_MIN_NM: f64 = 2.0 * DRY_FRICTION_MIN_NM;
 const CONTACT_INERTIA_MAX_REL_SIGMA: f64 = 0.03;
 
 /// How far above the contact angle found (rad) the contact path's own inertia is read: the
-/// contact angle's own uncertainty (the path fit's prior σ of θa,c), so that a swing back
-/// off the object, which follows the free motion, stays out.
+/// contact angle's usual uncertainty (the default prior σ of θa,c, `[estimate]
+/// contact_angle_sigma_rad`), so that a swing back off the object, which follows the free
+/// motion, stays out.
 const CONTACT_INERTIA_MARGIN_RAD: f64 = 3e-3;
 
 /// The fit's envelope tolerance (rad) on a loading path rebuilt by
@@ -1247,7 +1249,7 @@ fn foreign_path_fit(
         } else {
             pathfit::PathFitConfig::DEFAULT.envelope_tol_rad
         },
-        ..pathfit::PathFitConfig::DEFAULT
+        ..pathfit::PathFitConfig::DEFAULT.with_priors(grasp::config::fit_priors(&finger.estimate))
     };
     // With the crank swinging back (by any amount with dry friction, by more than the
     // envelope keeps without), the path is the loading rows with its dynamics removed here

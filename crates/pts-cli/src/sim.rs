@@ -71,6 +71,9 @@ pub struct SimOptions {
     /// The over-current limit (A) of the finger file the scene was built from
     /// ([`finger_scene`]); `None`: the controller's default.
     pub overcurrent_a: Option<f64>,
+    /// The path fit's priors of the finger file the scene was built from (its `[estimate]`);
+    /// `None`: the defaults.
+    pub priors: Option<pathfit::FitPriors>,
     /// How ΔT_a is applied; `None`: the controller's default.
     pub step_shape: Option<grasp::StepShape>,
     /// Seat the contact in static stages before the step
@@ -308,7 +311,10 @@ pub fn run(opts: &SimOptions) -> Result<SimReport, String> {
     // Refused here, with the reason, rather than as an estimate error after the grasp.
     pts::Model::<grasp::EstReal>::new(&finger)
         .map_err(|e| format!("scene finger on the firmware back end: {e}"))?;
-    let drive = drive_config(scene, rest);
+    let drive = DriveConfig {
+        priors: opts.priors.unwrap_or(DriveConfig::DEFAULT.priors),
+        ..drive_config(scene, rest)
+    };
     let cfg = ControllerConfig {
         finger,
         drive,

@@ -82,16 +82,32 @@ fn step_name(s: Option<grasp::StepShape>) -> String {
     }
 }
 
-/// The scene as the finger file's finger, and the file's current limit (none without a file).
-fn with_finger(a: &Args, scene: plant::Scene) -> Result<(plant::Scene, Option<f64>), String> {
+/// The scene as the finger file's finger, the file's current limit and its path-fit priors
+/// (none without a file).
+fn with_finger(a: &Args, scene: plant::Scene) -> Result<(plant::Scene, FileLimits), String> {
     match &a.finger {
-        None => Ok((scene, None)),
+        None => Ok((scene, FileLimits::default())),
         Some(path) => {
             let file = crate::load_finger(Some(path))?;
             let (scene, imax) = sim::finger_scene(scene, &file)?;
-            Ok((scene, Some(imax)))
+            Ok((
+                scene,
+                FileLimits {
+                    overcurrent_a: Some(imax),
+                    priors: Some(grasp::config::fit_priors(&file.estimate)),
+                },
+            ))
         }
     }
+}
+
+/// What a finger file gives the controller besides the scene.
+#[derive(Clone, Copy, Default)]
+struct FileLimits {
+    /// The over-current limit (A).
+    overcurrent_a: Option<f64>,
+    /// The path fit's priors.
+    priors: Option<pathfit::FitPriors>,
 }
 
 fn check_dta(dta: &[f64]) -> Result<(), String> {
@@ -212,7 +228,7 @@ pub fn run(a: &Args) -> Result<(), String> {
     let seating = a
         .seating
         .unwrap_or(grasp::ControllerConfig::DEFAULT.seating);
-    let (scene, overcurrent_a) = with_finger(a, sim::load_scene(&a.scene)?)?;
+    let (scene, from_file) = with_finger(a, sim::load_scene(&a.scene)?)?;
     if scene.command.mode != plant::scene::CommandMode::External {
         eprintln!("note: {OPEN_LOOP_NOTE}");
     }
@@ -224,7 +240,8 @@ pub fn run(a: &Args) -> Result<(), String> {
         extra_s: 0.2,
         record: a.csv.is_some() || a.plot.is_some(),
         method: a.method,
-        overcurrent_a,
+        overcurrent_a: from_file.overcurrent_a,
+        priors: from_file.priors,
         step_shape: Some(step),
         seating: Some(seating),
     })?;
@@ -426,7 +443,7 @@ struct Cell {
 fn sweep(a: &Args) -> Result<(), String> {
     let base = plant::scenes::table2();
     let base = if a.ideal { base.ideal() } else { base };
-    let (base, overcurrent_a) = with_finger(a, base)?;
+    let (base, from_file) = with_finger(a, base)?;
     let l2 = base.finger.l2_m;
     for r in &a.radii_cm {
         if !(r.is_finite() && (0.0..=20.0).contains(r)) {
@@ -474,7 +491,8 @@ fn sweep(a: &Args) -> Result<(), String> {
             extra_s: 0.0,
             record: false,
             method: a.method,
-            overcurrent_a,
+            overcurrent_a: from_file.overcurrent_a,
+            priors: from_file.priors,
             step_shape: st,
             seating: a.seating,
         });

@@ -125,6 +125,7 @@ fn grasp_errors(
         record: true,
         method,
         overcurrent_a: None,
+        priors: None,
         step_shape: None,
         seating: None,
     })
@@ -396,6 +397,7 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
         record: false,
         method: Method::TwoPoint,
         overcurrent_a: Some(imax),
+        priors: Some(grasp::config::fit_priors(&back.estimate)),
         step_shape: None,
         seating: None,
     })

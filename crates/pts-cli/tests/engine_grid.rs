@@ -1060,3 +1060,57 @@ fn the_finger_file_s_contact_friction_prior_sets_sigma() {
         "the default prior covers µ 0.3"
     );
 }
+
+/// The finger file's path-fit priors (`[estimate]`) reach `pts estimate`'s fit. With the
+/// contact angle's σ at 0 the fit keeps the angle the contact detection found (the answer's
+/// θa,c is the found one), with the default it refines it; without the friction offset's
+/// prior the path is no longer anchored at the approach's torque, and the fit leaves the
+/// angle near the found one. Measured on a rough vertex (k2,c 26.25 mm): default 27.48 ±
+/// 1.90 mm with θa,c moved 2.0 mrad, angle exact 26.17 ± 1.19 mm, no friction prior
+/// 27.36 ± 1.87 mm with θa,c moved 9 µrad.
+#[test]
+fn the_finger_file_s_path_fit_priors_reach_the_estimate() {
+    let (csv, truth) = full_grid_grasp("rap044_vtx_k35_dT08_mu03_J5e-4__ideal");
+    let read = |angle: f64, friction: f64| {
+        let mut file = pts::config::FingerFile::paper();
+        file.estimate.contact_angle_sigma_rad = angle;
+        file.estimate.friction_offset_sigma_nm = friction;
+        let seg = estimate_with(&csv, &file).expect("segmented");
+        let c = seg.contacts.first().expect("a contact").clone();
+        let (k, s) = distal_k2(&c, "rough vertex");
+        let fitted = f64::from(c.estimate.as_ref().expect("answered").theta_a_c_urad) * 1e-6;
+        (k, s, fitted, c.theta_a_c)
+    };
+    let d = pts::config::FingerFile::PAPER_ESTIMATE;
+    let base = read(d.contact_angle_sigma_rad, d.friction_offset_sigma_nm);
+    let exact = read(0.0, d.friction_offset_sigma_nm);
+    let free = read(d.contact_angle_sigma_rad, 0.0);
+    let loose = read(d.contact_angle_sigma_rad, 0.5);
+    for (label, r) in [
+        ("default", base),
+        ("angle exact", exact),
+        ("no friction prior", free),
+        ("friction prior 0.5 N·m", loose),
+    ] {
+        println!(
+            "{label}: k2 {:.3} ± {:.3} mm (truth {:.3}), θa,c fitted {:.6} rad, found {:.6} rad",
+            r.0 * 1e3,
+            r.1 * 1e3,
+            truth * 1e3,
+            r.2,
+            r.3
+        );
+    }
+    assert!(
+        (exact.2 - exact.3).abs() < 2e-6,
+        "σ 0: the contact angle found is kept"
+    );
+    assert!(
+        (base.2 - base.3).abs() > 1e-3,
+        "the default priors refine the contact angle"
+    );
+    assert!(
+        (free.2 - base.2).abs() > 1e-3,
+        "the friction offset's prior moves the fitted contact angle"
+    );
+}

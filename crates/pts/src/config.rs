@@ -39,6 +39,10 @@
 //! adc_bits = 12
 //! [contact]
 //! mu_max = 0.4          # largest friction coefficient at the object the estimate allows for
+//! [estimate]            # the path fit's priors
+//! contact_angle_sigma_rad = 0.003   # how far the contact angle found may lie from the true one
+//! friction_offset_sigma_nm = 0.003  # how far the drive's friction while loading may differ
+//!                                   # from the approach's
 //! ```
 
 extern crate std;
@@ -163,6 +167,23 @@ pub struct Contact {
     pub mu_max: f64,
 }
 
+/// The priors of the path fit that belong to the finger and its drive (`[estimate]`). The
+/// firmware's path fit takes them from its build's finger file, `pts estimate` from the file
+/// it is given.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimatePriors {
+    /// How far the contact angle θa,c that the contact detection finds may lie from the true
+    /// one (rad at the crank; standard deviation), in [0, 0.05]: the prior of the fitted θa,c,
+    /// which also enters σ(k2,c). The finger's inertia carries it past the contact and the
+    /// detection sees the kink a few mrad late. 0 takes the angle found as exact.
+    pub contact_angle_sigma_rad: f64,
+    /// How far the transmission's friction offset while the contact loads may differ from the
+    /// one read on the approach (N·m at the base link; standard deviation), in [0, 0.5]: the
+    /// prior that anchors the fitted path at the contact. A drive with stick-slip or a
+    /// friction that changes with load sets more. 0 leaves the offset free.
+    pub friction_offset_sigma_nm: f64,
+}
+
 /// A validated finger description: what [`FingerFile::from_toml_str`] returns.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FingerFile {
@@ -182,6 +203,8 @@ pub struct FingerFile {
     pub stops: Stops,
     /// Contact priors of the estimate.
     pub contact: Contact,
+    /// The path fit's priors.
+    pub estimate: EstimatePriors,
 }
 
 impl Default for FingerFile {
@@ -214,6 +237,12 @@ impl FingerFile {
     pub const PAPER_ENCODER: Encoder = Encoder { counts_per_rev: 64 };
     /// Contact defaults of the prototype: hard pads, dry friction up to 0.4.
     pub const PAPER_CONTACT: Contact = Contact { mu_max: 0.4 };
+    /// The path fit's priors for the prototype: 3 mrad and 3 mN·m (`pathfit::FitPriors`
+    /// holds the same numbers; a test checks that they agree).
+    pub const PAPER_ESTIMATE: EstimatePriors = EstimatePriors {
+        contact_angle_sigma_rad: 0.003,
+        friction_offset_sigma_nm: 0.003,
+    };
     /// Current-sense defaults of the prototype: ±0.33 A over a 12-bit ADC.
     pub const PAPER_CURRENT_SENSE: CurrentSense = CurrentSense {
         amps_per_count: 1.0 / (0.5 * 10.0 * 4096.0 / 3.3),
@@ -233,6 +262,7 @@ impl FingerFile {
             current_sense: Self::PAPER_CURRENT_SENSE,
             stops: Stops::below_rest(&Finger::PAPER),
             contact: Self::PAPER_CONTACT,
+            estimate: Self::PAPER_ESTIMATE,
         }
     }
 
@@ -312,7 +342,8 @@ impl FingerFile {
              [encoder]\ncounts_per_rev = {cpr}\n\n\
              [current_sense]\namps_per_count = {apc:?}\nzero_count = {zc}\nadc_bits = {bits}\n\n\
              [stops]\ntheta1_min_rad = {s1:?}\ntheta2_min_rad = {s2:?}\nstiffness_nm_per_rad = {sk:?}\n\n\
-             [contact]\nmu_max = {mu:?}\n",
+             [contact]\nmu_max = {mu:?}\n\n\
+             [estimate]\ncontact_angle_sigma_rad = {sth:?}\nfriction_offset_sigma_nm = {sfr:?}\n",
             name = self.name,
             l1 = f.l1,
             l2 = f.l2,
@@ -340,6 +371,8 @@ impl FingerFile {
             s2 = self.stops.theta2_min_rad,
             sk = self.stops.stiffness_nm_per_rad,
             mu = self.contact.mu_max,
+            sth = self.estimate.contact_angle_sigma_rad,
+            sfr = self.estimate.friction_offset_sigma_nm,
         )
     }
 }
@@ -362,12 +395,20 @@ struct RawFile {
     current_sense: RawCurrentSense,
     stops: RawStops,
     contact: RawContact,
+    estimate: RawEstimate,
 }
 
 #[derive(Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
 struct RawContact {
     mu_max: Option<f64>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+struct RawEstimate {
+    contact_angle_sigma_rad: Option<f64>,
+    friction_offset_sigma_nm: Option<f64>,
 }
 
 #[derive(Deserialize, Default)]
@@ -493,6 +534,27 @@ impl RawFile {
                 "(Coulomb coefficient)",
             )?,
         };
+        let d = FingerFile::PAPER_ESTIMATE;
+        let estimate = EstimatePriors {
+            contact_angle_sigma_rad: real(
+                "estimate.contact_angle_sigma_rad",
+                self.estimate.contact_angle_sigma_rad,
+                d.contact_angle_sigma_rad,
+                0.0,
+                true,
+                0.05,
+                "rad (0: the contact angle found is taken as exact)",
+            )?,
+            friction_offset_sigma_nm: real(
+                "estimate.friction_offset_sigma_nm",
+                self.estimate.friction_offset_sigma_nm,
+                d.friction_offset_sigma_nm,
+                0.0,
+                true,
+                0.5,
+                "N·m (0: no prior on the friction offset)",
+            )?,
+        };
         Ok(FingerFile {
             name: self.name.unwrap_or_else(|| "unnamed finger".to_string()),
             finger,
@@ -502,6 +564,7 @@ impl RawFile {
             current_sense,
             stops,
             contact,
+            estimate,
         })
     }
 
@@ -776,6 +839,8 @@ mod tests {
         f.drive.gear_ratio = 100.0;
         f.stops.theta2_min_rad = -0.125;
         f.contact.mu_max = 0.85;
+        f.estimate.contact_angle_sigma_rad = 0.0015;
+        f.estimate.friction_offset_sigma_nm = 0.02;
         let g = FingerFile::from_toml_str(&f.to_toml_string()).unwrap();
         assert_eq!(f, g);
     }
@@ -852,6 +917,49 @@ mod tests {
             if key == "contact.mu_max" {
                 assert!(e.to_string().contains("[0, 1.5]"), "{text}: {e}");
             }
+        }
+    }
+
+    #[test]
+    fn the_path_fit_priors_are_read_and_checked() {
+        let d = FingerFile::from_toml_str("").unwrap().estimate;
+        assert_eq!(d, FingerFile::PAPER_ESTIMATE);
+        let f = FingerFile::from_toml_str(
+            "[estimate]\ncontact_angle_sigma_rad = 0.0\nfriction_offset_sigma_nm = 0.5\n",
+        )
+        .unwrap();
+        assert_eq!(f.estimate.contact_angle_sigma_rad, 0.0);
+        assert_eq!(f.estimate.friction_offset_sigma_nm, 0.5);
+        for (text, key, range) in [
+            (
+                "[estimate]\ncontact_angle_sigma_rad = -1e-3",
+                "estimate.contact_angle_sigma_rad",
+                "[0, 0.05]",
+            ),
+            (
+                "[estimate]\ncontact_angle_sigma_rad = 0.06",
+                "estimate.contact_angle_sigma_rad",
+                "[0, 0.05]",
+            ),
+            (
+                "[estimate]\nfriction_offset_sigma_nm = nan",
+                "estimate.friction_offset_sigma_nm",
+                "[0, 0.5]",
+            ),
+            (
+                "[estimate]\nfriction_offset_sigma_nm = 0.51",
+                "estimate.friction_offset_sigma_nm",
+                "[0, 0.5]",
+            ),
+            (
+                "[estimate]\nfriction_prior = 0.01",
+                "estimate.friction_prior",
+                "",
+            ),
+        ] {
+            let e = FingerFile::from_toml_str(text).unwrap_err();
+            assert_eq!(e.key(), key, "{text}: {e}");
+            assert!(e.to_string().contains(range), "{text}: {e}");
         }
     }
 

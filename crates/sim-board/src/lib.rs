@@ -154,6 +154,7 @@ pub fn scene_drive(scene: &Scene, theta_a_rest_rad: f64) -> DriveConfig {
         // gearhead's driving efficiency, and its backlash.
         inertia_kgm2: d.eff_drive * d.rotor_inertia_kgm2 * d.gear_ratio * d.gear_ratio,
         backlash_rad: d.backlash_rad,
+        priors: DriveConfig::DEFAULT.priors,
     }
 }
 
