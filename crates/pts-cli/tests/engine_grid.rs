@@ -1113,4 +1113,18 @@ fn the_finger_file_s_path_fit_priors_reach_the_estimate() {
         (free.2 - base.2).abs() > 1e-3,
         "the friction offset's prior moves the fitted contact angle"
     );
+    // The file's smallest nonzero σ (1e-4) still fits; a tenth of it, which the file refuses,
+    // overflows the integer kernel's prior weight and every phase refuses.
+    let tight = read(1e-4, 1e-4);
+    println!("priors 1e-4: k2 {:.3} mm", tight.0 * 1e3);
+    let mut file = pts::config::FingerFile::paper();
+    file.estimate.contact_angle_sigma_rad = 1e-5;
+    file.estimate.friction_offset_sigma_nm = 1e-5;
+    assert!(
+        pts::config::FingerFile::from_toml_str(&file.to_toml_string()).is_err(),
+        "the file refuses 1e-5"
+    );
+    let seg = estimate_with(&csv, &file).expect("segmented");
+    let c = seg.contacts.first().expect("a contact");
+    assert!(c.estimate.is_err(), "1e-5: {:?}", c.estimate);
 }

@@ -173,12 +173,13 @@ pub struct Contact {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EstimatePriors {
     /// How far the contact angle θa,c that the contact detection finds may lie from the true
-    /// one (rad at the crank; standard deviation), in [0, 0.05]: the prior of the fitted θa,c,
+    /// one (rad at the crank; standard deviation), 0 or in [1e-4, 0.05]: the prior of the fitted θa,c,
     /// which also enters σ(k2,c). The finger's inertia carries it past the contact and the
     /// detection sees the kink a few mrad late. 0 takes the angle found as exact.
     pub contact_angle_sigma_rad: f64,
     /// How far the transmission's friction offset while the contact loads may differ from the
-    /// one read on the approach (N·m at the base link; standard deviation), in [0, 0.5]: the
+    /// one read on the approach (N·m at the base link; standard deviation), 0 or in [1e-4,
+    /// 0.5]: the
     /// prior that anchors the fitted path at the contact. A drive with stick-slip or a
     /// friction that changes with load sets more. 0 leaves the offset free.
     pub friction_offset_sigma_nm: f64,
@@ -493,6 +494,30 @@ fn real(
     Ok(x)
 }
 
+/// The smallest nonzero σ of a path-fit prior the file accepts: the firmware's integer kernel
+/// weighs a prior by 1/σ² in Q32.32, which a σ below about 2e-5 overflows (every fit is then
+/// refused as not determined).
+const PRIOR_SIGMA_MIN: f64 = 1e-4;
+
+/// A path-fit prior's σ: 0 (`zero`: what 0 means), or in [[`PRIOR_SIGMA_MIN`], `hi`] `unit`.
+fn prior_sigma(
+    key: &str,
+    v: Option<f64>,
+    default: f64,
+    hi: f64,
+    unit: &str,
+    zero: &str,
+) -> Result<f64, ConfigError> {
+    let Some(x) = v else { return Ok(default) };
+    if x == 0.0 || (x.is_finite() && (PRIOR_SIGMA_MIN..=hi).contains(&x)) {
+        return Ok(x);
+    }
+    Err(ConfigError::invalid(
+        key,
+        format!("{x} is not allowed: expected 0 ({zero}) or a value in [{PRIOR_SIGMA_MIN}, {hi}] {unit}"),
+    ))
+}
+
 fn integer(key: &str, v: Option<i64>, default: u32, lo: i64, hi: i64) -> Result<u32, ConfigError> {
     let Some(x) = v else { return Ok(default) };
     if x < lo || x > hi {
@@ -536,23 +561,21 @@ impl RawFile {
         };
         let d = FingerFile::PAPER_ESTIMATE;
         let estimate = EstimatePriors {
-            contact_angle_sigma_rad: real(
+            contact_angle_sigma_rad: prior_sigma(
                 "estimate.contact_angle_sigma_rad",
                 self.estimate.contact_angle_sigma_rad,
                 d.contact_angle_sigma_rad,
-                0.0,
-                true,
                 0.05,
-                "rad (0: the contact angle found is taken as exact)",
+                "rad",
+                "the contact angle found is taken as exact",
             )?,
-            friction_offset_sigma_nm: real(
+            friction_offset_sigma_nm: prior_sigma(
                 "estimate.friction_offset_sigma_nm",
                 self.estimate.friction_offset_sigma_nm,
                 d.friction_offset_sigma_nm,
-                0.0,
-                true,
                 0.5,
-                "N·m (0: no prior on the friction offset)",
+                "N·m",
+                "no prior on the friction offset",
             )?,
         };
         Ok(FingerFile {
@@ -931,17 +954,33 @@ mod tests {
         .unwrap();
         assert_eq!(f.estimate.contact_angle_sigma_rad, 0.0);
         assert_eq!(f.estimate.friction_offset_sigma_nm, 0.5);
+        let f = FingerFile::from_toml_str(
+            "[estimate]\ncontact_angle_sigma_rad = 1e-4\nfriction_offset_sigma_nm = 0.0\n",
+        )
+        .unwrap();
+        assert_eq!(f.estimate.contact_angle_sigma_rad, 1e-4);
+        assert_eq!(f.estimate.friction_offset_sigma_nm, 0.0);
         for text in [
             "[estimate]\ncontact_angle_sigma_rad = -1e-3",
             "[estimate]\ncontact_angle_sigma_rad = 0.06",
+            "[estimate]\ncontact_angle_sigma_rad = 1e-5",
         ] {
-            assert_refused(text, "estimate.contact_angle_sigma_rad", "[0, 0.05]");
+            assert_refused(
+                text,
+                "estimate.contact_angle_sigma_rad",
+                "0 (the contact angle found is taken as exact) or a value in [0.0001, 0.05] rad",
+            );
         }
         for text in [
             "[estimate]\nfriction_offset_sigma_nm = nan",
             "[estimate]\nfriction_offset_sigma_nm = 0.51",
+            "[estimate]\nfriction_offset_sigma_nm = 5e-5",
         ] {
-            assert_refused(text, "estimate.friction_offset_sigma_nm", "[0, 0.5]");
+            assert_refused(
+                text,
+                "estimate.friction_offset_sigma_nm",
+                "or a value in [0.0001, 0.5] N·m",
+            );
         }
         assert_refused(
             "[estimate]\nfriction_prior = 0.01",
