@@ -81,14 +81,29 @@ pub struct SimOptions {
     pub seating: Option<bool>,
 }
 
+/// What a finger file gives the controller besides the plant's finger.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FileControl {
+    /// The file's current limit (A), for [`SimOptions::overcurrent_a`].
+    pub overcurrent_a: f64,
+    /// The file's path-fit priors, for [`SimOptions::priors`].
+    pub priors: pathfit::FitPriors,
+}
+
 /// A scene as the finger of a finger file: its geometry, springs and drive constants in the
-/// plant (the scene's object, friction and sensor models stay), and the file's current limit
-/// for [`SimOptions::overcurrent_a`]. Checked by the controller's own validation first.
-pub fn finger_scene(scene: Scene, file: &pts::config::FingerFile) -> Result<(Scene, f64), String> {
+/// plant (the scene's object, friction and sensor models stay), and what the file sets in the
+/// controller. Checked by the controller's own validation first.
+pub fn finger_scene(
+    scene: Scene,
+    file: &pts::config::FingerFile,
+) -> Result<(Scene, FileControl), String> {
     let cfg = crate::replay::controller_config(file, scene.dt_s)?;
     Ok((
         sim_board::scene_for_finger(scene, &file.finger, &cfg.drive, &file.stops),
-        cfg.overcurrent_a,
+        FileControl {
+            overcurrent_a: cfg.overcurrent_a,
+            priors: cfg.drive.priors,
+        },
     ))
 }
 

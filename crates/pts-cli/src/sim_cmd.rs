@@ -82,32 +82,20 @@ fn step_name(s: Option<grasp::StepShape>) -> String {
     }
 }
 
-/// The scene as the finger file's finger, the file's current limit and its path-fit priors
-/// (none without a file).
-fn with_finger(a: &Args, scene: plant::Scene) -> Result<(plant::Scene, FileLimits), String> {
+/// The scene as the finger file's finger, and what the file sets in the controller (none
+/// without a file).
+fn with_finger(
+    a: &Args,
+    scene: plant::Scene,
+) -> Result<(plant::Scene, Option<sim::FileControl>), String> {
     match &a.finger {
-        None => Ok((scene, FileLimits::default())),
+        None => Ok((scene, None)),
         Some(path) => {
             let file = crate::load_finger(Some(path))?;
-            let (scene, imax) = sim::finger_scene(scene, &file)?;
-            Ok((
-                scene,
-                FileLimits {
-                    overcurrent_a: Some(imax),
-                    priors: Some(grasp::config::fit_priors(&file.estimate)),
-                },
-            ))
+            let (scene, control) = sim::finger_scene(scene, &file)?;
+            Ok((scene, Some(control)))
         }
     }
-}
-
-/// What a finger file gives the controller besides the scene.
-#[derive(Clone, Copy, Default)]
-struct FileLimits {
-    /// The over-current limit (A).
-    overcurrent_a: Option<f64>,
-    /// The path fit's priors.
-    priors: Option<pathfit::FitPriors>,
 }
 
 fn check_dta(dta: &[f64]) -> Result<(), String> {
@@ -240,8 +228,8 @@ pub fn run(a: &Args) -> Result<(), String> {
         extra_s: 0.2,
         record: a.csv.is_some() || a.plot.is_some(),
         method: a.method,
-        overcurrent_a: from_file.overcurrent_a,
-        priors: from_file.priors,
+        overcurrent_a: from_file.map(|c| c.overcurrent_a),
+        priors: from_file.map(|c| c.priors),
         step_shape: Some(step),
         seating: Some(seating),
     })?;
@@ -491,8 +479,8 @@ fn sweep(a: &Args) -> Result<(), String> {
             extra_s: 0.0,
             record: false,
             method: a.method,
-            overcurrent_a: from_file.overcurrent_a,
-            priors: from_file.priors,
+            overcurrent_a: from_file.map(|c| c.overcurrent_a),
+            priors: from_file.map(|c| c.priors),
             step_shape: st,
             seating: a.seating,
         });

@@ -388,7 +388,8 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
     assert_eq!(back.current_sense, cal.file.current_sense);
     assert_eq!(back.drive, cal.file.drive);
     // `pts sim --finger`: the plant and the controller built from it run a grasp.
-    let (scene, imax) = pts_cli::sim::finger_scene(plant::scenes::table2(), &back).expect("scene");
+    let (scene, control) =
+        pts_cli::sim::finger_scene(plant::scenes::table2(), &back).expect("scene");
     let rep = run(&SimOptions {
         scene,
         delta_ta_nm: 0.8,
@@ -396,8 +397,8 @@ fn the_calibrated_file_is_accepted_by_every_consumer() {
         extra_s: 0.2,
         record: false,
         method: Method::TwoPoint,
-        overcurrent_a: Some(imax),
-        priors: Some(grasp::config::fit_priors(&back.estimate)),
+        overcurrent_a: Some(control.overcurrent_a),
+        priors: Some(control.priors),
         step_shape: None,
         seating: None,
     })

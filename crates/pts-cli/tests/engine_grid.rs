@@ -82,11 +82,12 @@ impl Outcome {
             .then(|| Some((self.k2? - self.k2_true?) / L2 * 100.0))
             .flatten()
     }
+    /// |k̂2 − k2,c| in units of the answer's σ.
+    fn error_over_sigma(&self) -> Option<f64> {
+        Some((self.err_pct()? * L2 / 100.0).abs() / self.sigma?)
+    }
     fn within_3sigma(&self) -> bool {
-        match (self.err_pct(), self.sigma) {
-            (Some(e), Some(s)) => e.abs() * L2 / 100.0 <= 3.0 * s,
-            _ => false,
-        }
+        self.error_over_sigma().is_some_and(|z| z <= 3.0)
     }
     /// A negative handled right: no object → no contact; proximal → proximal.
     fn negative_right(&self) -> bool {
@@ -550,8 +551,7 @@ fn draws() -> u64 {
 fn print_sigma_calibration(rows: &[Outcome]) {
     let mut by_mu: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     for o in rows.iter().filter(|o| o.expected == "distal") {
-        if let (Some(e), Some(s)) = (o.err_pct(), o.sigma) {
-            let z = (e * L2 / 100.0).abs() / s;
+        if let Some(z) = o.error_over_sigma() {
             by_mu.entry(format!("{:.2}", o.mu)).or_default().push(z);
         }
     }

@@ -173,15 +173,15 @@ pub struct Contact {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EstimatePriors {
     /// How far the contact angle θa,c that the contact detection finds may lie from the true
-    /// one (rad at the crank; standard deviation), 0 or in [1e-4, 0.05]: the prior of the fitted θa,c,
-    /// which also enters σ(k2,c). The finger's inertia carries it past the contact and the
-    /// detection sees the kink a few mrad late. 0 takes the angle found as exact.
+    /// one (rad at the crank; standard deviation), 0 or in [1e-4, 0.05]: the prior of the
+    /// fitted θa,c, which also enters σ(k2,c). The finger's inertia carries it past the
+    /// contact and the detection sees the kink a few mrad late. 0 takes the angle found as
+    /// exact.
     pub contact_angle_sigma_rad: f64,
     /// How far the transmission's friction offset while the contact loads may differ from the
-    /// one read on the approach (N·m at the base link; standard deviation), 0 or in [1e-4,
-    /// 0.5]: the
-    /// prior that anchors the fitted path at the contact. A drive with stick-slip or a
-    /// friction that changes with load sets more. 0 leaves the offset free.
+    /// one read on the approach (N·m at the base link; standard deviation), 0 or in
+    /// [1e-4, 0.5]: the prior that anchors the fitted path at the contact. A drive with
+    /// stick-slip or a friction that changes with load sets more. 0 leaves the offset free.
     pub friction_offset_sigma_nm: f64,
 }
 
