@@ -126,21 +126,61 @@ fn n(x: f64) -> Value {
     crate::eval::num(x)
 }
 
+/// Largest |`--theta-a-offset`| (rad): a whole turn.
+pub const THETA_A_OFFSET_MAX_RAD: f64 = core::f64::consts::TAU;
+
+/// What `pts estimate` was asked.
+#[derive(Clone, Copy, Debug)]
+pub struct EstimateArgs<'a> {
+    /// The recorded grasp (CSV; `-` for stdin).
+    pub trace: &'a Path,
+    /// Finger file; `None`: the paper's prototype.
+    pub finger: Option<&'a Path>,
+    /// ΔT_a (N·m) for a `pts sim` trace's replay.
+    pub dta: Option<f64>,
+    /// Control period (s) for a `pts sim` trace's replay.
+    pub dt_s: Option<f64>,
+    /// One JSON object instead of text.
+    pub json: bool,
+    /// The estimator; `None`: the recording's, else the path fit.
+    pub method: Option<Method>,
+    /// Added to every row's θa (rad) of a recording before it is read: brings an encoder
+    /// zeroed elsewhere into the finger's absolute model angle.
+    pub theta_a_offset_rad: Option<f64>,
+}
+
 /// Runs `pts estimate`.
-pub fn run(
-    path: &Path,
-    finger: Option<&Path>,
-    dta: Option<f64>,
-    dt_s: Option<f64>,
-    json_out: bool,
-    method: Option<Method>,
-) -> Result<(), String> {
+pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
+    let EstimateArgs {
+        trace: path,
+        finger,
+        dta,
+        dt_s,
+        json: json_out,
+        method,
+        theta_a_offset_rad,
+    } = *args;
+    if let Some(o) = theta_a_offset_rad {
+        if !(o.is_finite() && o.abs() <= THETA_A_OFFSET_MAX_RAD) {
+            return Err(format!(
+                "--theta-a-offset {o} rad is outside [-{THETA_A_OFFSET_MAX_RAD:.4}, \
+                 {THETA_A_OFFSET_MAX_RAD:.4}] rad"
+            ));
+        }
+    }
     let text = read_text(path)?;
     // A trace written by `pts sim` (our controller in the loop): replay that controller, bit
     // for bit. Any other recorded grasp: find its contacts with crate::offline.
     if TraceMeta::find(&text).is_none() {
         let method = method.unwrap_or(Method::Pathfit);
-        return run_segmented(path, &text, finger, dta, dt_s, json_out, method);
+        return run_segmented(args, &text, method);
+    }
+    if theta_a_offset_rad.is_some() {
+        return Err(format!(
+            "{}: --theta-a-offset is for recordings; this is a `pts sim` trace, in the finger's \
+             model angle already",
+            path.display()
+        ));
     }
     // The recording's own estimator unless the user names one.
     let recorded = TraceMeta::find(&text).and_then(|m| m.controller.estimator);
@@ -245,18 +285,23 @@ pub fn run(
 
 /// `pts estimate` on a trace without the `# pts-sim` line: the offline segmenter finds each
 /// contact, its step and settled end, and the firmware's estimator runs on each request.
-fn run_segmented(
-    path: &Path,
-    text: &str,
-    finger: Option<&Path>,
-    dta: Option<f64>,
-    dt_s: Option<f64>,
-    json_out: bool,
-    method: Method,
-) -> Result<(), String> {
+fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<(), String> {
+    let EstimateArgs {
+        trace: path,
+        finger,
+        dta,
+        dt_s,
+        json: json_out,
+        ..
+    } = *args;
     let file = crate::load_finger(finger)?;
     let conv = |i: f64| file.torque_from_current(i);
-    let tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    if let Some(o) = args.theta_a_offset_rad {
+        for th in &mut tr.theta_a_rad {
+            *th += o;
+        }
+    }
     if replay::median_dt(&tr).is_none() {
         return Err(format!(
             "{}: the trace needs at least two rows with increasing t_s",

@@ -76,6 +76,11 @@ enum Cmd {
         /// reported beside it); on a `pts sim` trace, the method `pts sim` defaults to.
         #[arg(long, value_enum)]
         method: Option<pts_cli::method::Method>,
+        /// Added to every row's θa (rad) of a recording before it is read, within ±2π: for an
+        /// encoder zeroed elsewhere than the finger's model angle (one zeroed at rest: the
+        /// file's rest angle, which `pts estimate` names when it refuses the recording's rest).
+        #[arg(long, allow_hyphen_values = true)]
+        theta_a_offset: Option<f64>,
     },
     /// Turn a decoded defmt log (text) into a trace CSV for `pts estimate` and `pts plot`.
     Trace {
@@ -871,7 +876,16 @@ fn main() -> ExitCode {
             dt_s,
             json,
             method,
-        } => pts_cli::estimate_cmd::run(&trace, finger.as_deref(), dta, dt_s, json, method),
+            theta_a_offset,
+        } => pts_cli::estimate_cmd::run(&pts_cli::estimate_cmd::EstimateArgs {
+            trace: &trace,
+            finger: finger.as_deref(),
+            dta,
+            dt_s,
+            json,
+            method,
+            theta_a_offset_rad: theta_a_offset,
+        }),
         Cmd::Trace {
             from_defmt,
             out,

@@ -684,6 +684,10 @@ fn segment_stretch(
         })
     });
     let rows = rows.get(start..).unwrap_or_default().to_vec();
+    // A recording in another angle frame would be read as a confident wrong answer (an encoder
+    // zeroed at rest moves k2 by a fifth of l2 on the paper's finger): refused first.
+    let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
+    crate::offline::check_rest_frame(&m64, &rows).map_err(segmenting_error)?;
     // The recording's encoder step: its smallest θa change between rows (of the rows as
     // recorded: interpolated ones below step by fractions of it).
     let quantum_rad = smallest_step(&rows);

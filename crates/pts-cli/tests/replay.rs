@@ -322,6 +322,64 @@ fn a_foreign_recording_reports_which_samples_the_fit_read() {
     }
 }
 
+/// A recording whose θa is not the finger's model angle (here an encoder zeroed at rest)
+/// is refused, naming the rest it read, the file's, and the offset that brings one onto
+/// the other; with that `--theta-a-offset` it reads as the recording in the model's angle.
+/// The offset is refused out of range and on a `pts sim` trace (in the model angle already).
+#[test]
+fn a_recording_in_another_angle_frame_is_refused_and_the_offset_reads_it() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    let path = samples.join("qs02_vtx_k58_dT06__default.csv");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let rest = -0.850_360_810_6;
+    let mut zeroed = String::new();
+    for (i, l) in text.lines().enumerate() {
+        let c: Vec<&str> = l.split(',').collect();
+        if i == 0 || c.len() < 3 {
+            zeroed += l;
+        } else {
+            let th: f64 = c[1].parse().unwrap();
+            zeroed += &format!("{},{:.10},{}", c[0], th - rest, c[2]);
+        }
+        zeroed.push('\n');
+    }
+    let zpath = dir().join("zeroed_at_rest.csv");
+    std::fs::write(&zpath, zeroed).unwrap();
+    let o = estimate(&zpath, &[]);
+    assert!(!o.status.success(), "a zeroed encoder must not be answered");
+    let err = String::from_utf8_lossy(&o.stderr);
+    for needle in [
+        "angle_frame",
+        "0.0000 rad",
+        "-0.8504 rad",
+        "--theta-a-offset -0.8504",
+    ] {
+        assert!(err.contains(needle), "{needle} not in: {err}");
+    }
+    // Back in the model angle to the last bits (not bit for bit: the segmenter's discrete
+    // choices may fall otherwise, as they do between block phases), the same contact within
+    // a fraction of its σ.
+    let orig = json_of(&estimate(&path, &[]));
+    let fixed = json_of(&estimate(&zpath, &["--theta-a-offset", "-0.8503608106"]));
+    let (c0, c1) = (&orig["contacts"][0], &fixed["contacts"][0]);
+    assert_eq!(c0["phalanx"], c1["phalanx"]);
+    let (k0, k1, sigma) = (f(c0, "k2"), f(c1, "k2"), f(c0, "sigma_k2"));
+    assert!((k0 - k1).abs() < 0.25 * sigma, "{k0} vs {k1} (σ {sigma})");
+    for bad in ["7", "nan", "-inf"] {
+        let o = estimate(&zpath, &["--theta-a-offset", bad]);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("--theta-a-offset") && err.contains("6.2832"),
+            "{err}"
+        );
+    }
+    let (sim_csv, _) = recorded();
+    let o = estimate(sim_csv, &["--theta-a-offset", "0.1"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("pts sim"));
+}
+
 /// On a frictionless drive ringing on its contact, the inertia the fit removes is read on the
 /// contact path, where the finger's links carry another share of it than in free motion: the
 /// other simulator's ideal dynamic sample `dyn01` reports it (below the approach's, which

@@ -236,6 +236,15 @@ pub enum OfflineError {
         /// Mean rate (Hz).
         rate_hz: u32,
     },
+    /// The recording rests too far from the finger's free poses ([`check_rest_frame`]): its
+    /// θa is not this finger's absolute model angle (an encoder zeroed at power-up, angles in
+    /// degrees, another finger's file).
+    AngleFrame {
+        /// θa over the still rows the recording starts with (µrad).
+        rest_urad: i32,
+        /// θa of the finger's free pose at zero torque, its rest (µrad).
+        model_urad: i32,
+    },
     /// The model failed.
     Model(PtsError),
 }
@@ -262,6 +271,7 @@ impl OfflineError {
             OfflineError::NotSettled => "not_settled",
             OfflineError::Outlier { .. } => "outlier_sample",
             OfflineError::SampleRateTooLow { .. } => "sample_rate_too_low",
+            OfflineError::AngleFrame { .. } => "angle_frame",
             OfflineError::Model(e) => e.kind(),
         }
     }
@@ -295,9 +305,84 @@ impl core::fmt::Display for OfflineError {
                 "recorded at {rate_hz} rows per second (of the median row spacing), below the \
                  {MIN_RATE_HZ} the contact detection needs"
             ),
+            OfflineError::AngleFrame {
+                rest_urad,
+                model_urad,
+            } => {
+                let (rest, model) = (f64::from(*rest_urad) * 1e-6, f64::from(*model_urad) * 1e-6);
+                write!(
+                    f,
+                    "the recording rests at θa = {rest:.4} rad, the finger file's rest is \
+                     {model:.4} rad ({:+.4} rad apart; a finger rests within {REST_FRAME_TOL_RAD} \
+                     rad of its free poses): θa is not this finger's absolute model angle in radians (an encoder \
+                     zeroed at rest reads 0 there, and `--theta-a-offset {:.4}` adds the \
+                     difference to every row), or the file is another finger's",
+                    rest - model,
+                    model - rest
+                )
+            }
             OfflineError::Model(e) => write!(f, "the model: {e}"),
         }
     }
+}
+
+/// How far (rad) the θa a recording rests at may lie from the finger's free poses in
+/// [`check_rest_frame`]. A built finger rests within its stiction band (static friction over
+/// the free-motion stiffness, 0.55‥0.9 N·m/rad on the paper's finger) and a few degrees of
+/// its file's rest-angle error, together below 0.15 rad; an encoder zeroed at rest is off by
+/// the whole rest angle (0.85 rad on the paper's finger).
+pub const REST_FRAME_TOL_RAD: f64 = 0.25;
+
+/// Least stillness (s, and rows) at the start of a recording for [`check_rest_frame`] to read
+/// a rest from it.
+const REST_FRAME_MIN_S: f64 = 0.02;
+const REST_FRAME_MIN_ROWS: usize = 5;
+/// θa change (rad) that ends the still rows at the start of a recording.
+const REST_MOVED_RAD: f64 = 1e-3;
+
+/// The recording's angle frame against the finger's. Where the rows start still (for at
+/// least [`REST_FRAME_MIN_S`]: the finger at rest before the approach), their median θa must
+/// lie within [`REST_FRAME_TOL_RAD`] of the finger's free poses between zero torque and the
+/// rows' median torque (which a current sensor's offset may carry as well as the springs).
+/// `Ok(None)` when the recording starts moving or the model has no free pose at those torques
+/// (nothing to compare); `Ok(Some((rest, model)))` (rad: the rest read and the finger's at
+/// zero torque) when it was compared and passed.
+pub fn check_rest_frame(
+    model: &pts::Model<f64>,
+    rows: &[TraceSample],
+) -> Result<Option<(f64, f64)>, OfflineError> {
+    let Some(first) = rows.first() else {
+        return Ok(None);
+    };
+    let still = rows
+        .iter()
+        .position(|r| !((r.theta_a_rad - first.theta_a_rad).abs() <= REST_MOVED_RAD))
+        .unwrap_or(rows.len());
+    let rest_rows = &rows[..still];
+    let span_s = rest_rows.last().map_or(0.0, |r| r.t_s - first.t_s);
+    if rest_rows.len() < REST_FRAME_MIN_ROWS || !(span_s >= REST_FRAME_MIN_S) {
+        return Ok(None);
+    }
+    let median = |f: fn(&TraceSample) -> f64| {
+        let mut v: std::vec::Vec<f64> = rest_rows.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let rest = median(|r| r.theta_a_rad);
+    let torque = median(|r| r.torque_nm);
+    let pose = |t: f64| model.free_from_torque(t).map(|c| c.theta_a).ok();
+    let (Some(at_zero), Some(at_rest)) = (pose(0.0), pose(torque)) else {
+        return Ok(None);
+    };
+    let (lo, hi) = (at_zero.min(at_rest), at_zero.max(at_rest));
+    if rest >= lo - REST_FRAME_TOL_RAD && rest <= hi + REST_FRAME_TOL_RAD {
+        return Ok(Some((rest, at_zero)));
+    }
+    let urad = |x: f64| (x * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32;
+    Err(OfflineError::AngleFrame {
+        rest_urad: urad(rest),
+        model_urad: urad(at_zero),
+    })
 }
 
 impl From<PtsError> for OfflineError {
@@ -356,10 +441,76 @@ mod tests {
                 "12.3 mN·m",
             ),
             (OfflineError::TooShort, "too few rows"),
+            (
+                OfflineError::AngleFrame {
+                    rest_urad: 0,
+                    model_urad: -850_361,
+                },
+                "--theta-a-offset -0.8504",
+            ),
         ] {
             let text = e.to_string();
             assert!(text.contains(needle), "{e:?}: {text}");
             assert!(!text.contains('{'), "{e:?}: {text}");
         }
+    }
+
+    /// 0.1 s at rest at `rest` rad and `torque` N·m, then an approach at 0.5 rad/s.
+    fn rest_then_moving(rest: f64, torque: f64) -> std::vec::Vec<TraceSample> {
+        (0..300)
+            .map(|i| {
+                let t = i as f64 * 1e-3;
+                TraceSample {
+                    t_s: t,
+                    theta_a_rad: rest + 0.5 * (t - 0.1).max(0.0),
+                    torque_nm: torque,
+                }
+            })
+            .collect()
+    }
+
+    /// The rest a recording starts from is held to the finger's free poses (the paper's
+    /// finger rests at θa = −0.8503608 rad, its free motion at 0.55‥0.9 N·m/rad): within
+    /// 0.25 rad of the poses between zero torque and the rest's torque it is read, farther it
+    /// is refused with both angles; a recording that starts moving is not judged.
+    #[test]
+    fn the_rest_a_recording_starts_from_is_held_to_the_finger_s() {
+        let m = pts::Model::<f64>::paper().unwrap();
+        let rest = m.free_from_torque(0.0).unwrap().theta_a;
+        assert!((rest - -0.850_360_8).abs() < 1e-6, "{rest}");
+        let check = |r: f64, t: f64| check_rest_frame(&m, &rest_then_moving(r, t));
+        let read = check(rest, 0.0).unwrap().unwrap();
+        assert!((read.0 - rest).abs() < 1e-12 && (read.1 - rest).abs() < 1e-12);
+        for off in [-0.24, -0.1, 0.1, 0.24] {
+            assert!(check(rest + off, 0.0).unwrap().is_some(), "{off}");
+        }
+        for off in [-0.26, 0.26, -rest] {
+            let e = check(rest + off, 0.0).unwrap_err();
+            assert_eq!(e.kind(), "angle_frame");
+            let OfflineError::AngleFrame {
+                rest_urad,
+                model_urad,
+            } = e
+            else {
+                panic!("{e:?}");
+            };
+            assert_eq!(rest_urad, ((rest + off) * 1e6).round() as i32);
+            assert_eq!(model_urad, (rest * 1e6).round() as i32);
+        }
+        // A current sensor's offset of 0.2 N·m at rest: the free pose at that torque lies
+        // 0.2–0.4 rad above the rest; a rest at either is read, 0.3 rad below neither.
+        let at = m.free_from_torque(0.2).unwrap().theta_a;
+        assert!(at - rest > 0.2, "{at}");
+        assert!(check(rest, 0.2).unwrap().is_some());
+        assert!(check(at + 0.2, 0.2).unwrap().is_some());
+        assert!(check(rest - 0.3, 0.2).is_err());
+        // Degrees instead of radians: refused.
+        assert!(check(rest.to_degrees(), 0.0).is_err());
+        // Moving from the first row, or still for less than 20 ms: nothing to judge.
+        let moving: std::vec::Vec<TraceSample> = rest_then_moving(0.0, 0.0)[100..].to_vec();
+        assert_eq!(check_rest_frame(&m, &moving), Ok(None));
+        let brief: std::vec::Vec<TraceSample> = rest_then_moving(0.0, 0.0)[85..].to_vec();
+        assert_eq!(check_rest_frame(&m, &brief), Ok(None));
+        assert_eq!(check_rest_frame(&m, &[]), Ok(None));
     }
 }
