@@ -1255,13 +1255,15 @@ fn foreign_path_fit(
         },
         ..pathfit::PathFitConfig::DEFAULT.with_priors(grasp::config::fit_priors(&finger.estimate))
     };
-    // With the crank swinging back (by any amount with dry friction, by more than the
-    // envelope keeps without), the path is the loading rows with its dynamics removed here
+    // With dry friction, or with the crank swinging back by more than the envelope keeps,
+    // the path is the loading rows with its dynamics removed here
     // (`crate::offline::loading_path`), and the fit is told neither inertia nor envelope.
+    // Dry friction needs no swing: its stuck rows are off the loading path either way (and a
+    // swing of "more than zero" would be decided by how the block means round).
     let (loading, reading) = judged.map_or((None, None), |j| {
         let min_swing = match j.reason {
             LoadingReason::Swing => LOADING_MIN_SWING_RAD,
-            _ => 0.0,
+            _ => f64::NEG_INFINITY,
         };
         let req = crate::offline::loading_path(
             &seg.request,

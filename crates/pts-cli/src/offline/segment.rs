@@ -384,8 +384,9 @@ fn build_request(
 /// ticks after the contact's; `pre` keeps the approach up to the contact. `half_width` is the
 /// half-width (blocks) of the local quartic that gives θ̇a and θ̈a
 /// ([`poly_speed_accel`](super::drive::poly_speed_accel)). `None` unless the
-/// crank swings back after the contact by more than `min_swing_rad` (block means): below
-/// that the fit's own envelope keeps the whole path and the request stays as it is.
+/// crank swings back after the contact by more than `min_swing_rad` (block means; −∞
+/// rebuilds every path): below that the fit's own envelope keeps the whole path and the
+/// request stays as it is.
 pub fn loading_path(
     req: &EstimateRequest,
     blocks: &[Block],
@@ -467,7 +468,7 @@ fn moving_after_contact(
         let b = blocks.get(k).filter(|b| b.moving_rows > 0)?;
         let p = blocks.get(k.checked_sub(1)?)?;
         let n = blocks.get(k + 1)?;
-        Some((k, b, n.theta_a_rad.partial_cmp(&p.theta_a_rad)))
+        Some((k, b, super::angle_order(n.theta_a_rad, p.theta_a_rad)))
     })
 }
 
