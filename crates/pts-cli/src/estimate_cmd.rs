@@ -286,15 +286,8 @@ pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
 /// `pts estimate` on a trace without the `# pts-sim` line: the offline segmenter finds each
 /// contact, its step and settled end, and the firmware's estimator runs on each request.
 fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<(), String> {
-    let EstimateArgs {
-        trace: path,
-        finger,
-        dta,
-        dt_s,
-        json: json_out,
-        ..
-    } = *args;
-    let file = crate::load_finger(finger)?;
+    let (path, json_out) = (args.trace, args.json);
+    let file = crate::load_finger(args.finger)?;
     let conv = |i: f64| file.torque_from_current(i);
     let mut tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
     if let Some(o) = args.theta_a_offset_rad {
@@ -311,7 +304,7 @@ fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<
     let seg =
         replay::segment(&tr, &file, method).map_err(|e| format!("{}: {e}", path.display()))?;
     let mut warnings = tr.warnings.clone();
-    if dta.is_some() || dt_s.is_some() {
+    if args.dta.is_some() || args.dt_s.is_some() {
         warnings.push(
             "no # pts-sim line: --dta/--dt-s are ignored (ΔT_a is measured from the trace)".into(),
         );

@@ -313,10 +313,11 @@ impl core::fmt::Display for OfflineError {
                 write!(
                     f,
                     "the recording rests at θa = {rest:.4} rad, the finger file's rest is \
-                     {model:.4} rad ({:+.4} rad apart; a finger rests within {REST_FRAME_TOL_RAD} \
-                     rad of its free poses): θa is not this finger's absolute model angle in radians (an encoder \
-                     zeroed at rest reads 0 there, and `--theta-a-offset {:.4}` adds the \
-                     difference to every row), or the file is another finger's",
+                     {model:.4} rad ({:+.4} rad apart; a finger rests within \
+                     {REST_FRAME_TOL_RAD} rad of its free poses): θa is not this finger's \
+                     absolute model angle in radians (an encoder zeroed at rest reads 0 there, \
+                     and `--theta-a-offset {:.4}` adds the difference to every row), or the \
+                     file is another finger's",
                     rest - model,
                     model - rest
                 )
@@ -349,10 +350,11 @@ pub fn angle_order(a: f64, b: f64) -> Option<core::cmp::Ordering> {
 /// the whole rest angle (0.85 rad on the paper's finger).
 pub const REST_FRAME_TOL_RAD: f64 = 0.25;
 
-/// Least stillness (s, and rows) at the start of a recording for [`check_rest_frame`] to read
-/// a rest from it.
-const REST_FRAME_MIN_S: f64 = 0.02;
-const REST_FRAME_MIN_ROWS: usize = 5;
+/// Least stillness (s) at the start of a recording for [`check_rest_frame`] to read a rest
+/// from it.
+pub const REST_FRAME_MIN_S: f64 = 0.02;
+/// Least still rows at the start of a recording for [`check_rest_frame`].
+pub const REST_FRAME_MIN_ROWS: usize = 5;
 /// θa change (rad) that ends the still rows at the start of a recording.
 const REST_MOVED_RAD: f64 = 1e-3;
 
