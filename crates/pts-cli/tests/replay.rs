@@ -143,6 +143,33 @@ fn unsorted_rows_are_sorted_with_a_warning() {
     assert_eq!(rep["contacts"][0]["k2"], sim["estimate"]["k2"]);
 }
 
+/// A row whose time repeats the row before is kept and named in a warning.
+#[test]
+fn repeated_times_are_named_in_a_warning() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    let text = std::fs::read_to_string(samples.join("qs02_vtx_k58_dT06__default.csv")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    // Row 100 twice.
+    let c: Vec<String> = lines[100].split(',').map(String::from).collect();
+    lines.insert(101, format!("{},{},{}", c[0], c[1], c[2]));
+    let p = dir().join("repeated_time.csv");
+    std::fs::write(&p, lines.join("\n")).unwrap();
+    let rep = json_of(&estimate(&p, &[]));
+    let w = rep["warnings"].to_string();
+    assert!(
+        w.contains("1 row(s) repeat the time") && w.contains(&c[0]),
+        "{w}"
+    );
+    let clean = json_of(&estimate(
+        &samples.join("qs02_vtx_k58_dT06__default.csv"),
+        &[],
+    ));
+    assert!(
+        clean["warnings"].as_array().is_some_and(|a| a.is_empty()),
+        "{clean}"
+    );
+}
+
 fn fails_clearly(body: &[u8], needle: &str) {
     let p = dir().join(format!("bad-{}.csv", needle.replace(' ', "_")));
     std::fs::write(&p, body).unwrap();
