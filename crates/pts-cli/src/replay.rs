@@ -674,14 +674,9 @@ fn segment_stretch(
     // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
     // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
     const IDLE_KEEP_S: f64 = GAP_SPLIT_S;
-    let start = rows.first().map_or(0, |r0| {
-        let moved = rows
-            .iter()
-            .position(|r| (r.theta_a_rad - r0.theta_a_rad).abs() > 1e-3);
-        moved.map_or(0, |m| {
-            let t_keep = rows[m].t_s - IDLE_KEEP_S;
-            rows.partition_point(|r| r.t_s < t_keep)
-        })
+    let start = crate::offline::first_moving_row(rows).map_or(0, |m| {
+        let t_keep = rows[m].t_s - IDLE_KEEP_S;
+        rows.partition_point(|r| r.t_s < t_keep)
     });
     let rows = rows.get(start..).unwrap_or_default().to_vec();
     // A recording in another angle frame would be read as a confident wrong answer (an encoder

@@ -575,8 +575,9 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
             .warnings
             .push("rows were not in time order: sorted by t_s".into());
     }
-    let repeated = trace.t_s.windows(2).filter(|w| w[1] == w[0]).count();
-    if let Some(t) = trace.t_s.windows(2).find(|w| w[1] == w[0]).map(|w| w[0]) {
+    let mut repeats = trace.t_s.windows(2).filter(|w| w[1] == w[0]).map(|w| w[0]);
+    if let Some(t) = repeats.next() {
+        let repeated = 1 + repeats.count();
         trace.warnings.push(format!(
             "{repeated} row(s) repeat the time of the row before (first at t_s = {t}): both kept"
         ));

@@ -355,8 +355,16 @@ pub const REST_FRAME_TOL_RAD: f64 = 0.25;
 pub const REST_FRAME_MIN_S: f64 = 0.02;
 /// Least still rows at the start of a recording for [`check_rest_frame`].
 pub const REST_FRAME_MIN_ROWS: usize = 5;
-/// θa change (rad) that ends the still rows at the start of a recording.
-const REST_MOVED_RAD: f64 = 1e-3;
+/// θa change (rad) from the first row that ends the still rows at the start of a recording.
+pub const REST_MOVED_RAD: f64 = 1e-3;
+
+/// The first row whose θa lies more than [`REST_MOVED_RAD`] from the first row's: where the
+/// crank first moved. `None` when it never does (or there are no rows).
+pub fn first_moving_row(rows: &[TraceSample]) -> Option<usize> {
+    let first = rows.first()?;
+    rows.iter()
+        .position(|r| !((r.theta_a_rad - first.theta_a_rad).abs() <= REST_MOVED_RAD))
+}
 
 /// The recording's angle frame against the finger's. Where the rows start still (for at
 /// least [`REST_FRAME_MIN_S`]: the finger at rest before the approach), their median θa must
@@ -372,10 +380,7 @@ pub fn check_rest_frame(
     let Some(first) = rows.first() else {
         return Ok(None);
     };
-    let still = rows
-        .iter()
-        .position(|r| !((r.theta_a_rad - first.theta_a_rad).abs() <= REST_MOVED_RAD))
-        .unwrap_or(rows.len());
+    let still = first_moving_row(rows).unwrap_or(rows.len());
     let rest_rows = &rows[..still];
     let span_s = rest_rows.last().map_or(0.0, |r| r.t_s - first.t_s);
     if rest_rows.len() < REST_FRAME_MIN_ROWS || !(span_s >= REST_FRAME_MIN_S) {
