@@ -176,10 +176,13 @@ pub fn knee_theta(
         }
         th_prev = b.theta_a_rad;
         if e >= low {
-            sx += b.theta_a_rad;
+            // θa taken from th_lo: the spread of angles a stuck crank holds is then the
+            // rounding of its block means, not a difference of two large squares.
+            let x = b.theta_a_rad - th_lo;
+            sx += x;
             sy += e;
-            sxx += b.theta_a_rad * b.theta_a_rad;
-            sxy += b.theta_a_rad * e;
+            sxx += x * x;
+            sxy += x * e;
             cnt += 1.0;
             th_hi = b.theta_a_rad;
         }
@@ -189,8 +192,10 @@ pub fn knee_theta(
         let (mx, my) = (sx / cnt, sy / cnt);
         let vxx = sxx / cnt - mx * mx;
         let slope = (sxy / cnt - mx * my) / vxx;
-        if vxx > 0.0 && slope > 0.0 {
-            let z = mx - my / slope;
+        // Angles that spread by no more than the rounding of block means give no line: its
+        // slope would be the rounding's draw.
+        if vxx > super::SAME_ANGLE_RAD * super::SAME_ANGLE_RAD && slope > 0.0 {
+            let z = th_lo + mx - my / slope;
             if z.is_finite() {
                 theta_c = z.clamp(th_lo - 5e-3, th_hi);
             }
@@ -586,6 +591,37 @@ mod tests {
             "{knee}"
         );
         assert!((ta_c - (theta_c + 1.0 + 0.05)).abs() < 2e-4, "T_a,c {ta_c}");
+    }
+
+    /// A crank that sticks on the object: past block 100 θa stands still while the torque
+    /// rises. Its block means differ only in their last bits (how the rows' sum rounds), and
+    /// no line through them can be drawn: θa,c is the last block at the offset, whichever
+    /// way those bits fall.
+    #[test]
+    fn a_crank_stuck_on_the_object_gives_no_line_through_rounding() {
+        let theta_c_for = |bits: f64| {
+            let mut b = trace(200, None, 0.0, 1e-4);
+            let stuck = b[100].theta_a_rad;
+            for (k, blk) in b.iter_mut().enumerate().skip(100) {
+                let wobble = bits * ((k * 31) % 5) as f64 - 2.0 * bits;
+                blk.theta_a_rad = stuck + wobble;
+                blk.resid_nm += 4e-3 * (k - 100) as f64;
+                blk.torque_nm += 4e-3 * (k - 100) as f64;
+            }
+            let d = detect_rise(&CFG, &b, 0, 25, 5).expect("a contact");
+            let (_, th_lo, theta_c) = knee_theta(&CFG, &b, 0, &d, 5);
+            (th_lo, theta_c)
+        };
+        let exact = theta_c_for(0.0);
+        assert_eq!(exact.1, exact.0, "{exact:?}");
+        for bits in [1e-17, -1e-17, 3e-17, -3e-17] {
+            let (th_lo, theta_c) = theta_c_for(bits);
+            assert_eq!(theta_c, th_lo, "last bits {bits:e}");
+            assert!(
+                (theta_c - exact.1).abs() < 1e-15,
+                "last bits {bits:e}: {theta_c}"
+            );
+        }
     }
 
     /// Blocks (4 ms, from 1 kHz rows) of a heavy crank (J = 5e-3 kg·m²) reaching the object at
