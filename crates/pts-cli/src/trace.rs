@@ -15,6 +15,8 @@
 //!
 //! The plant's own trace (`plant::trace`: `theta_a_meas_rad`, `torque_meas_nm`, `adc_code`, …)
 //! is read too: its measured columns stand for `theta_a_rad`, `torque_nm`, `current_code`.
+//! `t_ms`/`t_us` stand for `t_s` and `theta_a_deg` for `theta_a_rad`; fields may be quoted and
+//! separated by `,`, `;` or tab ([`read_csv`]).
 
 use grasp::{Located, Quality, State};
 use std::fmt::Write as _;
@@ -465,34 +467,105 @@ fn shown_header(names: &[String]) -> String {
     out
 }
 
+/// The field separator of a trace: whichever of `,`, `;` and tab its header line holds most
+/// of (`,` on a tie or none). A spreadsheet set to a decimal comma writes `;`.
+fn sniff_delimiter(text: &str) -> u8 {
+    let header = text
+        .lines()
+        .map(|l| l.trim().trim_start_matches('\u{feff}'))
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
+        .unwrap_or("");
+    let count = |c: char| header.matches(c).count();
+    [b';', b'\t']
+        .into_iter()
+        .map(|d| (count(char::from(d)), d))
+        .filter(|(n, _)| *n > count(','))
+        .max_by_key(|(n, _)| *n)
+        .map_or(b',', |(_, d)| d)
+}
+
+/// The header names a trace may give its columns in other units, with how many of that unit
+/// make one of the canonical column's: time in ms or µs, θa in degrees. Values are divided by
+/// it, so that whole milliseconds read as the same times as their seconds written out.
+const SCALED_COLUMNS: [(&str, &str, f64); 3] = [
+    ("t_ms", "t_s", 1e3),
+    ("t_us", "t_s", 1e6),
+    ("theta_a_deg", "theta_a_rad", 180.0 / core::f64::consts::PI),
+];
+
 /// Reads a trace CSV. `current_to_torque` converts a `current_a` column (A → N·m) when there is
 /// no `torque_nm`. Errors only when nothing usable is left; skipped lines become warnings.
+///
+/// Fields may be quoted, and separated by `,`, `;` or tab (whichever the header line holds
+/// most of); with `;` or tab a decimal comma reads as a decimal point. `t_ms`,
+/// `t_us` and `theta_a_deg` stand for `t_s` and `theta_a_rad` in those units.
 pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Trace, String> {
-    let mut lines = text
-        .lines()
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim_end_matches('\r')))
-        .filter(|(_, l)| !l.trim().is_empty() && !l.trim_start().starts_with('#'));
-    let Some((_, header)) = lines.next() else {
-        return Err("the trace is empty (no header line)".into());
+    let delimiter = sniff_delimiter(text);
+    let decimal_comma = delimiter != b',';
+    let mut reader = csv::ReaderBuilder::new()
+        .delimiter(delimiter)
+        .has_headers(false)
+        .flexible(true)
+        .trim(csv::Trim::All)
+        .from_reader(text.as_bytes());
+    let mut record = csv::StringRecord::new();
+    // The next record with a field in it that is not a comment, with its line number.
+    let mut next = |record: &mut csv::StringRecord| -> Option<Result<u64, String>> {
+        loop {
+            match reader.read_record(record) {
+                Ok(false) => return None,
+                Ok(true) => {}
+                Err(e) => {
+                    let line = e.position().map_or(0, csv::Position::line);
+                    return Some(Err(format!("line {line}: {e}")));
+                }
+            }
+            let first = record.get(0).unwrap_or("").trim_start_matches('\u{feff}');
+            if first.starts_with('#') || record.iter().all(str::is_empty) {
+                continue;
+            }
+            return Some(Ok(record.position().map_or(0, csv::Position::line)));
+        }
     };
-    let header = header.trim_start_matches('\u{feff}');
+    let header = match next(&mut record) {
+        None => return Err("the trace is empty (no header line)".into()),
+        Some(Err(e)) => return Err(format!("the header cannot be read: {e}")),
+        Some(Ok(_)) => record.clone(),
+    };
     // The plant's own trace (`plant::trace`) names the measured columns differently.
     let names: Vec<String> = header
-        .split(',')
-        .map(|h| match h.trim() {
-            "theta_a_meas_rad" => "theta_a_rad".to_string(),
-            "torque_meas_nm" => "torque_nm".to_string(),
-            "adc_code" => "current_code".to_string(),
-            "theta_a_true_rad" => "true_theta_a_rad".to_string(),
-            "torque_true_nm" => "true_torque_nm".to_string(),
-            other => other.to_string(),
+        .iter()
+        .enumerate()
+        .map(|(i, h)| {
+            let h = if i == 0 {
+                h.trim_start_matches('\u{feff}')
+            } else {
+                h
+            };
+            match h {
+                "theta_a_meas_rad" => "theta_a_rad".to_string(),
+                "torque_meas_nm" => "torque_nm".to_string(),
+                "adc_code" => "current_code".to_string(),
+                "theta_a_true_rad" => "true_theta_a_rad".to_string(),
+                "torque_true_nm" => "true_torque_nm".to_string(),
+                other => other.to_string(),
+            }
         })
         .collect();
     let col = |name: &str| names.iter().position(|n| n == name);
-    let (Some(it), Some(ith)) = (col("t_s"), col("theta_a_rad")) else {
+    // A required column, or one of its stand-ins: (index, units per canonical unit, its name).
+    let scaled = |name: &'static str| -> Option<(usize, f64, &'static str)> {
+        col(name).map(|i| (i, 1.0, name)).or_else(|| {
+            SCALED_COLUMNS
+                .iter()
+                .filter(|(_, canon, _)| *canon == name)
+                .find_map(|(alt, _, k)| col(alt).map(|i| (i, *k, *alt)))
+        })
+    };
+    let (Some(it), Some(ith)) = (scaled("t_s"), scaled("theta_a_rad")) else {
         return Err(format!(
-            "the header must name at least t_s, theta_a_rad and torque_nm (or current_a); it has: {}",
+            "the header must name at least t_s (or t_ms, t_us), theta_a_rad (or theta_a_deg) \
+             and torque_nm (or current_a); it has: {}",
             shown_header(&names)
         ));
     };
@@ -506,44 +579,58 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
             ))
         }
     };
+    let parse = |cell: &str| -> Option<f64> {
+        match cell.parse::<f64>() {
+            Ok(v) => Some(v),
+            Err(_) if decimal_comma && cell.matches(',').count() == 1 && !cell.contains('.') => {
+                cell.replacen(',', ".", 1).parse::<f64>().ok()
+            }
+            Err(_) => None,
+        }
+    };
     // As many rows as lines (a cheap count): the columns are not grown geometrically (up to
     // twice their size), and hold only the optional columns the header names.
     let mut b = Builder::new(text.lines().count(), |name| col(name).is_some());
     let mut warnings = Vec::new();
     let mut skipped = 0usize;
     let mut first_reason: Option<String> = None;
-    let mut cells: Vec<&str> = Vec::new();
-    for (line_no, line) in lines {
-        cells.clear();
-        cells.extend(line.split(','));
-        let num = |i: usize, name: &str| -> Result<f64, String> {
+    while let Some(line) = next(&mut record) {
+        let line_no = match line {
+            Ok(n) => n,
+            Err(why) => {
+                skipped += 1;
+                first_reason.get_or_insert(why);
+                continue;
+            }
+        };
+        let cells = &record;
+        let num = |(i, per_unit, name): (usize, f64, &str)| -> Result<f64, String> {
             let cell = cells
                 .get(i)
-                .ok_or_else(|| format!("line {line_no}: too few fields (no {name})"))?
-                .trim();
-            match cell.parse::<f64>() {
-                Ok(v) if v.is_finite() => Ok(v),
+                .ok_or_else(|| format!("line {line_no}: too few fields (no {name})"))?;
+            match parse(cell) {
+                Some(v) if v.is_finite() => Ok(v / per_unit),
                 _ => Err(format!(
                     "line {line_no}: {name} = \"{cell}\" is not a finite number"
                 )),
             }
         };
         let parsed = (|| -> Result<(f64, f64, f64), String> {
-            let t_s = num(it, "t_s")?;
-            let theta_a_rad = num(ith, "theta_a_rad")?;
+            let t_s = num(it)?;
+            let theta_a_rad = num(ith)?;
             let torque_nm = if torque_col.1 {
-                current_to_torque(num(torque_col.0, "current_a")?)
+                current_to_torque(num((torque_col.0, 1.0, "current_a"))?)
             } else {
-                num(torque_col.0, "torque_nm")?
+                num((torque_col.0, 1.0, "torque_nm"))?
             };
             Ok((t_s, theta_a_rad, torque_nm))
         })();
         match parsed {
             Ok((t_s, theta_a_rad, torque_nm)) => {
-                let cell_of = |name: &str| col(name).and_then(|i| cells.get(i)).map(|c| c.trim());
+                let cell_of = |name: &str| col(name).and_then(|i| cells.get(i));
                 b.push(t_s, theta_a_rad, torque_nm, |c| match c {
                     Cell::F(n) => cell_of(n)
-                        .and_then(|c| c.parse::<f64>().ok())
+                        .and_then(parse)
                         .filter(|v| v.is_finite())
                         .map(CellValue::F),
                     Cell::U(n) => cell_of(n)
@@ -762,6 +849,93 @@ mod tests {
         assert_eq!(t.len(), 2);
         assert_eq!(t.t_s[0], 0.0);
         assert_eq!(t.warnings.len(), 2, "{:?}", t.warnings);
+    }
+
+    /// What spreadsheets and data frames write reads as the plain file: quoted fields, `;`
+    /// with decimal commas, tabs, CRLF, a byte-order mark, time in ms or µs, θa in degrees.
+    #[test]
+    fn a_spreadsheet_s_csv_reads_as_the_plain_one() {
+        let rows = [
+            (0.0, -0.8503608106, 0.004652292),
+            (0.003, -0.85, -0.0037),
+            (1.25, -0.2238, 0.3566),
+        ];
+        let plain: String = std::iter::once("t_s,theta_a_rad,torque_nm\n".to_string())
+            .chain(rows.iter().map(|(t, th, tq)| format!("{t},{th},{tq}\n")))
+            .collect();
+        let want = read_csv(&plain, &nm).unwrap();
+        assert_eq!(want.len(), 3);
+        assert_eq!((want.t_s[1], want.theta_a_rad[2]), (0.003, -0.2238));
+        let variant = |hdr: [&str; 3], sep: &str, nl: &str, cell: &dyn Fn(usize, f64) -> String| {
+            let mut s = format!("\u{feff}# exported\n{}{nl}", hdr.join(sep));
+            for (t, th, tq) in rows {
+                let r = [cell(0, t), cell(1, th), cell(2, tq)];
+                s += &format!("{}{nl}", r.join(sep));
+            }
+            s
+        };
+        let hdr = ["t_s", "theta_a_rad", "torque_nm"];
+        let cases: [(&str, String); 6] = [
+            (
+                "quoted",
+                variant(
+                    ["\"t_s\"", "\"theta_a_rad\"", "\"torque_nm\""],
+                    ",",
+                    "\n",
+                    &|_, v| format!("\"{v}\""),
+                ),
+            ),
+            (
+                "semicolon, decimal comma",
+                variant(hdr, ";", "\r\n", &|_, v| format!("{v}").replace('.', ",")),
+            ),
+            ("tab", variant(hdr, "\t", "\n", &|_, v| format!("{v}"))),
+            (
+                "t_ms",
+                variant(["t_ms", hdr[1], hdr[2]], ",", "\n", &|i, v| {
+                    if i == 0 {
+                        format!("{}", v * 1e3)
+                    } else {
+                        format!("{v}")
+                    }
+                }),
+            ),
+            (
+                "t_us",
+                variant(["t_us", hdr[1], hdr[2]], ",", "\n", &|i, v| {
+                    if i == 0 {
+                        format!("{}", (v * 1e6).round())
+                    } else {
+                        format!("{v}")
+                    }
+                }),
+            ),
+            (
+                "theta_a_deg",
+                variant([hdr[0], "theta_a_deg", hdr[2]], ",", "\n", &|i, v| {
+                    if i == 1 {
+                        format!("{}", v.to_degrees())
+                    } else {
+                        format!("{v}")
+                    }
+                }),
+            ),
+        ];
+        for (what, text) in cases {
+            let got = read_csv(&text, &nm).unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert!(got.warnings.is_empty(), "{what}: {:?}", got.warnings);
+            assert_eq!(got.t_s, want.t_s, "{what}: times");
+            assert_eq!(got.torque_nm, want.torque_nm, "{what}: torque");
+            for (a, b) in got.theta_a_rad.iter().zip(&want.theta_a_rad) {
+                assert!((a - b).abs() < 1e-15, "{what}: θa {a} vs {b}");
+            }
+        }
+        // In a comma-separated file a decimal comma is a field separator: the row is too long,
+        // its numbers wrong, and the unusable cell is named.
+        let e = read_csv("t_s,theta_a_rad,torque_nm\n0,001,-0,85,0\n", &nm).unwrap();
+        assert_eq!((e.t_s[0], e.theta_a_rad[0]), (0.0, 1.0));
+        let e = read_csv("t_s;theta_a_rad;torque_nm\n0,0,1;-0,85;0\n", &nm).unwrap_err();
+        assert!(e.contains("line 2: t_s = \"0,0,1\""), "{e}");
     }
 
     #[test]

@@ -190,7 +190,7 @@ fn broken_traces_give_clear_messages() {
     fails_clearly(b"t_s,theta_a_rad,torque_nm\n", "no rows");
     fails_clearly(
         b"time,angle,torque\n0,1,2\n",
-        "t_s, theta_a_rad and torque_nm",
+        "the header must name at least t_s (or t_ms, t_us)",
     );
     fails_clearly(b"t_s,theta_a_rad\n0,1\n", "neither torque_nm nor current_a");
     fails_clearly(
