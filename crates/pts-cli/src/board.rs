@@ -96,6 +96,32 @@ impl std::fmt::Display for BoardError {
     }
 }
 
+/// What to try when nothing answers at a TCP address: the QEMU device is not running, or
+/// the board is on a serial port.
+fn tcp_hint(e: &std::io::Error) -> &'static str {
+    match e.kind() {
+        std::io::ErrorKind::ConnectionRefused | std::io::ErrorKind::TimedOut => {
+            " (no device listens there: start the simulated one with `cargo xtask device`, \
+             or give the board's serial port, `--connect /dev/ttyACM0`)"
+        }
+        _ => "",
+    }
+}
+
+/// What to try when the board's serial port cannot be opened.
+fn serial_hint(e: &serialport::Error) -> &'static str {
+    match e.kind() {
+        serialport::ErrorKind::NoDevice
+        | serialport::ErrorKind::Io(std::io::ErrorKind::NotFound) => {
+            " (no such port: is the board plugged in and flashed? `ls /dev/ttyACM*` lists the ports)"
+        }
+        serialport::ErrorKind::Io(std::io::ErrorKind::PermissionDenied) => {
+            " (not allowed to open it: add your user to the `dialout` group and log in again)"
+        }
+        _ => "",
+    }
+}
+
 /// A device error in words (the parameter, the value and the allowed range for a bad value).
 pub fn describe(e: &Error) -> String {
     match e {
@@ -156,7 +182,7 @@ impl Board {
             let port = serialport::new(addr, SERIAL_BAUD)
                 .timeout(short)
                 .open()
-                .map_err(|e| BoardError::Io(format!("{addr}: {e}")))?;
+                .map_err(|e| BoardError::Io(format!("{addr}: {e}{}", serial_hint(&e))))?;
             Link::Serial(port)
         } else {
             let sock = addr.parse().map_err(|e| {
@@ -165,7 +191,7 @@ impl Board {
                 ))
             })?;
             let stream = TcpStream::connect_timeout(&sock, timeout)
-                .map_err(|e| BoardError::Io(format!("{addr}: {e}")))?;
+                .map_err(|e| BoardError::Io(format!("{addr}: {e}{}", tcp_hint(&e))))?;
             stream
                 .set_read_timeout(Some(short))
                 .map_err(|e| BoardError::Io(e.to_string()))?;
@@ -855,6 +881,22 @@ pub fn settings_text(s: &proto::Settings) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Nothing at the address, or no such port: the message says what to try.
+    #[test]
+    fn a_link_that_cannot_open_says_what_to_try() {
+        let free = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = free.local_addr().unwrap().to_string();
+        drop(free);
+        let e = Board::connect(&addr, Duration::from_millis(500))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("cargo xtask device"), "{e}");
+        let e = Board::connect("/dev/pts-no-such-port", Duration::from_millis(500))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("plugged in"), "{e}");
+    }
 
     /// What `get` and `status` print is what `set` takes: every parameter's text parses back
     /// to the same parameter.
