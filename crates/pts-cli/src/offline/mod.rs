@@ -320,7 +320,16 @@ impl core::fmt::Display for OfflineError {
                      file is another finger's",
                     rest - model,
                     model - rest
-                )
+                )?;
+                // An encoder wired or signed the other way reads the rest angle negated;
+                // an offset would bring the rest back but not the direction of closing.
+                if (rest + model).abs() <= REST_FRAME_TOL_RAD {
+                    f.write_str(
+                        "; it lies near the rest angle negated: if the encoder counts the \
+                         other way, negate θa (and T_a) rather than offset it",
+                    )?;
+                }
+                Ok(())
             }
             OfflineError::Model(e) => write!(f, "the model: {e}"),
         }
@@ -471,11 +480,24 @@ mod tests {
                 },
                 "--theta-a-offset -0.8504",
             ),
+            (
+                OfflineError::AngleFrame {
+                    rest_urad: 850_361,
+                    model_urad: -850_361,
+                },
+                "negate θa",
+            ),
         ] {
             let text = e.to_string();
             assert!(text.contains(needle), "{e:?}: {text}");
             assert!(!text.contains('{'), "{e:?}: {text}");
         }
+        // Zeroed at rest is an offset, not a negation.
+        let zeroed = OfflineError::AngleFrame {
+            rest_urad: 0,
+            model_urad: -850_361,
+        };
+        assert!(!zeroed.to_string().contains("negate"), "{zeroed}");
     }
 
     /// Block means within [`SAME_ANGLE_RAD`] are the same angle: the means of one encoder
