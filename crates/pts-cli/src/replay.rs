@@ -486,6 +486,10 @@ pub struct SegmentedContact {
     pub drive: Option<crate::offline::DriveId>,
     /// σ(k2,c) of a distal path-fit answer (m).
     pub sigma_k2_m: Option<f64>,
+    /// σ(k2,c) of the path fit itself (m), before its widening for the contact friction the
+    /// recording cannot show: what the block phases are weighted by, so that the answer
+    /// does not depend on the friction prior.
+    pub fit_sigma_k2_m: Option<f64>,
     /// Path fit: of the block phases the trace was segmented at, how many answered this
     /// contact on the distal phalanx (answered, phases).
     pub phases: Option<(u8, u8)>,
@@ -777,10 +781,12 @@ const PHASE_MATCH_S: f64 = 0.05;
 /// arbitrary choice, yet the contact angle and the samples the fit keeps move with it (on the
 /// sample traces k̂2 moves by a median 1.5 % of l2 between phases, up to 7 %). Each contact of
 /// phase 0 (`base`) is matched with the nearest contact of the other phases; when at least
-/// half of all phases answer it on the distal phalanx, k̂2 is their mean and σ² the mean of
-/// their σ² plus their spread (the phases see the same data: their σ do not shrink as
-/// independent ones would); else phase 0's answer is refused with another phase's reason.
-/// Other answers (proximal, none) are phase 0's.
+/// half of all phases answer it on the distal phalanx, k̂2 is their mean weighted by 1/σ² of
+/// each fit's own σ (a phase whose blocks determine the path better counts more; the
+/// widening for contact friction, the same prior on every phase, is left out so that it
+/// moves σ and not k̂2) and σ² the same weighted mean of their σ² plus their spread about k̂2 (the phases see the same data: their σ do not
+/// shrink as independent ones would); else phase 0's answer is refused with another phase's
+/// reason. Other answers (proximal, none) are phase 0's.
 fn combine_phases(mut base: Segmented, others: &[Segmented]) -> Segmented {
     let total = 1 + others.len();
     for c in base.contacts.iter_mut() {
@@ -794,13 +800,17 @@ fn combine_phases(mut base: Segmented, others: &[Segmented]) -> Segmented {
                     .min_by(|a, b| (a.t_s - t).abs().total_cmp(&(b.t_s - t).abs()))
             })
             .collect();
-        let distal = |x: &SegmentedContact| -> Option<(EstimateResult, f64, f64)> {
+        // (the answer, k̂2 m, σ m, its weight 1/σ² of the fit's own σ)
+        let distal = |x: &SegmentedContact| -> Option<(EstimateResult, f64, f64, f64)> {
             let r = x.estimate.as_ref().ok()?;
+            let sigma = x.sigma_k2_m?;
+            // A σ of 0 (a fit that states none) weighs as one of a micrometre.
+            let weight = 1.0 / x.fit_sigma_k2_m.unwrap_or(sigma).max(1e-6).powi(2);
             (r.located == grasp::Located::Distal)
                 .then_some(())
-                .and(Some((*r, f64::from(r.k2_um?) * 1e-6, x.sigma_k2_m?)))
+                .and(Some((*r, f64::from(r.k2_um?) * 1e-6, sigma, weight)))
         };
-        let answers: Vec<(EstimateResult, f64, f64)> = core::iter::once(&*c)
+        let answers: Vec<(EstimateResult, f64, f64, f64)> = core::iter::once(&*c)
             .chain(matched.iter().copied())
             .filter_map(distal)
             .collect();
@@ -810,13 +820,13 @@ fn combine_phases(mut base: Segmented, others: &[Segmented]) -> Segmented {
         }
         c.phases = Some((answers.len() as u8, total as u8));
         if 2 * answers.len() >= total {
-            let n = answers.len() as f64;
-            let k2 = answers.iter().map(|a| a.1).sum::<f64>() / n;
+            let total_weight = answers.iter().map(|a| a.3).sum::<f64>();
+            let k2 = answers.iter().map(|a| a.3 * a.1).sum::<f64>() / total_weight;
             let var = answers
                 .iter()
-                .map(|a| a.2 * a.2 + (a.1 - k2) * (a.1 - k2))
+                .map(|a| a.3 * (a.2 * a.2 + (a.1 - k2) * (a.1 - k2)))
                 .sum::<f64>()
-                / n;
+                / total_weight;
             let sigma = var.sqrt();
             let mut r = answers[0].0;
             r.k2_um = Some(grasp::estimate::to_micro(k2));
@@ -902,7 +912,7 @@ fn segment_rows(
                 };
                 let (mut t_s, mut theta_a_c, mut ta_c) =
                     (seg.contact_t_s, seg.theta_a_c_rad, seg.ta_c_nm);
-                let mut sigma_k2_m = None;
+                let (mut sigma_k2_m, mut fit_sigma_k2_m) = (None, None);
                 let (mut path_reading, mut contact_inertia_kgm2) = (None, None);
                 let (est, two_point, drive) = match method {
                     crate::method::Method::TwoPoint => (fw(&seg.request), None, None),
@@ -913,6 +923,7 @@ fn segment_rows(
                         }
                         path_reading = fit.reading;
                         contact_inertia_kgm2 = fit.contact_inertia;
+                        fit_sigma_k2_m = fit.fit_sigma_m;
                         let mut tp = seg.request.clone();
                         tp.estimator = grasp::Estimator::TwoPoint;
                         let est = fit.estimate.map(|(r, s)| {
@@ -933,6 +944,7 @@ fn segment_rows(
                     two_point,
                     drive,
                     sigma_k2_m,
+                    fit_sigma_k2_m,
                     phases: None,
                     path_reading,
                     contact_inertia_kgm2,
@@ -1126,6 +1138,8 @@ struct ForeignFit {
     reading: Option<PathReading>,
     /// The contact path's own inertia (kg·m², σ), where the fit used it.
     contact_inertia: Option<(f64, f64)>,
+    /// σ(k2,c) of the fit (m) before the widening for contact friction.
+    fit_sigma_m: Option<f64>,
 }
 
 /// The path fit on a recording our controller did not make: the drive's inertia, viscous
@@ -1238,6 +1252,7 @@ fn foreign_path_fit(
             drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
             reading: None,
             contact_inertia,
+            fit_sigma_m: None,
         };
     }
     let pcfg = pathfit::PathFitConfig {
@@ -1293,6 +1308,7 @@ fn foreign_path_fit(
             path_fit_with(&table, &req, contact.0, contact.1)
                 .map_err(|e| err(grasp::EstimateError::PathFit(e)))
         });
+    let fit_sigma_m = res.as_ref().ok().and_then(|(_, sigma)| *sigma);
     let res = res.map(|(r, sigma)| {
         widen_for_contact_friction(finger, &pcfg, block_s, &req, contact, r, sigma)
     });
@@ -1301,6 +1317,7 @@ fn foreign_path_fit(
         drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
         reading,
         contact_inertia,
+        fit_sigma_m,
     }
 }
 
@@ -1336,6 +1353,7 @@ mod tests {
             two_point: None,
             drive: None,
             sigma_k2_m: k2_mm.map(|_| sigma_mm * 1e-3),
+            fit_sigma_k2_m: k2_mm.map(|_| sigma_mm * 1e-3),
             phases: None,
             path_reading: None,
             contact_inertia_kgm2: None,
@@ -1409,6 +1427,30 @@ mod tests {
         let s = c.sigma_k2_m.unwrap();
         assert!((s - 13f64.sqrt() * 1e-3).abs() < 1e-9, "{s}");
         assert_eq!(r.k2_sigma_um, Some(grasp::estimate::to_micro(s)));
+    }
+
+    /// A phase whose fit states a smaller σ counts more: 40 mm at 2 mm and 46 mm at 4 mm
+    /// read (40/4 + 46/16) / (1/4 + 1/16) = 41.2 mm, σ² = (0.25 (4 + 1.44) + 0.0625 (16 +
+    /// 23.04)) / 0.3125 = 12.16 mm². The σ widened for contact friction does not weigh: with
+    /// the fits' own σ alike, the mean is the plain one whatever the widened σ say.
+    #[test]
+    fn phases_weigh_by_their_fit_s_own_sigma() {
+        let out = combine_phases(
+            phase(contact(0.9, Some(40.0), 2.0)),
+            &[phase(contact(0.9, Some(46.0), 4.0))],
+        );
+        let c = &out.contacts[0];
+        assert_eq!(c.estimate.as_ref().unwrap().k2_um, Some(41_200));
+        let s = c.sigma_k2_m.unwrap();
+        assert!((s - 12.16f64.sqrt() * 1e-3).abs() < 1e-9, "{s}");
+        let widened = |k2_mm: f64, sigma_mm: f64| {
+            let mut x = contact(0.9, Some(k2_mm), sigma_mm);
+            x.fit_sigma_k2_m = Some(2e-3);
+            x
+        };
+        let out = combine_phases(phase(widened(40.0, 2.0)), &[phase(widened(46.0, 6.0))]);
+        let c = &out.contacts[0];
+        assert_eq!(c.estimate.as_ref().unwrap().k2_um, Some(43_000));
     }
 
     #[test]
