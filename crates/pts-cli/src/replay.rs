@@ -706,7 +706,9 @@ fn segment_stretch(
     let others: Vec<Segmented> = (1..BLOCK_PHASES)
         .filter_map(|j| {
             let shift = phase_s * j as f64;
-            let from = rows.partition_point(|r| r.t_s < t0 + shift);
+            // The same rule for a row on the phase's start as for one on a block boundary.
+            let start = t0 + shift - crate::offline::BOUNDARY_TOL * block_s;
+            let from = rows.partition_point(|r| r.t_s < start);
             segment_rows(rows.get(from..)?, finger, method, quantum_rad).ok()
         })
         .collect();

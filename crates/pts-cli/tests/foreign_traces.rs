@@ -321,6 +321,44 @@ fn the_answer_does_not_hang_on_the_last_bits_of_theta() {
     );
 }
 
+/// The same recordings with their clock started elsewhere: every time shifted by a part of a
+/// block, by hours, and to a Unix time (whose f64 holds times to 0.24 µs). Where the 4 ms
+/// blocks begin follows the first row, and a row on a block boundary counts in the later
+/// block whatever the rounding of its time, so each answer stays where it was.
+#[test]
+fn the_answer_does_not_depend_on_the_time_origin() {
+    let samples: Vec<String> = ids()
+        .into_iter()
+        .filter(|id| samples_dir().join(format!("{id}.csv")).exists())
+        .collect();
+    for (shift, bound) in [
+        (0.0015, 1e-6),
+        (0.5, 1e-6),
+        (12_345.678, 1e-6),
+        (1.7e9, 2e-5),
+    ] {
+        let mut moved = 0.0f64;
+        for id in &samples {
+            let clean = rows(id);
+            let (kind, k2) = outcome(&to_csv_exact(&clean));
+            let r: Vec<[f64; 3]> = clean.iter().map(|x| [x[0] + shift, x[1], x[2]]).collect();
+            let (kind_s, k2_s) = outcome(&to_csv_exact(&r));
+            assert_eq!(
+                kind, kind_s,
+                "{id} t + {shift} s: {kind} {k2:?} → {kind_s} {k2_s:?}"
+            );
+            if let (Some(a), Some(b)) = (k2, k2_s) {
+                moved = moved.max((a - b).abs());
+            }
+        }
+        println!(
+            "time origin + {shift} s: k2 moves by at most {:.1} µm",
+            moved * 1e6
+        );
+        assert!(moved <= bound, "t + {shift} s: k2 moved {moved:e} m");
+    }
+}
+
 /// Rows as CSV with every digit f64 needs (round trip exact).
 fn to_csv_exact(rows: &[[f64; 3]]) -> String {
     let mut s = String::from("t_s,theta_a_rad,torque_nm\n");

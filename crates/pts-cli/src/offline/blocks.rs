@@ -6,8 +6,17 @@ use pts::Model;
 
 use super::{Block, OfflineConfig, OfflineError, TraceSample, MIN_RATE_HZ, OUTLIER_RAD};
 
+/// How close (a fraction of a block) a row may lie before a block boundary and still be
+/// taken as on it, in the later block. A 1 kHz recording puts every fourth row on a 4 ms
+/// boundary, and the rounding of its time difference (its last bits, which a shift of the
+/// time origin or a column in ms changes) would otherwise decide which block takes it. A
+/// thousandth of a block (4 µs) is above the rounding of times up to 1e10 s and below any
+/// row spacing a recording has.
+pub const BOUNDARY_TOL: f64 = 1e-3;
+
 /// Averages the trace into blocks (into `scratch`); returns how many were written and the
-/// block length used (s). Rows must be in non-decreasing time; equal times are fine.
+/// block length used (s). Rows must be in non-decreasing time; equal times are fine. A row
+/// within [`BOUNDARY_TOL`] of a block before a boundary counts in the later block.
 pub fn make_blocks<R: pts::Real>(
     model: &Model<R>,
     cfg: &OfflineConfig,
@@ -47,7 +56,7 @@ pub fn make_blocks<R: pts::Real>(
     let mut prev_theta = first.theta_a_rad;
     let mut prev_t = first.t_s;
     for (i, r) in rows.iter().enumerate() {
-        let idx = ((r.t_s - first.t_s) / block) as u32;
+        let idx = ((r.t_s - first.t_s) / block + BOUNDARY_TOL) as u32;
         if cur.is_some_and(|c| c.index != idx) {
             if let Some(c) = cur.take() {
                 flush(c, &mut n);

@@ -61,7 +61,7 @@ pub mod drive;
 pub mod estimate;
 pub mod segment;
 
-pub use blocks::{block_length, make_blocks, median_spacing};
+pub use blocks::{block_length, make_blocks, median_spacing, BOUNDARY_TOL};
 pub use contact::refine_contact;
 pub use drive::{identify_drive, identify_drive_dynamics, DriveId, DrivePrior};
 pub use estimate::path_fit_with;
