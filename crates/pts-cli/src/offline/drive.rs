@@ -173,6 +173,14 @@ const REST_BLOCKS_FIT: usize = 10;
 /// residual bounds the breakaway). The estimate is the middle of that range, with the range
 /// as a uniform σ and the line's own σ. `None` without [`REST_BLOCKS_MIN`] still blocks at
 /// the start, without a block that moved, or on a residual that is not finite.
+///
+/// A transmission at rest yields a little under a rising torque before it slides
+/// (pre-sliding creep), and a rest just short of a count edge shows that as one count long
+/// before the breakaway. No crank slides with its torque below the sliding friction, nor
+/// stands again under a torque that keeps rising: a count shown while the residual was still
+/// below the approach's offset (by three σ of each), after which the crank stood for
+/// [`REST_BLOCKS_MIN`] blocks, is taken as creep, and the breakaway is looked for again from
+/// there (up to [`CREEP_COUNTS_MAX`] counts).
 pub(super) fn breakaway(
     blocks: &[Block],
     lo: usize,
@@ -182,15 +190,53 @@ pub(super) fn breakaway(
     fit: &HuberFit,
 ) -> Option<Breakaway> {
     let q = quantum_rad.max(1e-9);
-    let rest = blocks.get(lo)?.theta_a_rad;
     // The measured residual (the blocks' own may have been corrected for the dynamics, which
     // smears the motion after the breakaway back over the still blocks).
     let resid = |k: &Block| t_free(k.theta_a_rad).map_or(f64::NAN, |tf| k.torque_nm - tf);
-    let moved = (lo + 1..hi.min(blocks.len()))
-        .find(|&k| (blocks[k].theta_a_rad - rest).abs() >= 0.5 * q)?;
-    if moved - lo < REST_BLOCKS_MIN {
-        return None;
+    let sliding_sigma = fit.var[0].max(0.0).sqrt();
+    let mut lo = lo;
+    for _ in 0..=CREEP_COUNTS_MAX {
+        let rest = blocks.get(lo)?.theta_a_rad;
+        let moved = (lo + 1..hi.min(blocks.len()))
+            .find(|&k| (blocks[k].theta_a_rad - rest).abs() >= 0.5 * q)?;
+        if moved - lo < REST_BLOCKS_MIN {
+            return None;
+        }
+        let (b, latest) = breakaway_at(blocks, lo, moved, q, &resid, fit)?;
+        // A crank that slid under a rising torque does not stand again at the next count.
+        let stood = blocks.get(moved + 1).is_some_and(|next| {
+            blocks
+                .get(moved + 1..=moved + REST_BLOCKS_MIN)
+                .is_some_and(|w| {
+                    w.iter()
+                        .all(|k| (k.theta_a_rad - next.theta_a_rad).abs() < 0.5 * q)
+                })
+        });
+        if !stood || latest >= fit.x[0] - 3.0 * sliding_sigma {
+            return Some(b);
+        }
+        // The block after the count holds the new rest only (the one that showed it may
+        // average rows from both sides of the edge).
+        lo = moved + 1;
     }
+    None
+}
+
+/// How many single counts before the breakaway [`breakaway`] may take for creep.
+const CREEP_COUNTS_MAX: usize = 4;
+
+/// [`breakaway`] for the crank standing from block `lo` and first showing motion at block
+/// `moved`, with the latest residual the breakaway can have had (N·m): the upper end of its
+/// range, where the encoder showed the motion, plus three σ of the line through the still
+/// blocks.
+fn breakaway_at(
+    blocks: &[Block],
+    lo: usize,
+    moved: usize,
+    q: f64,
+    resid: &dyn Fn(&Block) -> f64,
+    fit: &HuberFit,
+) -> Option<(Breakaway, f64)> {
     // r(t) = a + b (t − t_moved) through the last still blocks.
     let still = &blocks[moved.saturating_sub(REST_BLOCKS_FIT).max(lo)..moved];
     let t_m = blocks[moved].t_s;
@@ -261,10 +307,13 @@ pub(super) fn breakaway(
     let lo_r = r_at(t_b).min(hi_r);
     let at_var = line_var / n;
     let width = hi_r - lo_r;
-    Some(Breakaway {
-        residual_nm: 0.5 * (lo_r + hi_r),
-        sigma_nm: (width * width / 12.0 + at_var).sqrt(),
-    })
+    Some((
+        Breakaway {
+            residual_nm: 0.5 * (lo_r + hi_r),
+            sigma_nm: (width * width / 12.0 + at_var).sqrt(),
+        },
+        hi_r + 3.0 * at_var.sqrt(),
+    ))
 }
 
 /// Contiguous groups of the approach's blocks left out in turn by [`jackknife_var`].
@@ -755,7 +804,27 @@ mod tests {
     /// (fc + (fs − fc)·exp(−(ω/ws)²)). Recorded at 1 kHz by an encoder of step `q`, averaged
     /// into 4 ms blocks, no free-motion torque (T_free = 0) and no noise.
     fn ramp_from_rest(j: f64, c: f64, fs: f64, fc: f64, ws: f64, q: f64) -> std::vec::Vec<Block> {
+        ramp_from_rest_creeping(j, c, fs, fc, ws, q, 0.0)
+    }
+
+    /// [`ramp_from_rest`] with pre-sliding creep: while stuck the crank yields by
+    /// `creep_rad`·T_a/static, from a rest a fifth of that short of a count edge (the encoder
+    /// shows one count at a fifth of the static friction).
+    fn ramp_from_rest_creeping(
+        j: f64,
+        c: f64,
+        fs: f64,
+        fc: f64,
+        ws: f64,
+        q: f64,
+        creep_rad: f64,
+    ) -> std::vec::Vec<Block> {
         let (slope, h) = (0.5, 5e-5);
+        let th0 = if creep_rad > 0.0 {
+            q - 0.5 * creep_rad
+        } else {
+            0.0
+        };
         let (mut w, mut th, mut stuck) = (0.0f64, 0.0f64, true);
         let mut rows = std::vec::Vec::new();
         for i in 0..(0.4 / h) as usize {
@@ -769,8 +838,13 @@ mod tests {
                 w = (w + h * (torque - friction - c * w) / j).max(0.0);
                 th += h * w;
             }
+            let yielded = if stuck {
+                creep_rad * torque / fs
+            } else {
+                creep_rad
+            };
             if i % 20 == 0 {
-                rows.push((t, (th / q).floor() * q, torque));
+                rows.push((t, ((th0 + th + yielded) / q).floor() * q, torque));
             }
         }
         rows.chunks(4)
@@ -813,6 +887,19 @@ mod tests {
             // heavy drive on a 16384-count encoder leaves a range of about 15 mN·m.
             assert!(r.sigma_nm <= 5e-3, "J {j:.0e}, static {fs}: {r:?}");
         }
+        // Creep that shows one count at a fifth of the static friction, 56 ms before the
+        // breakaway: that count is not taken for it.
+        let b = ramp_from_rest_creeping(5e-3, 0.003, 0.035, 0.02, 0.03, q, 0.2 * q);
+        let fit = HuberFit {
+            x: [0.02, 0.003, 5e-3],
+            scale: 0.0,
+            var: [0.0; 3],
+        };
+        let r = breakaway(&b, 0, b.len(), q, &none, &fit).expect("a breakaway");
+        assert!(
+            (r.residual_nm - 0.035).abs() <= 3.0 * r.sigma_nm,
+            "creep: {r:?}"
+        );
         // A recording that starts with the crank moving shows no breakaway.
         let moving = blocks_n(40, 0.004, |t| 0.1 * t);
         let fit = HuberFit {
