@@ -786,9 +786,10 @@ const PHASE_MATCH_S: f64 = 0.05;
 /// half of all phases answer it on the distal phalanx, k̂2 is their mean weighted by 1/σ² of
 /// each fit's own σ (a phase whose blocks determine the path better counts more; the
 /// widening for contact friction, the same prior on every phase, is left out so that it
-/// moves σ and not k̂2) and σ² the same weighted mean of their σ² plus their spread about k̂2 (the phases see the same data: their σ do not
-/// shrink as independent ones would); else phase 0's answer is refused with another phase's
-/// reason. Other answers (proximal, none) are phase 0's.
+/// moves σ and not k̂2) and σ² the same weighted mean of their σ² plus their spread about
+/// k̂2 (the phases see the same data: their σ do not shrink as independent ones would);
+/// else phase 0's answer is refused with another phase's reason. Other answers (proximal,
+/// none) are phase 0's.
 fn combine_phases(mut base: Segmented, others: &[Segmented]) -> Segmented {
     let total = 1 + others.len();
     for c in base.contacts.iter_mut() {

@@ -821,7 +821,7 @@ mod tests {
     ) -> std::vec::Vec<Block> {
         let (slope, h) = (0.5, 5e-5);
         let th0 = if creep_rad > 0.0 {
-            q - 0.5 * creep_rad
+            q - 0.2 * creep_rad
         } else {
             0.0
         };
