@@ -520,7 +520,8 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
                     return Some(Err(format!("line {line}: {e}")));
                 }
             }
-            let first = record.get(0).unwrap_or("").trim_start_matches('\u{feff}');
+            // (A byte-order mark before the first record is csv's to strip.)
+            let first = record.get(0).unwrap_or("");
             if first.starts_with('#') || record.iter().all(str::is_empty) {
                 continue;
             }
@@ -535,21 +536,13 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
     // The plant's own trace (`plant::trace`) names the measured columns differently.
     let names: Vec<String> = header
         .iter()
-        .enumerate()
-        .map(|(i, h)| {
-            let h = if i == 0 {
-                h.trim_start_matches('\u{feff}')
-            } else {
-                h
-            };
-            match h {
-                "theta_a_meas_rad" => "theta_a_rad".to_string(),
-                "torque_meas_nm" => "torque_nm".to_string(),
-                "adc_code" => "current_code".to_string(),
-                "theta_a_true_rad" => "true_theta_a_rad".to_string(),
-                "torque_true_nm" => "true_torque_nm".to_string(),
-                other => other.to_string(),
-            }
+        .map(|h| match h {
+            "theta_a_meas_rad" => "theta_a_rad".to_string(),
+            "torque_meas_nm" => "torque_nm".to_string(),
+            "adc_code" => "current_code".to_string(),
+            "theta_a_true_rad" => "true_theta_a_rad".to_string(),
+            "torque_true_nm" => "true_torque_nm".to_string(),
+            other => other.to_string(),
         })
         .collect();
     let col = |name: &str| names.iter().position(|n| n == name);

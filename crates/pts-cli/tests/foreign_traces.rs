@@ -47,6 +47,14 @@ fn ids() -> Vec<String> {
     v
 }
 
+/// The traces of [`ids`] that are also among the committed samples (what [`rows`] reads).
+fn sample_ids() -> Vec<String> {
+    ids()
+        .into_iter()
+        .filter(|id| samples_dir().join(format!("{id}.csv")).exists())
+        .collect()
+}
+
 /// The command's path on CSV text.
 fn run_text(text: &str, method: Method) -> Result<Segmented, String> {
     let file = pts::config::FingerFile::paper();
@@ -296,10 +304,7 @@ const BAD_ID: &str = "dyn02_vtx_k58_mu02_dT06__default";
 #[test]
 fn the_answer_does_not_hang_on_the_last_bits_of_theta() {
     let mut moved = 0.0f64;
-    let samples = ids()
-        .into_iter()
-        .filter(|id| samples_dir().join(format!("{id}.csv")).exists());
-    for id in samples {
+    for id in sample_ids() {
         let clean = rows(&id);
         let (kind, k2) = outcome(&to_csv_exact(&clean));
         for d in [1e-12, -1e-12] {
@@ -327,10 +332,7 @@ fn the_answer_does_not_hang_on_the_last_bits_of_theta() {
 /// block whatever the rounding of its time, so each answer stays where it was.
 #[test]
 fn the_answer_does_not_depend_on_the_time_origin() {
-    let samples: Vec<String> = ids()
-        .into_iter()
-        .filter(|id| samples_dir().join(format!("{id}.csv")).exists())
-        .collect();
+    let samples = sample_ids();
     for (shift, bound) in [
         (0.0015, 1e-6),
         (0.5, 1e-6),

@@ -204,14 +204,12 @@ pub(super) fn breakaway(
         }
         let (b, latest) = breakaway_at(blocks, lo, moved, q, &resid, fit)?;
         // A crank that slid under a rising torque does not stand again at the next count.
-        let stood = blocks.get(moved + 1).is_some_and(|next| {
-            blocks
-                .get(moved + 1..=moved + REST_BLOCKS_MIN)
-                .is_some_and(|w| {
-                    w.iter()
-                        .all(|k| (k.theta_a_rad - next.theta_a_rad).abs() < 0.5 * q)
-                })
-        });
+        let stood = blocks
+            .get(moved + 1..=moved + REST_BLOCKS_MIN)
+            .is_some_and(|w| {
+                w.iter()
+                    .all(|k| (k.theta_a_rad - w[0].theta_a_rad).abs() < 0.5 * q)
+            });
         if !stood || latest >= fit.x[0] - 3.0 * sliding_sigma {
             return Some(b);
         }
