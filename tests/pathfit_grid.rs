@@ -979,12 +979,13 @@ fn pathfit_grid_on_the_plant() {
             "{label}: path fit vs two-point"
         );
         // The integer kernel is the same fit: where both chose the same object model they
-        // agree to the fit's own convergence (LM stops within about a quarter of σ in χ²
-        // terms; measured ≤ 0.17 % of l2, ≤ 0.12 σ, and no radius decision differs); the
-        // decision is a threshold, so a rare borderline fit may go the other way.
+        // agree to the fit's own convergence (measured ≤ 0.06 % of l2, ≤ 0.03 σ, and no
+        // radius decision differs; 0.31 σ while the kernel rounded w·c to 12 bits in its
+        // normal matrix); the decision is a threshold, so a rare borderline fit may go the
+        // other way.
         for s in [si, sr] {
             assert!(
-                s.fx_max_sigmas <= 0.5,
+                s.fx_max_sigmas <= 0.1,
                 "{label}: integer vs f64 {:.5} l2, {:.2} σ",
                 s.fx_max_diff,
                 s.fx_max_sigmas

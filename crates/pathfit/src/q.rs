@@ -764,6 +764,8 @@ struct QBin {
     t: i32,
     /// n / N (Q16).
     w: i32,
+    /// √(n / N) (Q16).
+    sqrt_w: i32,
 }
 
 /// A solved point kept for warm starts (angles Q28; sensitivities per unit of k2,c/l1 and
@@ -785,6 +787,7 @@ const NO_BINS: [QBin; MAX_BINS] = [QBin {
     dta: 0,
     t: 0,
     w: 0,
+    sqrt_w: 0,
 }; MAX_BINS];
 const NO_PREV: [Option<QPrev>; MAX_BINS] = [None; MAX_BINS];
 
@@ -1116,6 +1119,23 @@ impl<'t> QKernel<'t> {
     }
 }
 
+/// √x for x in Q16 within [0, 1] (the result in Q16, within one unit of the rounded root):
+/// Newton's iteration from a power of two above the root, which it approaches from above.
+fn sqrt_q16(x: i32) -> i32 {
+    if x >= 1 << 16 {
+        return 1 << 16;
+    }
+    let v = (x.max(0) as u32) << 16;
+    if v == 0 {
+        return 0;
+    }
+    let mut r = 1u32 << (32 - v.leading_zeros()).div_ceil(2);
+    for _ in 0..5 {
+        r = (r + v / r) / 2;
+    }
+    r as i32
+}
+
 /// Fx32 bits from a sum in Q`q` of N·m-based products, times 10^6 (the fit's statistics
 /// are in (mN·m)²), saturating: value·1e6 in Q32 = sum·15625·2^(38 − q).
 #[inline(always)]
@@ -1264,33 +1284,37 @@ impl Kernel<Fx32> for QKernel<'_> {
             sgr += wide(wr, cr);
             sgt += wide(wr, ct);
             sgf += wr_full;
-            let (wk, wrr, wt) = (mul::<QD>(b.w, ck), mul::<QD>(b.w, cr), mul::<QD>(b.w, ct));
-            skk += wide(wk, ck);
-            skr += wide(wk, cr);
-            skt += wide(wk, ct);
-            srr += wide(wrr, cr);
-            srt += wide(wrr, ct);
-            stt += wide(wt, ct);
-            swk += wk as i64;
-            swr += wrr as i64;
-            swt += wt as i64;
-            sw += b.w as i64;
+            // The normal matrix as the exact Gram matrix of the √w-scaled columns: positive
+            // semidefinite whatever their rounding. Rounding w·c on one side only (12 bits
+            // at 8 bins) made it indefinite where θa,c and T_f are nearly collinear.
+            let s = b.sqrt_w;
+            let (uk, ur, ut) = (mul::<QD>(s, ck), mul::<QD>(s, cr), mul::<QD>(s, ct));
+            skk += wide(uk, uk);
+            skr += wide(uk, ur);
+            skt += wide(uk, ut);
+            srr += wide(ur, ur);
+            srt += wide(ur, ut);
+            stt += wide(ut, ut);
+            swk += wide(s, uk);
+            swr += wide(s, ur);
+            swt += wide(s, ut);
+            sw += wide(s, s);
         }
         let q2 = 2 * QD;
         let (ak, ar, at, af) = (
             [
                 stat_bits(skk, q2),
                 stat_bits(skr, QD + QR),
-                stat_bits(swk, QD),
+                stat_bits(swk, q2),
                 stat_bits(skt, q2),
             ],
             stat_bits(srr, 2 * QR),
             [
                 stat_bits(srt, QR + QD),
-                stat_bits(swt, QD),
+                stat_bits(swt, q2),
                 stat_bits(stt, q2),
             ],
-            [stat_bits(swr, QR), stat_bits(sw, QD)],
+            [stat_bits(swr, QR + QD), stat_bits(sw, q2)],
         );
         // Rows (K, RAD, TF, TC), symmetric.
         let mut a = [
@@ -1484,6 +1508,7 @@ where
             dta: clamp32((((me.0 - thc_q16).clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 32),
             t: clamp32(((me.1.clamp(-(1 << 37), 1 << 37) >> 2) * MICRO_Q34) >> 36),
             w: 0,
+            sqrt_w: 0,
         };
         nb += 1;
         total = total.saturating_add(c);
@@ -1525,6 +1550,7 @@ where
     for b in k.bins.iter_mut().take(nb) {
         // n ≤ 2^15 per bin: n·2^16 within u32.
         b.w = ((b.n << QD) / total.max(1)) as i32;
+        b.sqrt_w = sqrt_q16(b.w);
     }
     w.nb = nb;
     w.n_total = total;
@@ -1791,6 +1817,18 @@ mod tests {
         let (a21, a22, b2) = (cl.x2, -k2, f.k2 * dd2);
         let ta = (b1 * a22 - a12 * b2) / (a11 * a22 - a12 * a21);
         [dphi, d2, k2, ta]
+    }
+
+    /// The bin weights' root against f64 over every Q16 weight: within one unit.
+    #[test]
+    fn sqrt_q16_is_the_root_to_one_unit() {
+        for x in 0..=(1 << 16) {
+            let exact = (f64::from(x) / 65_536.0).sqrt() * 65_536.0;
+            let got = f64::from(sqrt_q16(x));
+            assert!((got - exact).abs() <= 1.0, "√{x}: {got} vs {exact}");
+        }
+        assert_eq!(sqrt_q16(-5), 0);
+        assert_eq!(sqrt_q16(1 << 20), 1 << 16);
     }
 
     #[test]

@@ -9,7 +9,10 @@
 set -e
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../../../.." && pwd)
+# Its own link script has no MEMORY.RAM: the firmware's flip-link (.cargo/config.toml) does
+# not apply to it.
 CARGO_TARGET_DIR="$root/target/bench-pathfit" RUSTFLAGS="" \
+    CARGO_TARGET_THUMBV7EM_NONE_EABIHF_LINKER=rust-lld \
     cargo build --quiet --release --target thumbv7em-none-eabihf --manifest-path "$here/Cargo.toml"
 elf="$root/target/bench-pathfit/thumbv7em-none-eabihf/release/pathfit-icount"
 if [ "$1" = "--summary" ]; then
