@@ -1131,7 +1131,8 @@ fn sqrt_q16(x: i32) -> i32 {
     }
     let mut r = 1u32 << (32 - v.leading_zeros()).div_ceil(2);
     for _ in 0..5 {
-        r = (r + v / r) / 2;
+        // r stays at or above √v ≥ 1: the division is never by zero (and has no panic path).
+        r = (r + v.checked_div(r).unwrap_or(v)) / 2;
     }
     r as i32
 }
