@@ -662,7 +662,120 @@ pub fn read_csv(text: &str, current_to_torque: &dyn Fn(f64) -> f64) -> Result<Tr
             "{repeated} row(s) repeat the time of the row before (first at t_s = {t}): both kept"
         ));
     }
+    if let Some(note) = trace.snap_jittered_clock() {
+        trace.warnings.push(note);
+    }
     Ok(trace)
+}
+
+/// How far (a fraction of the period) the row times of a regular recording may scatter about
+/// their grid and still be read as a jittered clock: beyond it, the rows are left as they are.
+pub const CLOCK_JITTER_MAX: f64 = 0.3;
+
+/// θa must be at least this much smoother (in the sum of squared second derivatives) on the
+/// grid than at the logged times for the grid's times to replace them.
+pub const CLOCK_SMOOTHER: f64 = 0.8;
+
+impl Trace {
+    /// Row times logged with a jittered clock read at their regular grid's times. A logger
+    /// that stamps rows when they arrive (a host reading a serial port) scatters the times of
+    /// rows that were sampled on a regular grid; read as they are, a 4 ms block holds 3 to 5
+    /// rows whose mean time moves by up to half a row, and the blocks' θa and torque no longer
+    /// lie where the estimator places them. When every row lies within [`CLOCK_JITTER_MAX`]
+    /// of a period of a regular grid (rows missing from it are fine) but not on it, and θa is
+    /// smoother on the grid than at the logged times (by [`CLOCK_SMOOTHER`]; a recording
+    /// sampled at the logged times is smoother at them), the times become the grid's (a
+    /// least-squares line through the slot numbers, so a clock running a little fast or slow
+    /// is kept). Returns what was done, for the warnings; a regular recording is left bit for
+    /// bit as it was.
+    fn snap_jittered_clock(&mut self) -> Option<String> {
+        let n = self.len();
+        if n < 8 {
+            return None;
+        }
+        let t0 = self.t_s[0];
+        let mut steps: Vec<f64> = self
+            .t_s
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .filter(|d| *d > 0.0)
+            .collect();
+        if steps.len() < n / 2 {
+            return None;
+        }
+        let mid = steps.len() / 2;
+        let period = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        if !(period.is_finite() && period > 0.0) {
+            return None;
+        }
+        // Slots step by step (each step rounded on its own, so that the median's error does
+        // not add up over the rows), then the least-squares line t − t0 ≈ a + b·slot about
+        // the means.
+        let mut slot = Vec::with_capacity(n);
+        slot.push(0.0);
+        for w in self.t_s.windows(2) {
+            let k = ((w[1] - w[0]) / period).round();
+            // Two rows in one slot (or a NaN): not a jittered grid.
+            if k.is_nan() || k < 1.0 {
+                return None;
+            }
+            slot.push(slot.last().copied().unwrap_or(0.0) + k);
+        }
+        let nf = n as f64;
+        let ms = slot.iter().sum::<f64>() / nf;
+        let mt = self.t_s.iter().map(|t| t - t0).sum::<f64>() / nf;
+        let (mut sst, mut sss) = (0.0, 0.0);
+        for (s, t) in slot.iter().zip(&self.t_s) {
+            sst += (s - ms) * (t - t0 - mt);
+            sss += (s - ms) * (s - ms);
+        }
+        let b = sst / sss;
+        let a = mt - b * ms;
+        if !(a.is_finite() && b.is_finite() && b > 0.0) {
+            return None;
+        }
+        let grid: Vec<f64> = slot.iter().map(|s| a + b * s).collect();
+        let scatter = self
+            .t_s
+            .iter()
+            .zip(&grid)
+            .map(|(t, g)| (t - t0 - g).abs())
+            .fold(0.0, f64::max);
+        // On the grid already (to the rounding of the times' text or of a large time origin):
+        // nothing to do.
+        if !scatter.is_finite() || scatter <= 1e-3 * period || scatter > CLOCK_JITTER_MAX * period {
+            return None;
+        }
+        let logged: Vec<f64> = self.t_s.iter().map(|t| t - t0).collect();
+        let rough = |times: &[f64]| -> f64 {
+            let th = &self.theta_a_rad;
+            let mut r = 0.0;
+            for i in 1..n - 1 {
+                let (h1, h2) = (times[i] - times[i - 1], times[i + 1] - times[i]);
+                if h1 > 0.0 && h2 > 0.0 {
+                    let dd =
+                        2.0 * ((th[i + 1] - th[i]) / h2 - (th[i] - th[i - 1]) / h1) / (h1 + h2);
+                    r += dd * dd;
+                }
+            }
+            r
+        };
+        let (r_logged, r_grid) = (rough(&logged), rough(&grid));
+        if r_grid.is_nan() || r_grid >= CLOCK_SMOOTHER * r_logged {
+            return None;
+        }
+        for (t, g) in self.t_s.iter_mut().zip(&grid) {
+            *t = t0 + g;
+        }
+        Some(format!(
+            "row times scatter by up to {:.3} ms about a regular {:.1} Hz grid, and θa is smoother \
+             on the grid ({:.2} of the roughness at the logged times): read at the grid's times \
+             (a logger's clock that jittered, not the sampling)",
+            scatter * 1e3,
+            1.0 / b,
+            r_grid / r_logged
+        ))
+    }
 }
 
 /// Control period of the firmware when its log does not say (s): 10 kHz.
@@ -750,6 +863,100 @@ mod tests {
 
     fn nm(i: f64) -> f64 {
         i * 2.0
+    }
+
+    /// A smooth closing motion (rad) at time t (s).
+    fn closing(t: f64) -> f64 {
+        -0.85 + 0.3 * t * t + 0.01 * (7.0 * t).sin()
+    }
+
+    /// A PCG-style generator of uniform draws in [−1, 1).
+    fn draws(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (s >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        }
+    }
+
+    fn csv_of(rows: &[(f64, f64)]) -> String {
+        let mut s = String::from("t_s,theta_a_rad,torque_nm\n");
+        for (t, th) in rows {
+            s += &format!("{t:?},{th:?},0.1\n");
+        }
+        s
+    }
+
+    /// Rows sampled every 1 ms (one in seven missing) and stamped with ±0.2 ms of jitter, from
+    /// a clock 50 ppm fast, starting at 12.3 s: read at the grid's times, a constant apart from
+    /// the true ones, with a warning that says so.
+    #[test]
+    fn a_jittered_logging_clock_is_read_at_its_grid() {
+        let mut u = draws(3);
+        let rows: Vec<(f64, f64)> = (0..1500)
+            .filter(|i| i % 7 != 3)
+            .map(|i| {
+                let t = 1e-3 * f64::from(i);
+                (12.3 + t * (1.0 + 50e-6) + 2e-4 * u(), closing(t))
+            })
+            .collect();
+        let tr = read_csv(&csv_of(&rows), &nm).unwrap();
+        let note = tr
+            .warnings
+            .iter()
+            .find(|w| w.contains("regular"))
+            .unwrap_or_else(|| panic!("no note: {:?}", tr.warnings));
+        assert!(note.contains("1000.0 Hz"), "{note}");
+        let truth: Vec<f64> = (0..1500)
+            .filter(|i| i % 7 != 3)
+            .map(|i| 12.3 + 1e-3 * f64::from(i) * (1.0 + 50e-6))
+            .collect();
+        // The line through 1285 times scattered by ±0.2 ms is known to a few µs at its ends.
+        let offset = tr.t_s[0] - truth[0];
+        for (t, g) in tr.t_s.iter().zip(&truth) {
+            assert!((t - g - offset).abs() < 2e-5, "{t} vs {g} + {offset}");
+        }
+        assert!(offset.abs() < 1e-4, "offset {offset}");
+    }
+
+    /// Rows sampled at the jittered times themselves (θa is smooth at them), rows already on
+    /// their grid (times as text with 3 decimals, or at a Unix time), and rows scattered by
+    /// more than a third of a period: all left as they are.
+    #[test]
+    fn a_clock_that_is_right_is_left_alone() {
+        let mut u = draws(5);
+        let sampled: Vec<(f64, f64)> = (0..1500)
+            .map(|i| {
+                let t = 1e-3 * f64::from(i) + 2e-4 * u();
+                (t, closing(t))
+            })
+            .collect();
+        let on_grid: Vec<(f64, f64)> = (0..1500)
+            .map(|i| {
+                let t = 1e-3 * f64::from(i);
+                (format!("{t:.3}").parse().unwrap(), closing(t))
+            })
+            .collect();
+        let unix: Vec<(f64, f64)> = on_grid.iter().map(|(t, th)| (1.7e9 + t, *th)).collect();
+        let scattered: Vec<(f64, f64)> = (0..1500)
+            .map(|i| {
+                let t = 1e-3 * f64::from(i);
+                (t + 4e-4 * u(), closing(t))
+            })
+            .collect();
+        for (what, rows) in [
+            ("sampled at the logged times", sampled),
+            ("on the grid", on_grid),
+            ("at a Unix time", unix),
+            ("scattered by ±0.4 periods", scattered),
+        ] {
+            let tr = read_csv(&csv_of(&rows), &nm).unwrap();
+            assert!(tr.warnings.is_empty(), "{what}: {:?}", tr.warnings);
+            let times: Vec<f64> = rows.iter().map(|r| r.0).collect();
+            assert_eq!(tr.t_s, times, "{what}");
+        }
     }
 
     #[test]

@@ -17,6 +17,8 @@
 //! how far the error moves between draws of the same grasp. `ENGINE_GRID_MU_MAX=µ` estimates
 //! with that contact friction prior instead of the paper file's (0: σ without the friction
 //! widening, as the firmware reports it); the table of σ against the error shows what it does.
+//! `ENGINE_GRID_STAMP_JITTER_MS=J` moves every row's time by a draw within ±J ms (a logger
+//! that stamps rows when they arrive; the values stay those of the regular grid).
 
 use dynsim::grasp as engine;
 use dynsim::grid::{cases, Axes, Case, FULL, INERTIA, SMALL};
@@ -125,7 +127,11 @@ fn record_case(
     sensor: &engine::SensorSpec,
     id: String,
 ) -> Outcome {
-    let seg = estimate(&decimate(&engine::to_csv(rec, sensor), rate_step(), 0));
+    let csv = decimate(&engine::to_csv(rec, sensor), rate_step(), 0);
+    let seg = estimate(&match stamp_jitter_s() {
+        Some(j) => jitter_stamps(&csv, j, &id),
+        None => csv,
+    });
     let first = seg.as_ref().ok().and_then(|s| s.contacts.first());
     let j_hat = first.and_then(|c| c.drive).map(|d| d.inertia_kgm2);
     let phases = first.and_then(|c| c.phases);
@@ -660,6 +666,44 @@ fn decimate(csv: &str, step: usize, offset: usize) -> String {
         .collect()
 }
 
+/// `ENGINE_GRID_STAMP_JITTER_MS` (0 to 0.45 of a 1 kHz row), in s.
+fn stamp_jitter_s() -> Option<f64> {
+    let v = std::env::var("ENGINE_GRID_STAMP_JITTER_MS").ok()?;
+    let ms: f64 = v
+        .parse()
+        .expect("ENGINE_GRID_STAMP_JITTER_MS: a time in ms");
+    assert!(
+        (0.0..=0.45).contains(&ms),
+        "ENGINE_GRID_STAMP_JITTER_MS = {ms}: from 0 to 0.45"
+    );
+    Some(ms * 1e-3)
+}
+
+/// The CSV with each row's time moved by a uniform draw within ±`j_s` (a generator seeded
+/// from the recording's id, so that a run is repeatable).
+fn jitter_stamps(csv: &str, j_s: f64, id: &str) -> String {
+    let mut state = id.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    let mut lines = csv.lines();
+    let header = lines.next().unwrap_or_default();
+    let mut out = format!("{header}\n");
+    for l in lines {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        let u = (state >> 11) as f64 / (1u64 << 52) as f64 - 1.0;
+        match l.split_once(',') {
+            Some((t, rest)) => match t.parse::<f64>() {
+                Ok(t) => out += &format!("{:?},{rest}\n", t + j_s * u),
+                Err(_) => out += &format!("{l}\n"),
+            },
+            None => out += &format!("{l}\n"),
+        }
+    }
+    out
+}
+
 /// The grid the environment asks for: `ENGINE_GRID=small|full|inertia`, else the CI slice.
 fn grid() -> (&'static str, &'static Axes) {
     match std::env::var("ENGINE_GRID").as_deref() {
@@ -680,9 +724,13 @@ fn engine_grid_default_method() {
     let rows = run_grid(&cs);
     let grasps = rows.iter().filter(|o| o.id == o.grasp).count();
     println!(
-        "engine grid `{name}` recorded at {} Hz: {grasps} grasps ({} skipped by the engine), {} \
+        "engine grid `{name}` recorded at {} Hz{}: {grasps} grasps ({} skipped by the engine), {} \
          recordings with {} more sensor draws of each noisy grasp, in {:.1} s",
         1000 / rate_step(),
+        stamp_jitter_s().map_or(String::new(), |j| format!(
+            ", row times stamped with ±{} ms of jitter",
+            j * 1e3
+        )),
         cs.len() - grasps,
         rows.len(),
         draws(),
@@ -711,7 +759,7 @@ fn engine_grid_default_method() {
     let [off, realistic] = print_drive_table(&rows);
     // The bounds below hold the CI slice as the engine records it; other grids and rates are
     // measurements.
-    if name != "ci" || rate_step() != 1 {
+    if name != "ci" || rate_step() != 1 || stamp_jitter_s().is_some() {
         return;
     }
     // The drive from the approach. With noise (the realistic level), σ covers the error: the

@@ -437,10 +437,13 @@ fn decimated_to_100_hz_is_refused() {
     assert_eq!(kind, "distal");
 }
 
-/// The noise-free samples with their row times jittered by up to ±0.2 ms, and with one row in
-/// ten dropped (both drawn by a fixed generator): every one still answered on the distal
-/// phalanx, within 3σ of the truth. A logger's timing should not decide whether a clean
-/// grasp is answered; before the fit's normal matrix was formed as a Gram matrix, its
+/// The noise-free samples with their row times disturbed three ways, drawn by a fixed
+/// generator: stamped with ±0.2 ms of jitter by the logger (read at their grid's times, so the
+/// answer is the clean one's), sampled at times that jitter by ±0.2 ms (θa and torque
+/// interpolated there), and with one row in ten dropped. Every one is answered on the distal
+/// phalanx, within 3σ of the truth. A logger's timing should not decide whether a clean grasp
+/// is answered: read at the jittered stamps, the engine grid answered 84.8 % of its grasps
+/// instead of 97.8 % (RESULTS); and before the fit's normal matrix was formed as a Gram matrix, its
 /// rounding made it indefinite on `qs01` (contact angle and friction offset nearly collinear)
 /// and the thinned recording was refused as `not_determined`.
 #[test]
@@ -457,14 +460,26 @@ fn a_clean_recording_is_answered_whatever_the_row_timing() {
         .filter(|id| id.ends_with("__ideal"))
         .collect();
     assert!(clean_ids.len() >= 5, "noise-free samples: {clean_ids:?}");
+    let mut moved = 0.0f64;
     for id in &clean_ids {
         let k2_true = truth(&samples_dir(), id)["truth"]["k2_c_m"]
             .as_f64()
             .unwrap();
         let clean = rows(id);
-        let jittered: Vec<[f64; 3]> = clean
+        let (_, k2_clean) = outcome(&to_csv_exact(&clean));
+        let stamped: Vec<[f64; 3]> = clean
             .iter()
             .map(|x| [x[0] + (uniform() - 0.5) * 4e-4, x[1], x[2]])
+            .collect();
+        let last = clean.len() - 1;
+        let sampled: Vec<[f64; 3]> = (0..=last)
+            .map(|i| {
+                let (a, b) = (clean[i.min(last - 1)], clean[(i + 1).min(last)]);
+                let t =
+                    clean[i][0] + (uniform() - 0.5) * 4e-4 * f64::from(u8::from(i > 0 && i < last));
+                let f = (t - a[0]) / (b[0] - a[0]);
+                [t, a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
+            })
             .collect();
         let thinned: Vec<[f64; 3]> = clean
             .iter()
@@ -473,7 +488,8 @@ fn a_clean_recording_is_answered_whatever_the_row_timing() {
             .map(|(_, x)| *x)
             .collect();
         for (what, r) in [
-            ("jitter ±0.2 ms", jittered),
+            ("stamped with ±0.2 ms of jitter", stamped),
+            ("sampled at times jittered by ±0.2 ms", sampled),
             ("10 % of rows dropped", thinned),
         ] {
             let text = to_csv_exact(&r);
@@ -492,6 +508,15 @@ fn a_clean_recording_is_answered_whatever_the_row_timing() {
                 (k2 - k2_true).abs() <= 3.0 * sigma,
                 "{id}, {what}: k2 {k2} vs {k2_true} (σ {sigma})"
             );
+            if what.starts_with("stamped") {
+                let d = (k2 - k2_clean.unwrap()).abs();
+                moved = moved.max(d);
+                assert!(d <= 2e-5, "{id}, {what}: {k2} vs the clean {k2_clean:?}");
+            }
         }
     }
+    println!(
+        "stamped with jitter: k2 within {:.1} µm of the clean recording's",
+        moved * 1e6
+    );
 }
