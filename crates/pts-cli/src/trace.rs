@@ -694,78 +694,93 @@ impl Trace {
             return None;
         }
         let t0 = self.t_s[0];
-        let mut steps: Vec<f64> = self
-            .t_s
-            .windows(2)
-            .map(|w| w[1] - w[0])
-            .filter(|d| *d > 0.0)
+        // The period: the median of up to 1024 steps spread over the rows (no copy of the
+        // column: the trace may be long, and a reader holds about twice its file).
+        let stride = (n - 1).div_ceil(1024);
+        let mut steps: Vec<f64> = (0..n - 1)
+            .step_by(stride)
+            .map(|i| self.t_s[i + 1] - self.t_s[i])
             .collect();
-        if steps.len() < n / 2 {
+        let mid = steps.len() / 2;
+        let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        // Rows missing from the grid lengthen some steps: the median again without them.
+        steps.retain(|d| *d <= 1.5 * median);
+        if steps.is_empty() {
             return None;
         }
         let mid = steps.len() / 2;
-        let period = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let mut period = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
         if !(period.is_finite() && period > 0.0) {
             return None;
         }
-        // Slots step by step (each step rounded on its own, so that the median's error does
-        // not add up over the rows), then the least-squares line t − t0 ≈ a + b·slot about
-        // the means.
-        let mut slot = Vec::with_capacity(n);
-        slot.push(0.0);
-        for w in self.t_s.windows(2) {
-            let k = ((w[1] - w[0]) / period).round();
-            // Two rows in one slot (or a NaN): not a jittered grid.
-            if k.is_nan() || k < 1.0 {
+        // Slots step by step (each step rounded on its own, so that the period's error does
+        // not add up over the rows; two rows in one slot is not a jittered grid), then the
+        // least-squares line t − t0 ≈ a + b·slot about the means; twice, the second time
+        // with the line's period.
+        let nf = n as f64;
+        let (mut a, mut b) = (0.0, period);
+        for _ in 0..2 {
+            period = b;
+            let (mut ss, mut st) = (0.0, 0.0);
+            for (s, t) in slot_numbers(&self.t_s, period).zip(&self.t_s) {
+                ss += s?;
+                st += t - t0;
+            }
+            let (ms, mt) = (ss / nf, st / nf);
+            let (mut sst, mut sss) = (0.0, 0.0);
+            for (s, t) in slot_numbers(&self.t_s, period).zip(&self.t_s) {
+                let ds = s.unwrap_or(0.0) - ms;
+                sst += ds * (t - t0 - mt);
+                sss += ds * ds;
+            }
+            b = sst / sss;
+            a = mt - b * ms;
+            if !(a.is_finite() && b.is_finite() && b > 0.0) {
                 return None;
             }
-            slot.push(slot.last().copied().unwrap_or(0.0) + k);
         }
-        let nf = n as f64;
-        let ms = slot.iter().sum::<f64>() / nf;
-        let mt = self.t_s.iter().map(|t| t - t0).sum::<f64>() / nf;
-        let (mut sst, mut sss) = (0.0, 0.0);
-        for (s, t) in slot.iter().zip(&self.t_s) {
-            sst += (s - ms) * (t - t0 - mt);
-            sss += (s - ms) * (s - ms);
-        }
-        let b = sst / sss;
-        let a = mt - b * ms;
-        if !(a.is_finite() && b.is_finite() && b > 0.0) {
-            return None;
-        }
-        let grid: Vec<f64> = slot.iter().map(|s| a + b * s).collect();
-        let scatter = self
-            .t_s
-            .iter()
-            .zip(&grid)
-            .map(|(t, g)| (t - t0 - g).abs())
+        let slots = || slot_numbers(&self.t_s, period);
+        let grid = || slots().map(move |s| s.map_or(f64::NAN, |s| a + b * s));
+        let scatter = grid()
+            .zip(&self.t_s)
+            .map(|(g, t)| (t - t0 - g).abs())
             .fold(0.0, f64::max);
         // On the grid already (to the rounding of the times' text or of a large time origin):
         // nothing to do.
         if !scatter.is_finite() || scatter <= 1e-3 * period || scatter > CLOCK_JITTER_MAX * period {
             return None;
         }
-        let logged: Vec<f64> = self.t_s.iter().map(|t| t - t0).collect();
-        let rough = |times: &[f64]| -> f64 {
+        // Σ of squared second divided differences of θa at the given times.
+        let rough = |times: &mut dyn Iterator<Item = f64>| -> f64 {
             let th = &self.theta_a_rad;
-            let mut r = 0.0;
-            for i in 1..n - 1 {
-                let (h1, h2) = (times[i] - times[i - 1], times[i + 1] - times[i]);
-                if h1 > 0.0 && h2 > 0.0 {
-                    let dd =
-                        2.0 * ((th[i + 1] - th[i]) / h2 - (th[i] - th[i - 1]) / h1) / (h1 + h2);
-                    r += dd * dd;
+            let (mut r, mut w) = (0.0, [0.0; 3]);
+            for (i, t) in times.enumerate() {
+                w = [w[1], w[2], t];
+                if i >= 2 {
+                    let (h1, h2) = (w[1] - w[0], w[2] - w[1]);
+                    if h1 > 0.0 && h2 > 0.0 {
+                        let d1 = (th[i - 1] - th[i - 2]) / h1;
+                        let d2 = (th[i] - th[i - 1]) / h2;
+                        let dd = 2.0 * (d2 - d1) / (h1 + h2);
+                        r += dd * dd;
+                    }
                 }
             }
             r
         };
-        let (r_logged, r_grid) = (rough(&logged), rough(&grid));
+        let r_logged = rough(&mut self.t_s.iter().map(|t| t - t0));
+        let r_grid = rough(&mut grid());
         if r_grid.is_nan() || r_grid >= CLOCK_SMOOTHER * r_logged {
             return None;
         }
-        for (t, g) in self.t_s.iter_mut().zip(&grid) {
-            *t = t0 + g;
+        // In place (the same slots again, from each row's time before it is replaced).
+        let (mut slot, mut prev) = (0.0, t0);
+        for (i, t) in self.t_s.iter_mut().enumerate() {
+            if i > 0 {
+                slot += ((*t - prev) / period).round();
+            }
+            prev = *t;
+            *t = t0 + (a + b * slot);
         }
         Some(format!(
             "row times scatter by up to {:.3} ms about a regular {:.1} Hz grid, and θa is smoother \
@@ -776,6 +791,24 @@ impl Trace {
             r_grid / r_logged
         ))
     }
+}
+
+/// Each row's slot on a grid of `period` (s) from the first row: the previous row's slot plus
+/// its step rounded to periods; `None` from a row in the same slot as the one before.
+fn slot_numbers(t_s: &[f64], period: f64) -> impl Iterator<Item = Option<f64>> + '_ {
+    let mut slot = 0.0;
+    let mut prev = t_s.first().copied().unwrap_or(0.0);
+    t_s.iter().enumerate().map(move |(i, &t)| {
+        if i > 0 {
+            let k = ((t - prev) / period).round();
+            if k.is_nan() || k < 1.0 {
+                return None;
+            }
+            slot += k;
+        }
+        prev = t;
+        Some(slot)
+    })
 }
 
 /// Control period of the firmware when its log does not say (s): 10 kHz.
