@@ -739,8 +739,8 @@ impl Trace {
                 return None;
             }
         }
-        let slots = || slot_numbers(&self.t_s, period);
-        let grid = || slots().map(move |s| s.map_or(f64::NAN, |s| a + b * s));
+        let grid =
+            || slot_numbers(&self.t_s, period).map(move |s| s.map_or(f64::NAN, |s| a + b * s));
         let scatter = grid()
             .zip(&self.t_s)
             .map(|(g, t)| (t - t0 - g).abs())

@@ -501,15 +501,23 @@ fn estimate(csv: &str) -> Result<pts_cli::replay::Segmented, String> {
 /// `ENGINE_GRID_MU_MAX`: the largest contact friction σ(k2,c) is widened over (the finger
 /// file's `contact.mu_max`, 0 to 1.5); 0 leaves σ the fit's own, as the firmware reports it.
 fn mu_max() -> Option<f64> {
-    let v = std::env::var("ENGINE_GRID_MU_MAX").ok()?;
-    let mu: f64 = v
+    env_number("ENGINE_GRID_MU_MAX", "a friction coefficient", 0.0..=1.5)
+}
+
+/// The number in the environment variable `name`, if set; a value that does not parse (as
+/// `what`) or lies outside `range` stops the run with a message naming both.
+fn env_number(name: &str, what: &str, range: std::ops::RangeInclusive<f64>) -> Option<f64> {
+    let v = std::env::var(name).ok()?;
+    let x: f64 = v
         .parse()
-        .expect("ENGINE_GRID_MU_MAX: a friction coefficient");
+        .unwrap_or_else(|_| panic!("{name} = {v:?}: not {what}"));
     assert!(
-        (0.0..=1.5).contains(&mu),
-        "ENGINE_GRID_MU_MAX = {mu}: from 0 to 1.5"
+        range.contains(&x),
+        "{name} = {x}: from {} to {}",
+        range.start(),
+        range.end()
     );
-    Some(mu)
+    Some(x)
 }
 
 /// [`estimate`] with the finger file `file`.
@@ -668,15 +676,7 @@ fn decimate(csv: &str, step: usize, offset: usize) -> String {
 
 /// `ENGINE_GRID_STAMP_JITTER_MS` (0 to 0.45 of a 1 kHz row), in s.
 fn stamp_jitter_s() -> Option<f64> {
-    let v = std::env::var("ENGINE_GRID_STAMP_JITTER_MS").ok()?;
-    let ms: f64 = v
-        .parse()
-        .expect("ENGINE_GRID_STAMP_JITTER_MS: a time in ms");
-    assert!(
-        (0.0..=0.45).contains(&ms),
-        "ENGINE_GRID_STAMP_JITTER_MS = {ms}: from 0 to 0.45"
-    );
-    Some(ms * 1e-3)
+    env_number("ENGINE_GRID_STAMP_JITTER_MS", "a time in ms", 0.0..=0.45).map(|ms| ms * 1e-3)
 }
 
 /// The CSV with each row's time moved by a uniform draw within ±`j_s` (a generator seeded
