@@ -151,3 +151,76 @@ fn the_probe_leaves_a_sound_contact_alone() {
     // The cases reach the probe: an answer without a distal location, or a refusal.
     assert!(probed >= 3, "only {probed} cases were probed");
 }
+
+/// A drive with three times the rotor inertia (a built finger's is known to a factor, and the
+/// finger file may be the nominal one): the step's torque leads its motion, so the halfway
+/// sample carries most of ΔT_a at half the travel. The loss-of-contact check once read its
+/// stiffness from there and faulted every one of these grasps with the plant still pressing
+/// on the object. Each must end holding with a distal estimate within its 3σ; taking the
+/// object away while it holds must still be a loss of contact.
+#[test]
+fn a_slow_drive_still_pressing_on_the_object_is_not_a_loss_of_contact() {
+    let slow = |k2_frac: f64| {
+        let mut scene = plant::scenes::table2();
+        scene.drive.rotor_inertia_kgm2 *= 3.0;
+        scene.object = ObjectSpec::Touching(ContactSpec {
+            theta1_c_rad: 1.2797,
+            phalanx: Phalanx::Distal,
+            k_c_m: k2_frac * L2,
+            radius_m: 0.0,
+        });
+        scene
+    };
+    for (k2_frac, dta) in [(0.45, 0.5), (0.45, 0.8), (0.6, 0.8)] {
+        let scene = slow(k2_frac);
+        let o = run(&scene, unseated(&scene, dta), 10.0, 0.0, |_, _, _| {});
+        let name = format!("vertex at {k2_frac} l2, ΔT_a {dta} N·m");
+        let lost = o
+            .plant_events
+            .iter()
+            .any(|e| matches!(e.kind, plant::EventKind::LossOfContact { .. }));
+        assert!(!lost, "{name}: the plant lost the object");
+        assert_eq!(o.state, State::Holding, "{name}: events {:?}", o.events);
+        let r = o.estimate.expect("request").expect("estimate");
+        let k2 = k2_hat(&o).expect("a distal estimate");
+        let sigma = f64::from(r.k2_sigma_um.expect("σ of a distal answer")) * 1e-6;
+        let (_, k2c) = o.first_contact.expect("contact");
+        println!(
+            "{name}: k̂2 {:.2} mm ± {:.2}, truth {:.2} mm",
+            k2 * 1e3,
+            sigma * 1e3,
+            k2c * 1e3
+        );
+        assert!(
+            (k2 - k2c).abs() <= 3.0 * sigma,
+            "{name}: k̂2 {k2} m, σ {sigma} m, truth {k2c} m"
+        );
+    }
+    // Taken away while holding: the finger runs off its settled end, a loss of contact
+    // within 0.1 s.
+    let scene = slow(0.45);
+    let (mut removed_s, mut faulted_s) = (None, None);
+    let o = run(&scene, unseated(&scene, 0.8), 10.0, 0.3, |t, st, p| {
+        if st == State::Holding && removed_s.is_none() {
+            p.inject(plant::Fault::RemoveObject);
+            removed_s = Some(t);
+        }
+        if matches!(st, State::Fault(_)) && faulted_s.is_none() {
+            faulted_s = Some(t);
+        }
+    });
+    assert!(
+        matches!(o.state, State::Fault(FaultReason::LossOfContact { .. })),
+        "object taken away while holding: {:?}, events {:?}",
+        o.state,
+        o.events
+    );
+    assert!(o.bridge_off, "bridge left on");
+    let (removed, faulted) = (removed_s.expect("held"), faulted_s.expect("faulted"));
+    println!("taken away at {removed:.4} s, loss of contact at {faulted:.4} s");
+    assert!(
+        faulted - removed <= 0.1,
+        "found {} s late",
+        faulted - removed
+    );
+}

@@ -251,6 +251,9 @@ struct Loaded {
     seat: Sample,
     /// Second loading point, halfway from the first to T_a,c + ΔT_a.
     seat2: Sample,
+    /// Without seating, the step's settled end once it has settled: with `seat` the one
+    /// pair of static points such a step has, which the loss-of-contact check reads.
+    settled: Option<Sample>,
 }
 
 impl Loaded {
@@ -1188,10 +1191,12 @@ impl Supervisor {
         }
     }
 
-    /// Loss of contact: θa beyond what the contact allows. Before the second static point
-    /// (`loaded` is `None`): a stiffness ≥ K_detect from the contact point. After it: 1.5×
-    /// the displacement the early stiffness (seated → seated again) predicts from there (the
-    /// path only stiffens).
+    /// Loss of contact: θa beyond what the contact allows. Before two static points on the
+    /// path: a stiffness ≥ K_detect from the contact point. After them: 1.5× the
+    /// displacement their stiffness predicts from the later one (the path only stiffens) —
+    /// seated: the two seats; unseated, once the step settled: the contact instant and the
+    /// settled end. (An unseated step's halfway sample is no static point: on a slow drive its
+    /// torque leads the motion, and a stiffness read there is far too high.)
     fn lost(
         &self,
         theta: i32,
@@ -1199,11 +1204,13 @@ impl Supervisor {
         contact: &Contact,
         loaded: Option<&Loaded>,
     ) -> Option<i32> {
-        let early = loaded.map(|l| (l.seat2, i64::from(stiffness(&l.seat, &l.seat2))));
-        let (from, k, num, den) = match early {
-            Some((seat2, k_early)) if k_early > 0 && k_early < i64::from(i32::MAX) => {
-                (seat2, k_early, 3, 2)
-            }
+        let statics = loaded.and_then(|l| match (self.p.seating, l.settled) {
+            (true, _) => Some((l.seat2, stiffness(&l.seat, &l.seat2))),
+            (false, Some(end)) => Some((end, stiffness(&l.seat, &end))),
+            (false, None) => None,
+        });
+        let (from, k, num, den) = match statics {
+            Some((from, k)) if k > 0 && k < i32::MAX => (from, i64::from(k), 3, 2),
             _ => (contact.knee, self.p.detect_k_unm_per_rad, 1, 1),
         };
         let dth = i64::from(theta) - i64::from(from.theta_a_urad);
@@ -1369,6 +1376,7 @@ impl Supervisor {
                     contact,
                     seat: at,
                     seat2: at,
+                    settled: None,
                 },
                 target_unm: knee.torque_unm.saturating_add(self.p.delta_ta_unm),
             };
@@ -1484,6 +1492,7 @@ impl Supervisor {
                         contact,
                         seat,
                         seat2: point,
+                        settled: None,
                     },
                     target_unm: top,
                 };
@@ -1511,6 +1520,7 @@ impl Supervisor {
             contact: loaded.contact,
             seat: at,
             seat2,
+            settled: Some(*end),
         }
     }
 
