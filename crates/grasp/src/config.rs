@@ -33,7 +33,8 @@ pub struct DriveConfig {
     pub theta_a_rest_rad: f64,
     /// Effective inertia of the drive at the crank as the measured torque sees it (kg·m²;
     /// η × rotor inertia × gear ratio², ≥ 0): the path fit takes J·θ̈a off every sample.
-    /// Read by the path fit's table only ([`crate::path_table`], which checks it).
+    /// Read by the path fit's table ([`crate::path_table`], which checks it) and by the torque
+    /// loop's damping ([`ControllerConfig::damping_nm_s_per_rad`]).
     pub inertia_kgm2: f64,
     /// Backlash between the encoder and the crank, at the crank (rad, ≥ 0): the encoder leads
     /// the finger by half of it while the drive loads in flexion (the path fit's measurement
@@ -45,6 +46,11 @@ pub struct DriveConfig {
 }
 
 impl DriveConfig {
+    /// The share of the torque loop's damping this drive gets: its inertia over
+    /// [`DriveConfig::DEFAULT`]'s, at most 1 (B/J kept on a lighter drive).
+    fn damping_share(&self) -> f64 {
+        (self.inertia_kgm2 / DriveConfig::DEFAULT.inertia_kgm2).min(1.0)
+    }
     /// The drive of the simulated prototype (same numbers as the plant's default drive).
     pub const DEFAULT: DriveConfig = DriveConfig {
         dt_s: 100e-6,
@@ -139,9 +145,12 @@ pub struct ControllerConfig {
     /// Approach: the reference stops rising while the actuator moves faster than this (rad/s):
     /// limits the speed, and so the impact, at contact.
     pub approach_speed_max_rad_s: f64,
-    /// Virtual damping added by the torque loop, T_cmd = T_ref − B·ω̂a (N·m·s/rad). The drive's
-    /// reflected rotor inertia (J·N² ≈ 0.066 kg·m²) on the contact stiffness is otherwise an
-    /// undamped oscillator under torque control; at rest it changes nothing.
+    /// Virtual damping added by the torque loop, T_cmd = T_ref − B·ω̂a (N·m·s/rad), for a
+    /// drive of [`DriveConfig::DEFAULT`]'s inertia. The drive's reflected rotor inertia (J·N²
+    /// ≈ 0.066 kg·m²) on the contact stiffness is otherwise an undamped oscillator under
+    /// torque control; at rest it changes nothing. A lighter drive ([`DriveConfig::inertia_kgm2`])
+    /// gets B scaled by its share of that inertia (B/J kept): the full B on a light drive holds
+    /// the approach to a creep whose torque, from the quantized speed, reads as a contact.
     pub damping_nm_s_per_rad: f64,
     /// Approach: torque at which the approach gives up (no contact) (N·m).
     pub approach_max_nm: f64,
@@ -487,7 +496,7 @@ impl ControllerConfig {
             // µrad per sample.
             approach_vmax_urad: to_i32(self.approach_speed_max_rad_s * 1e6 * self.sample_s),
             // µN·m per (µrad per sample), Q16: B [N·m·s/rad] / sample_s.
-            damping_q16: q16(self.damping_nm_s_per_rad / self.sample_s),
+            damping_q16: q16(self.damping_nm_s_per_rad * d.damping_share() / self.sample_s),
             sample_ticks,
             detect_window: self.detect_window as usize,
             detect_confirm: self.detect_confirm,

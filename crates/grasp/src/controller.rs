@@ -251,9 +251,10 @@ struct Loaded {
     seat: Sample,
     /// Second loading point, halfway from the first to T_a,c + ΔT_a.
     seat2: Sample,
-    /// Without seating, the step's settled end once it has settled: with `seat` the one
-    /// pair of static points such a step has, which the loss-of-contact check reads.
-    settled: Option<Sample>,
+    /// Without seating, the step's settled end once it has settled (`seat` until then): with
+    /// `seat` the one pair of static points such a step has, which the loss-of-contact check
+    /// reads.
+    settled: Sample,
 }
 
 impl Loaded {
@@ -1204,10 +1205,10 @@ impl Supervisor {
         contact: &Contact,
         loaded: Option<&Loaded>,
     ) -> Option<i32> {
-        let statics = loaded.and_then(|l| match (self.p.seating, l.settled) {
-            (true, _) => Some((l.seat2, stiffness(&l.seat, &l.seat2))),
-            (false, Some(end)) => Some((end, stiffness(&l.seat, &end))),
-            (false, None) => None,
+        // Before an unseated step settles, `settled` is `seat`: no stiffness, the fallback.
+        let statics = loaded.map(|l| {
+            let from = if self.p.seating { l.seat2 } else { l.settled };
+            (from, stiffness(&l.seat, &from))
         });
         let (from, k, num, den) = match statics {
             Some((from, k)) if k > 0 && k < i32::MAX => (from, i64::from(k), 3, 2),
@@ -1376,7 +1377,7 @@ impl Supervisor {
                     contact,
                     seat: at,
                     seat2: at,
-                    settled: None,
+                    settled: at,
                 },
                 target_unm: knee.torque_unm.saturating_add(self.p.delta_ta_unm),
             };
@@ -1492,7 +1493,7 @@ impl Supervisor {
                         contact,
                         seat,
                         seat2: point,
-                        settled: None,
+                        settled: point,
                     },
                     target_unm: top,
                 };
@@ -1520,7 +1521,7 @@ impl Supervisor {
             contact: loaded.contact,
             seat: at,
             seat2,
-            settled: Some(*end),
+            settled: *end,
         }
     }
 
