@@ -160,17 +160,7 @@ fn the_probe_leaves_a_sound_contact_alone() {
 /// object away while it holds must still be a loss of contact.
 #[test]
 fn a_slow_drive_still_pressing_on_the_object_is_not_a_loss_of_contact() {
-    let slow = |k2_frac: f64| {
-        let mut scene = plant::scenes::table2();
-        scene.drive.rotor_inertia_kgm2 *= 3.0;
-        scene.object = ObjectSpec::Touching(ContactSpec {
-            theta1_c_rad: 1.2797,
-            phalanx: Phalanx::Distal,
-            k_c_m: k2_frac * L2,
-            radius_m: 0.0,
-        });
-        scene
-    };
+    let slow = |k2_frac: f64| drive_scene(3.0, 1.0, k2_frac, 0.0);
     for (k2_frac, dta) in [(0.45, 0.5), (0.45, 0.8), (0.6, 0.8)] {
         let scene = slow(k2_frac);
         let o = run(&scene, unseated(&scene, dta), 10.0, 0.0, |_, _, _| {});
