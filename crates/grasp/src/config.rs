@@ -51,6 +51,7 @@ impl DriveConfig {
     fn damping_share(&self) -> f64 {
         (self.inertia_kgm2 / DriveConfig::DEFAULT.inertia_kgm2).min(1.0)
     }
+
     /// The drive of the simulated prototype (same numbers as the plant's default drive).
     pub const DEFAULT: DriveConfig = DriveConfig {
         dt_s: 100e-6,

@@ -253,7 +253,7 @@ struct Loaded {
     seat2: Sample,
     /// Without seating, the step's settled end once it has settled (`seat` until then): with
     /// `seat` the one pair of static points such a step has, which the loss-of-contact check
-    /// reads.
+    /// reads. Unused when seating.
     settled: Sample,
 }
 
