@@ -165,11 +165,7 @@ fn a_slow_drive_still_pressing_on_the_object_is_not_a_loss_of_contact() {
         let scene = slow(k2_frac);
         let o = run(&scene, unseated(&scene, dta), 10.0, 0.0, |_, _, _| {});
         let name = format!("vertex at {k2_frac} l2, ΔT_a {dta} N·m");
-        let lost = o
-            .plant_events
-            .iter()
-            .any(|e| matches!(e.kind, plant::EventKind::LossOfContact { .. }));
-        assert!(!lost, "{name}: the plant lost the object");
+        assert!(!plant_lost_object(&o), "{name}: the plant lost the object");
         assert_eq!(o.state, State::Holding, "{name}: events {:?}", o.events);
         let r = o.estimate.expect("request").expect("estimate");
         let k2 = k2_hat(&o).expect("a distal estimate");
@@ -215,6 +211,13 @@ fn a_slow_drive_still_pressing_on_the_object_is_not_a_loss_of_contact() {
     );
 }
 
+/// Whether the plant itself reported the object lost.
+fn plant_lost_object(o: &Outcome) -> bool {
+    o.plant_events
+        .iter()
+        .any(|e| matches!(e.kind, plant::EventKind::LossOfContact { .. }))
+}
+
 /// The table2 plant with its drive's rotor inertia and friction scaled (friction: Coulomb,
 /// stiction and viscous alike), touching a vertex or cylinder of radius `radius_m` at
 /// `k2_frac` of l2 on the distal phalanx.
@@ -237,17 +240,12 @@ fn drive_scene(inertia: f64, friction: f64, k2_frac: f64, radius_m: f64) -> Scen
 /// refusal or a safe stop; `Err` for a loss of contact with the object still held.
 fn drive_grasp(scene: &Scene, dta: f64) -> Result<Option<(f64, f64)>, String> {
     let o = run(scene, unseated(scene, dta), 15.0, 0.0, |_, _, _| {});
-    let plant_saw = |f: fn(&plant::EventKind) -> bool| o.plant_events.iter().any(|e| f(&e.kind));
-    match o.state {
-        State::Fault(FaultReason::LossOfContact { .. })
-            if !plant_saw(|k| matches!(k, plant::EventKind::LossOfContact { .. })) =>
-        {
-            return Err(format!(
-                "loss of contact with the object held: {:?}",
-                o.events
-            ));
-        }
-        _ => {}
+    if matches!(o.state, State::Fault(FaultReason::LossOfContact { .. })) && !plant_lost_object(&o)
+    {
+        return Err(format!(
+            "loss of contact with the object held: {:?}",
+            o.events
+        ));
     }
     let (Some(k2), Some((_, k2c))) = (k2_hat(&o), o.first_contact) else {
         return Ok(None);
