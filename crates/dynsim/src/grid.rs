@@ -21,6 +21,9 @@ pub struct Axes {
     pub mu: &'static [f64],
     /// Drive inertias at the crank, kg·m².
     pub inertia_kgm2: &'static [f64],
+    /// Proximal angles at first contact, rad (the object placed where the finger, closing
+    /// freely, meets it at this θ1).
+    pub theta1_c_rad: &'static [f64],
 }
 
 /// The grid (608 traces, about 11 min in release on one core).
@@ -30,6 +33,7 @@ pub const FULL: Axes = Axes {
     delta_ta_nm: &[0.2, 0.5, 0.8],
     mu: &[0.0, 0.3],
     inertia_kgm2: &[5.0e-4, 5.0e-3],
+    theta1_c_rad: &[THETA1_C_RAD],
 };
 
 /// Drive inertias across the range a recording may hold (1e-4 … 0.1 kg·m² at the crank),
@@ -42,6 +46,19 @@ pub const INERTIA: Axes = Axes {
     delta_ta_nm: &[0.5],
     mu: &[0.0, 0.3],
     inertia_kgm2: &[1.0e-4, 2.0e-2, 1.0e-1],
+    theta1_c_rad: &[THETA1_C_RAD],
+};
+
+/// Other poses at first contact than the Table 2 one: the finger meets the object earlier
+/// (θ1,c 1.10 rad) or later (1.35 rad) in its closing, at ΔT_a 0.3 and 0.6 N·m, with contact
+/// friction up to the estimator's prior bound (µ 0.4), on the light drive (148 traces).
+pub const POSE: Axes = Axes {
+    radii_m: &[0.0, 0.0075, 0.035],
+    k2_frac: &[0.27, 0.5, 0.72],
+    delta_ta_nm: &[0.3, 0.6],
+    mu: &[0.0, 0.4],
+    inertia_kgm2: &[5.0e-4],
+    theta1_c_rad: &[1.10, 1.35],
 };
 
 /// A slice of the same kinds (44 traces).
@@ -51,6 +68,7 @@ pub const SMALL: Axes = Axes {
     delta_ta_nm: &[0.5],
     mu: &[0.3],
     inertia_kgm2: &[5.0e-4, 5.0e-3],
+    theta1_c_rad: &[THETA1_C_RAD],
 };
 
 /// One grasp of a grid.
@@ -116,41 +134,52 @@ fn sensor(realistic: bool, n: usize) -> SensorSpec {
 /// Every grasp of a grid, distal positives first, then the negatives.
 pub fn cases(axes: &Axes) -> Vec<Case> {
     let mut out = Vec::new();
-    for &r in axes.radii_m {
-        for &k in axes.k2_frac {
-            for &d in axes.delta_ta_nm {
-                for &mu in axes.mu {
-                    for &j in axes.inertia_kgm2 {
-                        for realistic in [false, true] {
-                            let n = out.len();
-                            let obj = if r > 0.0 {
-                                format!("R{:04.1}mm", r * 1e3).replace('.', "p")
-                            } else {
-                                "vtx".to_string()
-                            };
-                            let level = if realistic { "default" } else { "ideal" };
-                            let target = Target::Object {
-                                radius_m: r,
-                                k_m: k * L2_M,
-                                distal: true,
-                                theta1_c_rad: THETA1_C_RAD,
-                            };
-                            out.push(Case {
-                                id: format!(
-                                    "rap{n:03}_{obj}_k{:02}_dT{:02}_mu{:02}_J{:.0e}__{level}",
-                                    (k * 100.0).round(),
-                                    (d * 10.0).round(),
-                                    (mu * 10.0).round(),
-                                    j
-                                ),
-                                level,
-                                spec: spec(target, d, mu, j, realistic, n),
-                                sensor: sensor(realistic, n),
-                            });
-                        }
-                    }
-                }
-            }
+    let cells = axes.radii_m.iter().flat_map(|&r| {
+        axes.k2_frac.iter().flat_map(move |&k| {
+            axes.delta_ta_nm.iter().flat_map(move |&d| {
+                axes.mu.iter().flat_map(move |&mu| {
+                    axes.inertia_kgm2.iter().flat_map(move |&j| {
+                        axes.theta1_c_rad
+                            .iter()
+                            .map(move |&th| (r, k, d, mu, j, th))
+                    })
+                })
+            })
+        })
+    });
+    for (r, k, d, mu, j, th) in cells {
+        for realistic in [false, true] {
+            let n = out.len();
+            let obj = if r > 0.0 {
+                format!("R{:04.1}mm", r * 1e3).replace('.', "p")
+            } else {
+                "vtx".to_string()
+            };
+            // The Table 2 pose is the grids' default and goes unnamed (the samples' style).
+            let pose = if th == THETA1_C_RAD {
+                String::new()
+            } else {
+                format!("_th{:03}", (th * 100.0).round())
+            };
+            let level = if realistic { "default" } else { "ideal" };
+            let target = Target::Object {
+                radius_m: r,
+                k_m: k * L2_M,
+                distal: true,
+                theta1_c_rad: th,
+            };
+            out.push(Case {
+                id: format!(
+                    "rap{n:03}_{obj}_k{:02}_dT{:02}_mu{:02}_J{:.0e}{pose}__{level}",
+                    (k * 100.0).round(),
+                    (d * 10.0).round(),
+                    (mu * 10.0).round(),
+                    j
+                ),
+                level,
+                spec: spec(target, d, mu, j, realistic, n),
+                sensor: sensor(realistic, n),
+            });
         }
     }
     // Negatives: no object, and a proximal contact (R 7.5 mm at k1 = 55 mm, θ1,c = 1.05).
