@@ -372,9 +372,10 @@ fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<
                         "sigma_hysteresis_nm": sigma,
                     });
                 }
-                if let Some((j, sj)) = c.contact_inertia_kgm2 {
-                    v["contact_inertia_kgm2"] = n(j);
-                    v["sigma_contact_inertia_kgm2"] = n(sj);
+                if let Some(d) = c.contact_dynamics {
+                    v["contact_inertia_kgm2"] = n(d.inertia_kgm2);
+                    v["sigma_contact_inertia_kgm2"] = n(d.sigma_inertia_kgm2);
+                    v["contact_viscous_nm_s_per_rad"] = n(d.viscous_nm_s_per_rad);
                 }
                 if let Some(tp) = &c.two_point {
                     let mut t = json!({});
@@ -460,9 +461,10 @@ fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<
         if let Some(p) = &c.path_reading {
             println!("  path read: {}", p.describe());
         }
-        if let Some((j, sj)) = c.contact_inertia_kgm2 {
+        if let Some(d) = c.contact_dynamics {
             println!(
-                "  inertia on the contact path: {j:.3e} ± {sj:.1e} kg·m² (read there: the approach's differs by more than 3σ)"
+                "  inertia on the contact path: {:.3e} ± {:.1e} kg·m², viscous {:.4} N·m·s/rad (read there: the approach's inertia differs by more than 3σ)",
+                d.inertia_kgm2, d.sigma_inertia_kgm2, d.viscous_nm_s_per_rad
             );
         }
         match &c.estimate {

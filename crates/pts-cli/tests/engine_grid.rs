@@ -936,7 +936,10 @@ fn other_poses_at_first_contact_are_read_within_3_sigma() {
 /// back lie below the loading path. Read as an oscillation about the path (the drive's
 /// friction alone decided that) these grasps erred 6.4–7.3 % of l2 inward, graded low signal
 /// at σ ≈ 7 mm; read on the loading rows (`offline::path_hysteresis`) they are within 2 %.
-/// The same grasps on a smooth contact (µ 0) ring about the path and are read as recorded.
+/// The same grasps on a smooth contact (µ 0) swing back below the loading path by the
+/// contact's damping alone: read as recorded they erred up to 1.3 % of l2 at σ 3–4 mm; read on
+/// the loading rows with the damping the contact path shows removed, within 0.1 % at
+/// σ 0.3 mm.
 #[test]
 fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path() {
     use pts_cli::replay::{LoadingReason, PathReading};
@@ -975,10 +978,59 @@ fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path(
                 o.good
             );
         } else {
-            assert_eq!(o.reading, Some(PathReading::AsRecorded), "{}", o.id);
-            assert!(o.within_3sigma(), "{}: error {:?} %", o.id, e);
+            assert_eq!(
+                o.reading,
+                Some(PathReading::LoadingRows(LoadingReason::Swing)),
+                "{}",
+                o.id
+            );
+            assert!(
+                o.good
+                    && e.is_some_and(|e| e.abs() <= 0.3)
+                    && o.sigma.is_some_and(|s| s <= 1e-3)
+                    && o.within_3sigma(),
+                "{}: {} error {:?} % σ {:?} m, good {}",
+                o.id,
+                o.answer,
+                e,
+                o.sigma,
+                o.good
+            );
         }
     }
+}
+
+/// A light drive without friction rings on its contact for the whole hold, and the contact
+/// damps that ring (a soft object's damping, which no approach sees): the rows that load the
+/// contact lie above the quasi-static path by b·θ̇a, those that swing back below it. At
+/// ΔT_a 0.2 N·m the ring is a large part of the travel. Read as recorded these grasps (vertex
+/// and R 5 mm × k2,c 0.2–0.8 l2, µ 0) erred inward, mean 2.54 %, max 4.57 % of l2; read on
+/// the loading rows with the damping the contact path shows removed, mean 1.38 %, max 3.40 %.
+#[test]
+fn a_light_frictionless_drive_ringing_at_a_small_step_is_read_without_its_damping() {
+    let cs: Vec<Case> = cases(&FULL)
+        .into_iter()
+        .filter(|c| {
+            (c.id.contains("_vtx_") || c.id.contains("_R05p0mm_"))
+                && c.id.ends_with("_dT02_mu00_J5e-4__ideal")
+        })
+        .collect();
+    assert_eq!(cs.len(), 10);
+    let rows = run_grid(&cs);
+    let all = print_table(&rows);
+    assert!(all.answered == all.n, "answered {}/{}", all.answered, all.n);
+    assert!(
+        all.within3 == all.answered,
+        "within 3σ {}/{}",
+        all.within3,
+        all.answered
+    );
+    assert!(
+        all.mean() <= 1.8 && all.max <= 4.0,
+        "mean {:.2} % max {:.2} %",
+        all.mean(),
+        all.max
+    );
 }
 
 /// One engine grasp as its CSV and the engine's k2,c (m): light frictionless drive, R 20 mm,

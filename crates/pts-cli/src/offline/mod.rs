@@ -67,7 +67,7 @@ pub use drive::{identify_drive, identify_drive_dynamics, DriveId, DrivePrior};
 pub use estimate::path_fit_with;
 pub use segment::{
     contact_inertia, find_contact, for_each_contact, loading_path, path_hysteresis,
-    CONTACT_INERTIA_MIN_BLOCKS,
+    ContactDynamics, CONTACT_INERTIA_MIN_BLOCKS,
 };
 
 use grasp::estimate::EstimateRequest;

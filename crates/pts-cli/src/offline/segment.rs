@@ -545,8 +545,9 @@ pub fn path_hysteresis(
     Some((mf - mb, (vf + vb).sqrt()))
 }
 
-/// The effective inertia at the crank while the finger presses on its contact (kg·m², with
-/// its standard error), identified on the contact path itself. The finger's own links move
+/// The effective inertia at the crank while the finger presses on its contact, with its
+/// standard error and the viscous term that goes with it, identified on the contact path
+/// itself. The finger's own links move
 /// differently on a contact than in free motion, so the approach's inertia is off by their
 /// share (about a tenth of a light drive's). Each moving block after the contact block
 /// `knee` (up to `hi`) whose local quartic (half-width `half_width` blocks,
@@ -555,7 +556,8 @@ pub fn path_hysteresis(
 /// follows the free motion, another function of θa), gives a row of
 /// T_a = p(θa) + J·θ̈a + b·θ̇a + F·sgn θ̇a, p a cubic in θa (the quasi-static path), b a
 /// viscous term, F a dry friction: an oscillation on the contact, whose θ̈a no function of θa
-/// can follow, is what determines J. `None` with fewer than
+/// can follow, is what determines J. The viscous term b is the drive's plus the contact's
+/// own damping (a soft object's, the pad's), which no approach sees. `None` with fewer than
 /// [`CONTACT_INERTIA_MIN_BLOCKS`] rows or regressors that are not independent (a path
 /// loaded without swinging cannot tell J from the path's curvature).
 pub fn contact_inertia(
@@ -564,7 +566,7 @@ pub fn contact_inertia(
     hi: usize,
     theta_from_rad: f64,
     half_width: usize,
-) -> Option<(f64, f64)> {
+) -> Option<ContactDynamics> {
     let mut pts: std::vec::Vec<(f64, f64, f64, f64, f64)> = std::vec::Vec::new();
     for (k, b, dir) in moving_after_contact(blocks, knee + half_width, hi) {
         let sign = match dir {
@@ -598,7 +600,26 @@ pub fn contact_inertia(
     let fit = crate::linalg::least_squares(&rows, 7)?;
     let j = *fit.coef.get(4)?;
     let sigma = fit.std_error(4)?;
-    (j.is_finite() && sigma.is_finite()).then_some((j, sigma))
+    let b = *fit.coef.get(5)?;
+    [j, sigma, b]
+        .iter()
+        .all(|v| v.is_finite())
+        .then_some(ContactDynamics {
+            inertia_kgm2: j,
+            sigma_inertia_kgm2: sigma,
+            viscous_nm_s_per_rad: b,
+        })
+}
+
+/// The dynamics of the crank on its contact ([`contact_inertia`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactDynamics {
+    /// Effective inertia at the crank (kg·m²).
+    pub inertia_kgm2: f64,
+    /// Its standard error (kg·m²).
+    pub sigma_inertia_kgm2: f64,
+    /// Viscous term at the crank on the contact (N·m·s/rad): the drive's and the contact's.
+    pub viscous_nm_s_per_rad: f64,
 }
 
 /// Fewest blocks [`contact_inertia`] fits its seven terms to.
@@ -833,12 +854,19 @@ mod tests {
         };
         for j in [5e-4, 5.3e-4, 5e-3] {
             let (on, all) = run(j);
-            let (got, se) = on.expect("the ring determines J");
+            let d = on.expect("the ring determines J");
+            let (got, se) = (d.inertia_kgm2, d.sigma_inertia_kgm2);
             assert!((got - j).abs() < 0.01 * j, "J {j}: {got} ± {se}");
             assert!(se < 0.01 * j, "J {j}: σ {se}");
+            // ... and the damping that rings down with it.
+            assert!(
+                (d.viscous_nm_s_per_rad - b).abs() < 0.05 * b,
+                "J {j}: b {} against {b}",
+                d.viscous_nm_s_per_rad
+            );
             // The rows off the object, read as if on it, bias a light drive's J by more than
             // the 1 % (a heavy one's ring torque dwarfs the kink).
-            let (biased, _) = all.expect("fitted");
+            let biased = all.expect("fitted").inertia_kgm2;
             if j < 1e-3 {
                 assert!((biased - j).abs() > 0.01 * j, "J {j}: all rows {biased}");
             }
@@ -852,7 +880,8 @@ mod tests {
         .into_iter()
         .map(|b| moving_block(b.index as usize, b.t_s, b.theta_a_rad, b.torque_nm))
         .collect();
-        assert!(contact_inertia(&mono, 1, 60, -0.2, 3).is_none_or(|(j, se)| se > 0.03 * j.abs()));
+        assert!(contact_inertia(&mono, 1, 60, -0.2, 3)
+            .is_none_or(|d| d.sigma_inertia_kgm2 > 0.03 * d.inertia_kgm2.abs()));
     }
 
     #[test]
