@@ -1061,13 +1061,13 @@ fn widen_for_contact_friction(
     (r, Some(s))
 }
 
-/// A swing back of the crank after the contact (rad) beyond which the path is rebuilt from
-/// the loading rows (`crate::offline::loading_path`) on a drive without dry friction: any.
-/// The damping on the contact (the drive's and the object's, [`crate::offline::contact_inertia`])
-/// resists the motion both ways, so the rows that swing back lie below the loading path and
-/// the loading rows above it, by b·θ̇a; read together they pull the path's shape with the
-/// ring's decay. The loading rows with b·θ̇a removed lie on it (engine grid, light drive
-/// without friction at ΔT_a 0.2 N·m: mean error −2.2 → −1.3 % of l2).
+/// How far the crank must swing back after the contact (rad) before the path of a drive
+/// without dry friction is rebuilt from its loading rows (`crate::offline::loading_path`):
+/// any distance. The damping on the contact (the drive's and the object's,
+/// [`crate::offline::contact_inertia`]) resists the motion both ways, so the rows that swing
+/// back lie below the quasi-static path by b·θ̇a and the loading rows above it; read together
+/// they bend the path with the ring's decay, while the loading rows with b·θ̇a removed lie on
+/// it.
 const LOADING_MIN_SWING_RAD: f64 = 0.0;
 
 /// An approach offset (N·m, [`crate::offline::DriveId::offset_nm`]) above which the drive has
