@@ -321,6 +321,16 @@ impl Stats {
     }
 }
 
+/// Every answer of the group within 3σ of the engine's k2,c.
+fn assert_within_3sigma(all: &Stats) {
+    assert!(
+        all.within3 == all.answered,
+        "within 3σ {}/{}",
+        all.within3,
+        all.answered
+    );
+}
+
 fn print_table(rows: &[Outcome]) -> Stats {
     println!(
         "| id | answer | k̂2 mm | σ mm | k2,c truth mm | error % l2 | Ĵ kg·m² | θa,c − truth mrad |"
@@ -853,12 +863,7 @@ fn engine_grid_default_method() {
         good.mean(),
         good.max
     );
-    assert!(
-        all.within3 == all.answered,
-        "within 3σ {}/{}",
-        all.within3,
-        all.answered
-    );
+    assert_within_3sigma(&all);
     let (right, neg) = negatives_right(&rows);
     assert!(right == neg, "negatives right {right}/{neg}");
     assert!(wrong_phalanx(&rows) == 0, "distal answered as proximal");
@@ -888,12 +893,7 @@ fn across_the_inertia_range_no_answer_is_wrong() {
         "light drive: {:?}",
         light.iter().map(|o| (&o.id, &o.answer)).collect::<Vec<_>>()
     );
-    assert!(
-        all.within3 == all.answered,
-        "within 3σ {}/{}",
-        all.within3,
-        all.answered
-    );
+    assert_within_3sigma(&all);
     assert!(wrong_phalanx(&rows) == 0, "distal answered as proximal");
     let (right, neg) = negatives_right(&rows);
     assert!(right == neg, "negatives right {right}/{neg}");
@@ -918,12 +918,7 @@ fn other_poses_at_first_contact_are_read_within_3_sigma() {
     let rows = run_grid(&cs);
     let all = print_table(&rows);
     assert!(all.answered == all.n, "answered {}/{}", all.answered, all.n);
-    assert!(
-        all.within3 == all.answered,
-        "within 3σ {}/{}",
-        all.within3,
-        all.answered
-    );
+    assert_within_3sigma(&all);
     for o in rows.iter().filter(|o| o.mu == 0.0) {
         let e = o.err_pct();
         assert!(e.is_some_and(|e| e.abs() <= 2.0), "{}: error {e:?} %", o.id);
@@ -1019,12 +1014,7 @@ fn a_light_frictionless_drive_ringing_at_a_small_step_is_read_without_its_dampin
     let rows = run_grid(&cs);
     let all = print_table(&rows);
     assert!(all.answered == all.n, "answered {}/{}", all.answered, all.n);
-    assert!(
-        all.within3 == all.answered,
-        "within 3σ {}/{}",
-        all.within3,
-        all.answered
-    );
+    assert_within_3sigma(&all);
     assert!(
         all.mean() <= 1.8 && all.max <= 4.0,
         "mean {:.2} % max {:.2} %",
