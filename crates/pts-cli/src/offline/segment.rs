@@ -551,8 +551,8 @@ pub fn path_hysteresis(
 /// approach's inertia is off by their share (about a tenth of a light drive's). Each moving
 /// block after the contact block `knee` (up to `hi`) whose local quartic (half-width
 /// `half_width` blocks, [`poly_speed_accel`](super::drive::poly_speed_accel)) no longer
-/// reaches back to the impact, and whose θa lies at or above `theta_from_rad` (on the object: a swing back off it
-/// follows the free motion, another function of θa), gives a row of
+/// reaches back to the impact, and whose θa lies at or above `theta_from_rad` (on the object:
+/// a swing back off it follows the free motion, another function of θa), gives a row of
 /// T_a = p(θa) + J·θ̈a + b·θ̇a + F·sgn θ̇a, p a cubic in θa (the quasi-static path), b a
 /// viscous term, F a dry friction: an oscillation on the contact, whose θ̈a no function of θa
 /// can follow, is what determines J. The viscous term b is the drive's plus the contact's
