@@ -6,8 +6,8 @@
 //! whole id or by its number's prefix (`rap193`; an unknown id is an error), to look at one
 //! grasp without simulating the rest. `--replicas N` writes each case with a realistic sensor
 //! N more times as `<id>__r<i>` (i = 1…N): the same simulated grasp recorded with other draws
-//! of the torque noise and of the encoder's quantiser phase, which tells an error that is the sensor's draw
-//! from one the estimator makes on every draw.
+//! of the torque noise and of the encoder's quantiser phase, which tells an error that is the
+//! sensor's draw from one the estimator makes on every draw.
 
 use dynsim::grasp::{self, Target};
 use dynsim::grid::{cases, FULL, INERTIA, POSE, SMALL};
