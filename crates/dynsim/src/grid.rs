@@ -9,6 +9,29 @@ use crate::sim::{DriveFriction, EngineSettings, FingerParams};
 /// Proximal angle at first contact for the distal grid (the Table 2 pose), rad.
 pub const THETA1_C_RAD: f64 = 1.2797;
 
+/// How the recording's torque step follows the contact: the rise of ΔT_a, when it starts and
+/// how long it is held.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Protocol {
+    /// Duration of the rise (a ramp; 0 is a step), s.
+    pub rise_s: f64,
+    /// From the physical first contact to the start of the rise, s; `None`: 5, 10, 15 or
+    /// 20 ms by the grasp's number (the sample recordings' spread).
+    pub delay_s: Option<f64>,
+    /// Hold after the rise, s.
+    pub hold_s: f64,
+}
+
+impl Protocol {
+    /// The sample recordings' `dyn…` protocol, the grids' default: a 0.2 s rise 5–20 ms after
+    /// the contact, held 0.3 s.
+    pub const SAMPLES: Protocol = Protocol {
+        rise_s: 0.2,
+        delay_s: None,
+        hold_s: 0.3,
+    };
+}
+
 /// The axes of a grid.
 pub struct Axes {
     /// Object radii, m (0: vertex).
@@ -24,6 +47,8 @@ pub struct Axes {
     /// Proximal angles at first contact, rad (the object placed where the finger, closing
     /// freely, meets it at this θ1).
     pub theta1_c_rad: &'static [f64],
+    /// Torque-step protocols.
+    pub protocols: &'static [Protocol],
 }
 
 /// The grid (608 traces, about 11 min in release on one core).
@@ -34,6 +59,7 @@ pub const FULL: Axes = Axes {
     mu: &[0.0, 0.3],
     inertia_kgm2: &[5.0e-4, 5.0e-3],
     theta1_c_rad: &[THETA1_C_RAD],
+    protocols: &[Protocol::SAMPLES],
 };
 
 /// Drive inertias across the range a recording may hold (1e-4 … 0.1 kg·m² at the crank),
@@ -47,6 +73,7 @@ pub const INERTIA: Axes = Axes {
     mu: &[0.0, 0.3],
     inertia_kgm2: &[1.0e-4, 2.0e-2, 1.0e-1],
     theta1_c_rad: &[THETA1_C_RAD],
+    protocols: &[Protocol::SAMPLES],
 };
 
 /// Other poses at first contact than the Table 2 one: the finger meets the object earlier
@@ -59,6 +86,7 @@ pub const POSE: Axes = Axes {
     mu: &[0.0, 0.4],
     inertia_kgm2: &[5.0e-4],
     theta1_c_rad: &[1.10, 1.35],
+    protocols: &[Protocol::SAMPLES],
 };
 
 /// A slice of the same kinds (44 traces).
@@ -69,6 +97,7 @@ pub const SMALL: Axes = Axes {
     mu: &[0.3],
     inertia_kgm2: &[5.0e-4, 5.0e-3],
     theta1_c_rad: &[THETA1_C_RAD],
+    protocols: &[Protocol::SAMPLES],
 };
 
 /// One grasp of a grid.
@@ -95,14 +124,22 @@ impl Case {
     }
 }
 
-fn spec(target: Target, delta: f64, mu: f64, inertia: f64, realistic: bool, n: usize) -> GraspSpec {
+fn spec(
+    target: Target,
+    delta: f64,
+    mu: f64,
+    inertia: f64,
+    realistic: bool,
+    n: usize,
+    protocol: &Protocol,
+) -> GraspSpec {
     GraspSpec {
         target,
         delta_ta_nm: delta,
-        rise_s: 0.2,
-        // 5, 10, 15, 20 ms in turn.
-        detection_delay_s: 0.005 * (1 + n % 4) as f64,
-        hold_s: 0.3,
+        rise_s: protocol.rise_s,
+        // By default 5, 10, 15, 20 ms in turn.
+        detection_delay_s: protocol.delay_s.unwrap_or(0.005 * (1 + n % 4) as f64),
+        hold_s: protocol.hold_s,
         ramp_nm_per_s: 0.5,
         finger: FingerParams {
             drive_inertia_kgm2: inertia,
@@ -131,6 +168,67 @@ fn sensor(realistic: bool, n: usize) -> SensorSpec {
     }
 }
 
+/// The torque step as other recordings may hold it (the accuracy issue's range): a step, a
+/// 0.05 s or a 1 s ramp, starting at the contact or 30 ms after it, held only 0.2 s; vertex,
+/// R 1 and 5 cm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.2 / 0.8 N·m × µ 0 / 0.3 × both drive
+/// inertias, plus the negatives (600 traces; the ids name the protocol,
+/// `_rise1000_del30_hold200`).
+pub const PROTOCOL: Axes = Axes {
+    radii_m: &[0.0, 0.01, 0.05],
+    k2_frac: &[0.35, 0.65],
+    delta_ta_nm: &[0.2, 0.8],
+    mu: &[0.0, 0.3],
+    inertia_kgm2: &[5.0e-4, 5.0e-3],
+    theta1_c_rad: &[THETA1_C_RAD],
+    protocols: &[
+        Protocol {
+            rise_s: 0.0,
+            delay_s: Some(0.0),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 0.0,
+            delay_s: Some(0.03),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 0.05,
+            delay_s: Some(0.0),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 0.05,
+            delay_s: Some(0.03),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 1.0,
+            delay_s: Some(0.0),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 1.0,
+            delay_s: Some(0.03),
+            hold_s: 0.2,
+        },
+    ],
+};
+
+/// The id suffix of a protocol: none for the samples' (every older grid's ids stay as they
+/// were), else rise, delay and hold in ms.
+fn protocol_name(p: &Protocol) -> String {
+    if *p == Protocol::SAMPLES {
+        return String::new();
+    }
+    let ms = |s: f64| (s * 1e3).round() as u32;
+    format!(
+        "_rise{:03}_del{:02}_hold{:03}",
+        ms(p.rise_s),
+        p.delay_s.map_or(99, ms),
+        ms(p.hold_s)
+    )
+}
+
 /// Every grasp of a grid, distal positives first, then the negatives.
 pub fn cases(axes: &Axes) -> Vec<Case> {
     let mut out = Vec::new();
@@ -139,15 +237,15 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
             axes.delta_ta_nm.iter().flat_map(move |&d| {
                 axes.mu.iter().flat_map(move |&mu| {
                     axes.inertia_kgm2.iter().flat_map(move |&j| {
-                        axes.theta1_c_rad
-                            .iter()
-                            .map(move |&th| (r, k, d, mu, j, th))
+                        axes.theta1_c_rad.iter().flat_map(move |&th| {
+                            axes.protocols.iter().map(move |&p| (r, k, d, mu, j, th, p))
+                        })
                     })
                 })
             })
         })
     });
-    for (r, k, d, mu, j, th) in cells {
+    for (r, k, d, mu, j, th, p) in cells {
         for realistic in [false, true] {
             let n = out.len();
             let obj = if r > 0.0 {
@@ -161,6 +259,7 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
             } else {
                 format!("_th{:03}", (th * 100.0).round())
             };
+            let pose = pose + &protocol_name(&p);
             let level = if realistic { "default" } else { "ideal" };
             let target = Target::Object {
                 radius_m: r,
@@ -177,20 +276,25 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
                     j
                 ),
                 level,
-                spec: spec(target, d, mu, j, realistic, n),
+                spec: spec(target, d, mu, j, realistic, n, &p),
                 sensor: sensor(realistic, n),
             });
         }
     }
     // Negatives: no object, and a proximal contact (R 7.5 mm at k1 = 55 mm, θ1,c = 1.05).
-    for &j in axes.inertia_kgm2 {
+    for (j, p) in axes
+        .inertia_kgm2
+        .iter()
+        .flat_map(|&j| axes.protocols.iter().map(move |p| (j, p)))
+    {
+        let proto = protocol_name(p);
         for realistic in [false, true] {
             let n = out.len();
             let level = if realistic { "default" } else { "ideal" };
             out.push(Case {
-                id: format!("rap{n:03}_neg_noobject_J{j:.0e}__{level}"),
+                id: format!("rap{n:03}_neg_noobject_J{j:.0e}{proto}__{level}"),
                 level,
-                spec: spec(Target::None, 0.0, 0.3, j, realistic, n),
+                spec: spec(Target::None, 0.0, 0.3, j, realistic, n, p),
                 sensor: sensor(realistic, n),
             });
             let n = out.len();
@@ -201,12 +305,48 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
                 theta1_c_rad: 1.05,
             };
             out.push(Case {
-                id: format!("rap{n:03}_neg_proximal_R07p5mm_k1_55mm_J{j:.0e}__{level}"),
+                id: format!("rap{n:03}_neg_proximal_R07p5mm_k1_55mm_J{j:.0e}{proto}__{level}"),
                 level,
-                spec: spec(target, 0.5, 0.3, j, realistic, n),
+                spec: spec(target, 0.5, 0.3, j, realistic, n, p),
                 sensor: sensor(realistic, n),
             });
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The protocol axis leaves every older grid's grasps and ids as they were (results and
+    /// notes cite them), and names the others' protocol in the id and the spec.
+    #[test]
+    fn grids_keep_their_ids_and_protocol_grasps_carry_theirs() {
+        let full = cases(&FULL);
+        assert_eq!(full.len(), 608);
+        assert_eq!(full[193].id, "rap193_R05p0mm_k65_dT02_mu00_J5e-4__default");
+        assert_eq!(
+            full[607].id,
+            "rap607_neg_proximal_R07p5mm_k1_55mm_J5e-3__default"
+        );
+        assert!(full
+            .iter()
+            .all(|c| c.spec.rise_s == 0.2 && c.spec.hold_s == 0.3));
+        let proto = cases(&PROTOCOL);
+        assert_eq!(proto.len(), 3 * 2 * 2 * 2 * 2 * 6 * 2 + 2 * 6 * 4);
+        let c = proto
+            .iter()
+            .find(|c| c.id.contains("_rise1000_del30_hold200__"))
+            .expect("a 1 s ramp 30 ms after the contact");
+        assert_eq!(
+            (c.spec.rise_s, c.spec.detection_delay_s, c.spec.hold_s),
+            (1.0, 0.03, 0.2)
+        );
+        let step = proto
+            .iter()
+            .find(|c| c.id.contains("_rise000_del00_"))
+            .expect("a step at the contact");
+        assert_eq!((step.spec.rise_s, step.spec.detection_delay_s), (0.0, 0.0));
+    }
 }

@@ -1,7 +1,7 @@
 //! Writes a grid of engine-simulated grasp traces: `<id>.csv` (t_s,theta_a_rad,torque_nm at 1 kHz)
 //! and `<id>.json` (ground truth) per grasp, plus `index.csv` listing them.
 //!
-//! `dynsim --out DIR [--grid small|full|inertia|pose] [--only ID[,ID…]] [--replicas N]`;
+//! `dynsim --out DIR [--grid small|full|inertia|pose|protocol] [--only ID[,ID…]] [--replicas N]`;
 //! progress on stderr. `--only` writes just the named cases of the grid, each given by its
 //! whole id or by its number's prefix (`rap193`; an unknown id is an error), to look at one
 //! grasp without simulating the rest. `--replicas N` writes each case with a realistic sensor
@@ -10,13 +10,13 @@
 //! sensor's draw from one the estimator makes on every draw.
 
 use dynsim::grasp::{self, Target};
-use dynsim::grid::{cases, FULL, INERTIA, POSE, SMALL};
+use dynsim::grid::{cases, FULL, INERTIA, POSE, PROTOCOL, SMALL};
 use std::io::Write as _;
 use std::path::PathBuf;
 
 fn usage() -> ! {
     eprintln!(
-        "usage: dynsim --out DIR [--grid small|full|inertia|pose] [--only ID[,ID...]] [--replicas N]"
+        "usage: dynsim --out DIR [--grid small|full|inertia|pose|protocol] [--only ID[,ID...]] [--replicas N]"
     );
     std::process::exit(2);
 }
@@ -53,6 +53,7 @@ fn main() {
         "full" => &FULL,
         "inertia" => &INERTIA,
         "pose" => &POSE,
+        "protocol" => &PROTOCOL,
         _ => usage(),
     };
     std::fs::create_dir_all(&dir).expect("create the output directory");

@@ -589,6 +589,7 @@ fn calibration_on_the_engine_finger() {
         mu: &[0.3],
         inertia_kgm2: &[5.0e-4],
         theta1_c_rad: &[dynsim::grid::THETA1_C_RAD],
+        protocols: &[dynsim::grid::Protocol::SAMPLES],
     };
     let mut sums = [0.0f64; 3];
     let mut n = 0usize;

@@ -9,8 +9,10 @@
 //! `cargo test --release -p pts-cli --test engine_grid -- --nocapture` runs a CI slice (vertex
 //! and R 10 mm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.5 × µ 0.3 × both inertias × friction off /
 //! realistic, plus the negatives); `ENGINE_GRID=small` runs dynsim's small grid,
-//! `ENGINE_GRID=full` the grid (608 grasps) and `ENGINE_GRID=inertia` drive inertias
-//! from 1e-4 to 0.1 kg·m² (84 grasps), printed the same way; `ENGINE_GRID_RATE_HZ=250` (or
+//! `ENGINE_GRID=full` the grid (608 grasps), `ENGINE_GRID=inertia` drive inertias
+//! from 1e-4 to 0.1 kg·m² (84 grasps), `ENGINE_GRID=pose` other poses at first contact (148)
+//! and `ENGINE_GRID=protocol` other torque steps (a step, a 0.05 s or a 1 s ramp, at the
+//! contact or 30 ms after it, held 0.2 s; 624), printed the same way; `ENGINE_GRID_RATE_HZ=250` (or
 //! 500) records any of them at that rate instead of the engine's 1 kHz. `ENGINE_GRID_DRAWS=N`
 //! records every grasp with a realistic sensor N more times, with other draws of its noise
 //! (`dynsim::grasp::SensorSpec::redrawn`; ids `…__rN`), pools them into the tables and prints
@@ -21,7 +23,9 @@
 //! that stamps rows when they arrive; the values stay those of the regular grid).
 
 use dynsim::grasp as engine;
-use dynsim::grid::{cases, Axes, Case, FULL, INERTIA, POSE, SMALL, THETA1_C_RAD};
+use dynsim::grid::{
+    cases, Axes, Case, Protocol, FULL, INERTIA, POSE, PROTOCOL, SMALL, THETA1_C_RAD,
+};
 use pts_cli::method::Method;
 use pts_cli::replay::segment;
 use std::collections::BTreeMap;
@@ -38,6 +42,7 @@ const CI: Axes = Axes {
     mu: &[0.3],
     inertia_kgm2: &[5.0e-4, 5.0e-3],
     theta1_c_rad: &[THETA1_C_RAD],
+    protocols: &[Protocol::SAMPLES],
 };
 
 /// (identified, σ, truth) of the offset, the viscous term and the stiction excess.
@@ -52,6 +57,8 @@ struct Outcome {
     radius_m: f64,
     /// Proximal angle at first contact (rad).
     theta1_c_rad: f64,
+    /// The torque step after the contact: rise, delay from the contact, hold (s).
+    protocol: (f64, f64, f64),
     mu: f64,
     inertia: f64,
     dta: f64,
@@ -206,6 +213,7 @@ fn record_case(
         expected,
         radius_m,
         theta1_c_rad,
+        protocol: (c.spec.rise_s, c.spec.detection_delay_s, c.spec.hold_s),
         mu: c.spec.finger.contact_mu,
         inertia: c.spec.finger.drive_inertia_kgm2,
         dta: c.spec.delta_ta_nm,
@@ -378,6 +386,12 @@ fn print_table(rows: &[Outcome]) -> Stats {
             ),
             format!("ΔT_a {:.1} N·m", o.dta),
             format!("θ1,c {:.2} rad", o.theta1_c_rad),
+            format!(
+                "rise {:.2} s, {:2.0} ms after the contact, held {:.1} s",
+                o.protocol.0,
+                o.protocol.1 * 1e3,
+                o.protocol.2
+            ),
         ] {
             groups.entry(key).or_default().add(o);
         }
@@ -726,13 +740,15 @@ fn jitter_stamps(csv: &str, j_s: f64, id: &str) -> String {
     out
 }
 
-/// The grid the environment asks for: `ENGINE_GRID=small|full|inertia|pose`, else the CI slice.
+/// The grid the environment asks for: `ENGINE_GRID=small|full|inertia|pose|protocol`, else the
+/// CI slice.
 fn grid() -> (&'static str, &'static Axes) {
     match std::env::var("ENGINE_GRID").as_deref() {
         Ok("full") => ("full", &FULL),
         Ok("small") => ("small", &SMALL),
         Ok("inertia") => ("inertia", &INERTIA),
         Ok("pose") => ("pose", &POSE),
+        Ok("protocol") => ("protocol", &PROTOCOL),
         _ => ("ci", &CI),
     }
 }
