@@ -1,6 +1,7 @@
 //! The grids of grasps the binary writes and the tests replay: vertex and cylinders × k2,c ×
-//! ΔT_a × contact µ × drive inertia × drive friction off (`ideal`, no sensor noise) / realistic
-//! (`default`: encoder, torque noise and offset), plus no-object and proximal negatives.
+//! ΔT_a × contact µ × drive inertia × pose at first contact × the torque step's protocol ×
+//! drive friction off (`ideal`, no sensor noise) / realistic (`default`: encoder, torque noise
+//! and offset), plus no-object and proximal negatives.
 
 use crate::grasp::{GraspSpec, SensorSpec, Target};
 use crate::linkage::L2_M;
@@ -100,6 +101,52 @@ pub const SMALL: Axes = Axes {
     protocols: &[Protocol::SAMPLES],
 };
 
+/// The torque step as other recordings may hold it (the accuracy issue's range): a step, a
+/// 0.05 s or a 1 s ramp, starting at the contact or 30 ms after it, held only 0.2 s; vertex,
+/// R 1 and 5 cm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.2 / 0.8 N·m × µ 0 / 0.3 × both drive
+/// inertias, plus the negatives (624 traces; the ids name the protocol,
+/// `_rise1000_del30_hold200`).
+pub const PROTOCOL: Axes = Axes {
+    radii_m: &[0.0, 0.01, 0.05],
+    k2_frac: &[0.35, 0.65],
+    delta_ta_nm: &[0.2, 0.8],
+    mu: &[0.0, 0.3],
+    inertia_kgm2: &[5.0e-4, 5.0e-3],
+    theta1_c_rad: &[THETA1_C_RAD],
+    protocols: &[
+        Protocol {
+            rise_s: 0.0,
+            delay_s: Some(0.0),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 0.0,
+            delay_s: Some(0.03),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 0.05,
+            delay_s: Some(0.0),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 0.05,
+            delay_s: Some(0.03),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 1.0,
+            delay_s: Some(0.0),
+            hold_s: 0.2,
+        },
+        Protocol {
+            rise_s: 1.0,
+            delay_s: Some(0.03),
+            hold_s: 0.2,
+        },
+    ],
+};
+
 /// One grasp of a grid.
 pub struct Case {
     /// File stem, e.g. `rap000_vtx_k20_dT05_mu03_J5e-4__ideal`.
@@ -167,52 +214,6 @@ fn sensor(realistic: bool, n: usize) -> SensorSpec {
         SensorSpec::IDEAL
     }
 }
-
-/// The torque step as other recordings may hold it (the accuracy issue's range): a step, a
-/// 0.05 s or a 1 s ramp, starting at the contact or 30 ms after it, held only 0.2 s; vertex,
-/// R 1 and 5 cm × k2,c 0.35 / 0.65 l2 × ΔT_a 0.2 / 0.8 N·m × µ 0 / 0.3 × both drive
-/// inertias, plus the negatives (600 traces; the ids name the protocol,
-/// `_rise1000_del30_hold200`).
-pub const PROTOCOL: Axes = Axes {
-    radii_m: &[0.0, 0.01, 0.05],
-    k2_frac: &[0.35, 0.65],
-    delta_ta_nm: &[0.2, 0.8],
-    mu: &[0.0, 0.3],
-    inertia_kgm2: &[5.0e-4, 5.0e-3],
-    theta1_c_rad: &[THETA1_C_RAD],
-    protocols: &[
-        Protocol {
-            rise_s: 0.0,
-            delay_s: Some(0.0),
-            hold_s: 0.2,
-        },
-        Protocol {
-            rise_s: 0.0,
-            delay_s: Some(0.03),
-            hold_s: 0.2,
-        },
-        Protocol {
-            rise_s: 0.05,
-            delay_s: Some(0.0),
-            hold_s: 0.2,
-        },
-        Protocol {
-            rise_s: 0.05,
-            delay_s: Some(0.03),
-            hold_s: 0.2,
-        },
-        Protocol {
-            rise_s: 1.0,
-            delay_s: Some(0.0),
-            hold_s: 0.2,
-        },
-        Protocol {
-            rise_s: 1.0,
-            delay_s: Some(0.03),
-            hold_s: 0.2,
-        },
-    ],
-};
 
 /// The id suffix of a protocol: none for the samples' (every older grid's ids stay as they
 /// were), else rise, delay and hold in ms.
