@@ -40,6 +40,19 @@ pub const O2_AMBIGUITY_BAND: f64 = 0.15;
 /// Δθa (rad) below which the estimate is flagged [`Quality::LowSignal`].
 pub const MIN_GOOD_DTHETA_RAD: f64 = 2e-3;
 
+/// σ(k2,c) above this fraction of l2 grades a path-fit answer [`Quality::LowSignal`].
+pub const LOW_SIGNAL_SIGMA_FRAC_L2: f64 = 0.05;
+
+/// The quality of a distal path-fit answer from its σ(k2,c) (m) on a distal phalanx of
+/// length `l2_m` (m): [`Quality::LowSignal`] above [`LOW_SIGNAL_SIGMA_FRAC_L2`] of l2.
+pub fn path_fit_quality<R: EstNum>(sigma_m: R, l2_m: R) -> Quality {
+    if sigma_m > l2_m * R::from_f64(LOW_SIGNAL_SIGMA_FRAC_L2) {
+        Quality::LowSignal
+    } else {
+        Quality::Good
+    }
+}
+
 /// One averaged sample (over `sample_ticks` ticks).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -166,9 +179,11 @@ pub enum Located {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Quality {
-    /// Δθa spans enough encoder resolution and the inversion is well inside its range.
+    /// Δθa spans enough encoder resolution and the inversion is well inside its range; a
+    /// path fit's σ(k2,c) is at most [`LOW_SIGNAL_SIGMA_FRAC_L2`] of l2.
     Good,
-    /// Δθa below [`MIN_GOOD_DTHETA_RAD`]: noise- and friction-dominated.
+    /// Δθa below [`MIN_GOOD_DTHETA_RAD`] (noise- and friction-dominated), or a path fit's
+    /// σ(k2,c) above [`LOW_SIGNAL_SIGMA_FRAC_L2`] of l2.
     LowSignal,
     /// Within the proximal/O2 ambiguity.
     Ambiguous,
@@ -557,11 +572,7 @@ fn path_fit_result<R: EstNum>(
         },
         kc_hat_unm_per_rad: fit.kc_contact.micro(),
         theta_a_c_urad: fit.theta_a_c_rad.micro(),
-        quality: if sigma > l2_m * R::from_f64(0.05) {
-            Quality::LowSignal
-        } else {
-            Quality::Good
-        },
+        quality: path_fit_quality(sigma, l2_m),
         ..base
     };
     Ok((r, Some(sigma)))

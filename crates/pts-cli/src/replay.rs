@@ -712,7 +712,22 @@ fn segment_stretch(
             segment_rows(rows.get(from..)?, finger, method, quantum_rad).ok()
         })
         .collect();
-    Ok(combine_phases(base, &others))
+    Ok(graded(combine_phases(base, &others), finger.finger.l2))
+}
+
+/// Each distal answer graded by the σ it now carries ([`grasp::estimate::path_fit_quality`]):
+/// the contact friction's widening and the phases' spread move σ after the fit graded its own,
+/// and an answer whose σ is above a twentieth of l2 (`l2_m`, m) is `low_signal` whoever widened
+/// it. An ambiguous answer stays ambiguous.
+fn graded(mut seg: Segmented, l2_m: f64) -> Segmented {
+    for c in seg.contacts.iter_mut() {
+        if let (Ok(r), Some(sigma)) = (c.estimate.as_mut(), c.sigma_k2_m) {
+            if r.located == grasp::Located::Distal && r.quality != grasp::Quality::Ambiguous {
+                r.quality = grasp::estimate::path_fit_quality(sigma, l2_m);
+            }
+        }
+    }
+    seg
 }
 
 /// The smallest θa change between consecutive rows (rad), 0 when θa never changes.
@@ -1463,6 +1478,40 @@ mod tests {
         let out = combine_phases(phase(widened(40.0, 2.0)), &[phase(widened(46.0, 6.0))]);
         let c = &out.contacts[0];
         assert_eq!(c.estimate.as_ref().unwrap().k2_um, Some(43_000));
+    }
+
+    /// The grade follows the σ an answer reports, not the one its fit had: on l2 = 75 mm the
+    /// line is 3.75 mm. Two good phases whose spread widens σ past it read `low_signal`; a fit
+    /// graded `low_signal` whose combined σ lies under it reads `good`; an ambiguous answer
+    /// and a refusal stay as they are.
+    #[test]
+    fn answers_are_graded_by_the_sigma_they_report() {
+        let l2 = 0.075;
+        let quality = |s: &Segmented| s.contacts[0].estimate.as_ref().unwrap().quality;
+        let out = graded(
+            combine_phases(
+                phase(contact(0.9, Some(30.0), 2.0)),
+                &[phase(contact(0.9, Some(38.0), 2.0))],
+            ),
+            l2,
+        );
+        assert!(out.contacts[0].sigma_k2_m.unwrap() > 0.05 * l2);
+        assert_eq!(quality(&out), grasp::Quality::LowSignal);
+        let mut low = contact(0.9, Some(30.0), 3.7);
+        if let Ok(r) = low.estimate.as_mut() {
+            r.quality = grasp::Quality::LowSignal;
+        }
+        assert_eq!(quality(&graded(phase(low), l2)), grasp::Quality::Good);
+        let mut ambiguous = contact(0.9, Some(30.0), 9.0);
+        if let Ok(r) = ambiguous.estimate.as_mut() {
+            r.quality = grasp::Quality::Ambiguous;
+        }
+        assert_eq!(
+            quality(&graded(phase(ambiguous), l2)),
+            grasp::Quality::Ambiguous
+        );
+        let refused = graded(phase(contact(0.9, None, 0.0)), l2);
+        assert!(refused.contacts[0].estimate.is_err());
     }
 
     #[test]
