@@ -715,20 +715,32 @@ fn segment_stretch(
     Ok(graded(combine_phases(base, &others), finger.finger.l2))
 }
 
-/// Each distal answer graded by the σ it now carries ([`grasp::estimate::path_fit_quality`]):
-/// the contact friction's widening and the phases' spread move σ after the fit graded its own,
-/// and an answer whose σ is above a twentieth of l2 (`l2_m`, m) is `low_signal` whoever widened
-/// it. An ambiguous answer stays ambiguous.
+/// Each distal answer graded by the σ it now carries: the contact friction's widening and the
+/// phases' spread move σ after the fit graded its own. Within [`NEAR_O2_SIGMAS`] σ of O2 it
+/// is `proximal_or_near_o2` (a contact on the proximal phalanx next to O2 reads as one on the
+/// distal next to it; `k2` stays the distal reading), else `low_signal` when σ is above a
+/// twentieth of l2 (`l2_m`, m; [`grasp::estimate::path_fit_quality`]) whoever widened it. An
+/// ambiguous answer stays ambiguous.
 fn graded(mut seg: Segmented, l2_m: f64) -> Segmented {
     for c in seg.contacts.iter_mut() {
         if let (Ok(r), Some(sigma)) = (c.estimate.as_mut(), c.sigma_k2_m) {
             if r.located == grasp::Located::Distal && r.quality != grasp::Quality::Ambiguous {
-                r.quality = grasp::estimate::path_fit_quality(sigma, l2_m);
+                let k2_m = r.k2_um.map_or(f64::NAN, |k| f64::from(k) * 1e-6);
+                if k2_m < NEAR_O2_SIGMAS * sigma {
+                    r.located = grasp::Located::ProximalOrNearO2;
+                    r.quality = grasp::Quality::Ambiguous;
+                } else {
+                    r.quality = grasp::estimate::path_fit_quality(sigma, l2_m);
+                }
             }
         }
     }
     seg
 }
+
+/// A distal answer closer to O2 than this many of its σ is read as proximal or near O2
+/// ([`graded`]).
+const NEAR_O2_SIGMAS: f64 = 2.0;
 
 /// The smallest θa change between consecutive rows (rad), 0 when θa never changes.
 fn smallest_step(rows: &[crate::offline::TraceSample]) -> f64 {
@@ -1076,6 +1088,42 @@ fn widen_for_contact_friction(
     (r, Some(s))
 }
 
+/// Why a contact whose torque step came with it cannot be read, or `None`: more than half of
+/// ΔT_a (the request's end torque over T_a,c) reached within [`STEP_AT_CONTACT_S`] of the
+/// contact (`contact`: θa,c rad, T_a,c N·m, t s; either side, as the contact may be found
+/// late). Under a torque held constant from the
+/// contact on, the contact path's own inertia cannot be read (its torque never changes), so
+/// the approach's stands, which carries the finger links' share; and the contact's kink hides
+/// in the step's, so the contact is found late. Both read the contact further out, at a σ
+/// that does not know it (on the engine's light drive 3–4 mrad late and +5 to +9 % of l2 at
+/// σ 1–3 %).
+fn step_at_contact(
+    blocks: &[crate::offline::Block],
+    req: &grasp::EstimateRequest,
+    (_, ta_c, t_c): (f64, f64, f64),
+) -> Option<String> {
+    let dta = f64::from(req.end.torque_unm) * 1e-6 - ta_c;
+    let rise = blocks
+        .iter()
+        .filter(|b| (b.t_s - t_c).abs() <= STEP_AT_CONTACT_S)
+        .map(|b| b.torque_nm - ta_c)
+        .fold(f64::NEG_INFINITY, f64::max);
+    (dta > 0.0 && rise > 0.5 * dta).then(|| {
+        format!(
+            "the torque rose by {rise:.3} N·m within {:.0} ms of the contact at t = {t_c:.4} s, \
+             more than half its step of {dta:.3} N·m: a step that comes with the contact hides \
+             the contact and the inertia on it; hold the torque 30 ms after the contact before \
+             the step (a step that late is read), or ramp it",
+            STEP_AT_CONTACT_S * 1e3
+        )
+    })
+}
+
+/// How soon after the contact (s) a torque step makes the contact unreadable
+/// ([`step_at_contact`]): the engine's steps at the contact are refused, its steps 30 ms after
+/// it and its 0.05 s ramps at it (a fifth of the step within this time) are read.
+const STEP_AT_CONTACT_S: f64 = 0.01;
+
 /// How far the crank must swing back after the contact (rad) before the path of a drive
 /// without dry friction is rebuilt from its loading rows (`crate::offline::loading_path`):
 /// any distance. The damping on the contact (the drive's and the object's,
@@ -1258,6 +1306,15 @@ fn foreign_path_fit(
             (seg.theta_a_c_rad, seg.ta_c_nm, seg.contact_t_s),
         ),
     };
+    if let Some(why) = step_at_contact(blocks, &seg.request, contact) {
+        return ForeignFit {
+            estimate: Err(crate::sim::EstError::new("step_at_contact", &why)),
+            drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
+            reading: None,
+            contact_dynamics,
+            fit_sigma_m: None,
+        };
+    }
     // A finger that settles behind the angle of its first contact has left the object (a
     // rigid object touched at θa,c holds the finger ahead of that angle), or the contact was
     // found late (a heavy drive's impact carries the finger far past it). Whatever the rows
@@ -1483,7 +1540,7 @@ mod tests {
     /// The grade follows the σ an answer reports, not the one its fit had: on l2 = 75 mm the
     /// line is 3.75 mm. Two good phases whose spread widens σ past it read `low_signal`; a fit
     /// graded `low_signal` whose combined σ lies under it reads `good`; an ambiguous answer
-    /// and a refusal stay as they are.
+    /// and a refusal stay as they are; an answer within two σ of O2 is ambiguous.
     #[test]
     fn answers_are_graded_by_the_sigma_they_report() {
         let l2 = 0.075;
@@ -1512,6 +1569,15 @@ mod tests {
         );
         let refused = graded(phase(contact(0.9, None, 0.0)), l2);
         assert!(refused.contacts[0].estimate.is_err());
+        // 3 mm from O2 at σ 2 mm: a proximal contact next to O2 reads so too.
+        let near = graded(phase(contact(0.9, Some(3.0), 2.0)), l2);
+        let r = near.contacts[0].estimate.as_ref().unwrap();
+        assert_eq!(r.located, grasp::Located::ProximalOrNearO2);
+        assert_eq!(r.quality, grasp::Quality::Ambiguous);
+        assert_eq!(r.k2_um, Some(3000));
+        let clear = graded(phase(contact(0.9, Some(5.0), 2.0)), l2);
+        let r = clear.contacts[0].estimate.as_ref().unwrap();
+        assert_eq!(r.located, grasp::Located::Distal);
     }
 
     #[test]

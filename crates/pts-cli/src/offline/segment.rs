@@ -204,7 +204,9 @@ pub fn segment_end(
 /// the finger is static or creeps quasi-statically (θa linear in time within `thband`, slow),
 /// with a torque that moves only as the path allows (within `tband`, not a stiction plateau,
 /// not the start of an unload). Never static (an undamped oscillation): the late half of the
-/// steady-torque hold, at least `2 wq` blocks long, else [`OfflineError::NotSettled`].
+/// steady-torque hold, at least `wq` blocks long by the torque's median over a window (which
+/// spends half a window leaving the step: a 0.2 s hold at 4 ms blocks reads about 150 ms),
+/// else [`OfflineError::NotSettled`].
 pub fn end_window(
     cfg: &OfflineConfig,
     blocks: &[Block],
@@ -238,7 +240,7 @@ pub fn end_window(
         s -= 1;
     }
     let len = last + 1 - s;
-    if len < 2 * wq {
+    if len < wq {
         return Err(OfflineError::NotSettled);
     }
     Ok((s + len / 2, last + 1))
@@ -919,9 +921,11 @@ mod tests {
         // θa rings (1 mrad) for ever: no static window; the torque is steady from the start.
         let b = blocks(|k| -0.2 + 1e-3 * (0.9 * k as f64).sin(), |_| 1.0, 110);
         assert_eq!(end_window(&CFG, &b, 10, 110, 25, 1e-4, 4e-3), Ok((60, 110)));
-        // A hold shorter than two windows has not settled.
+        // A hold of 40 blocks (less than two windows, as a 0.2 s hold reads): its late half.
+        assert_eq!(end_window(&CFG, &b, 70, 110, 25, 1e-4, 4e-3), Ok((90, 110)));
+        // A hold shorter than one window has not settled.
         assert_eq!(
-            end_window(&CFG, &b, 70, 110, 25, 1e-4, 4e-3),
+            end_window(&CFG, &b, 90, 110, 25, 1e-4, 4e-3),
             Err(OfflineError::NotSettled)
         );
     }
