@@ -1306,15 +1306,9 @@ fn foreign_path_fit(
             (seg.theta_a_c_rad, seg.ta_c_nm, seg.contact_t_s),
         ),
     };
-    if let Some(why) = step_at_contact(blocks, &seg.request, contact) {
-        return ForeignFit {
-            estimate: Err(crate::sim::EstError::new("step_at_contact", &why)),
-            drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
-            reading: None,
-            contact_dynamics,
-            fit_sigma_m: None,
-        };
-    }
+    // A proximal answer stands under a step at the contact: the approach's inertia, which the
+    // step leaves in place, reads the contact stiffer, further from the proximal phalanx.
+    let step_refusal = step_at_contact(blocks, &seg.request, contact);
     // A finger that settles behind the angle of its first contact has left the object (a
     // rigid object touched at θa,c holds the finger ahead of that angle), or the contact was
     // found late (a heavy drive's impact carries the finger far past it). Whatever the rows
@@ -1392,6 +1386,11 @@ fn foreign_path_fit(
             path_fit_with(&table, &req, contact.0, contact.1)
                 .map_err(|e| err(grasp::EstimateError::PathFit(e)))
         });
+    let res = match (res, step_refusal) {
+        (Ok((r, s)), _) if r.located == grasp::Located::Proximal => Ok((r, s)),
+        (_, Some(why)) => Err(crate::sim::EstError::new("step_at_contact", &why)),
+        (res, None) => res,
+    };
     let fit_sigma_m = res.as_ref().ok().and_then(|(_, sigma)| *sigma);
     let res = res.map(|(r, sigma)| {
         widen_for_contact_friction(finger, &pcfg, block_s, &req, contact, r, sigma)
