@@ -1091,12 +1091,12 @@ fn widen_for_contact_friction(
 /// Why a contact whose torque step came with it cannot be read, or `None`: more than half of
 /// ΔT_a (the request's end torque over T_a,c) reached within [`STEP_AT_CONTACT_S`] of the
 /// contact (`contact`: θa,c rad, T_a,c N·m, t s; either side, as the contact may be found
-/// late). Under a torque held constant from the
-/// contact on, the contact path's own inertia cannot be read (its torque never changes), so
-/// the approach's stands, which carries the finger links' share; and the contact's kink hides
-/// in the step's, so the contact is found late. Both read the contact further out, at a σ
-/// that does not know it (on the engine's light drive 3–4 mrad late and +5 to +9 % of l2 at
-/// σ 1–3 %).
+/// late). Under a torque held constant from the contact on, the contact path's own inertia
+/// cannot be read (its torque never changes), so the approach's stands, which carries the
+/// finger links' share; and the contact's kink hides in the step's, so the contact is found
+/// late. Both read the contact further out, at a σ that does not know it (on the engine's
+/// light drive 3–4 mrad late and +5 to +9 % of l2 at σ 1–3 %). The caller keeps a proximal
+/// answer, which that bias only moves away from.
 fn step_at_contact(
     blocks: &[crate::offline::Block],
     req: &grasp::EstimateRequest,
