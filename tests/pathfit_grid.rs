@@ -9,10 +9,12 @@
 //! 0.5, 0.8, 1.0 N·m, ideal plant (noise and friction off) and realistic plant. Runs that end
 //! in a second contact or past the tip (plant events) are expected to be refused and counted.
 //!
-//! `cargo test --release --test pathfit_grid -- --nocapture` prints the tables;
+//! `cargo test --release --test pathfit_grid -- --nocapture` prints the tables (and, per
+//! object, which way ΔT_a ≥ 0.5 N·m is read);
 //! the grid runs the seated controller (`seating on`); `PATHFIT_NO_SEATING=RATE` (N·m/s) runs
 //! it without the seating stages, as the default controller does, the step a ramp of RATE
-//! (printed only: the guards below are the seated controller's);
+//! (printed only: the guards below are the seated controller's), or with `PATHFIT_RAMP_S=T`
+//! a ramp over T seconds whatever ΔT_a;
 //! `PATHFIT_INERTIA_SCALE=F` fits with F × the drive's inertia (printed only too);
 //! `PATHFIT_GAIN_ERROR=G` gives the realistic plant's current sensor the relative gain error G
 //! (the scene's is +0.01; printed only), which the estimate cannot see without calibration;
@@ -50,6 +52,13 @@ fn positive_env(name: &str) -> Option<f64> {
 /// `PATHFIT_NO_SEATING=RATE`: the step ramp (N·m/s) of a grid run without seating.
 fn no_seating() -> Option<f64> {
     positive_env("PATHFIT_NO_SEATING")
+}
+
+/// `PATHFIT_RAMP_S=SECONDS` (with `PATHFIT_NO_SEATING`): the unseated step ramps over this
+/// time whatever ΔT_a, its rate ΔT_a/SECONDS, instead of at one rate (diagnosis: whether a
+/// small step suffers from its short ramp's dynamics).
+fn ramp_duration() -> Option<f64> {
+    positive_env("PATHFIT_RAMP_S")
 }
 
 /// `PATHFIT_INERTIA_SCALE=F`: the fit's drive inertia is F × the scene's (diagnosis: how much
@@ -117,7 +126,7 @@ fn grid_config(scene: &Scene, dta: f64, unseated_rate: Option<f64>) -> grasp::Co
     match unseated_rate {
         Some(rate) => grasp::ControllerConfig {
             seating: false,
-            step_shape: grasp::StepShape::Ramp(rate),
+            step_shape: grasp::StepShape::Ramp(ramp_duration().map_or(rate, |t| dta / t)),
             ..config(scene, dta)
         },
         None => seated(scene, dta),
@@ -563,6 +572,15 @@ struct Summary {
     flips: usize,
 }
 
+/// A grid object's row label: `vertex`, or the cylinder's radius `R=…cm`.
+fn object_label(radius_m: f64) -> String {
+    if radius_m == 0.0 {
+        "vertex".to_string()
+    } else {
+        format!("R={:.2}cm", radius_m * 100.0)
+    }
+}
+
 fn summarize(
     name: &str,
     cases: &[Case],
@@ -594,12 +612,7 @@ fn summarize(
     }
     println!();
     for &r in &RADII {
-        let label = if r == 0.0 {
-            "vertex".to_string()
-        } else {
-            format!("R={:.2}cm", r * 100.0)
-        };
-        print!("{label:>10} |");
+        print!("{:>10} |", object_label(r));
         for &d in &DTAS {
             let cell: Vec<&Case> = cases
                 .iter()
@@ -780,6 +793,36 @@ fn summarize(
     s
 }
 
+/// Prints, per object, the signed mean, the mean and the max of (k̂2,c − k2,c) / l2 over the
+/// answered cases at ΔT_a ≥ 0.5 N·m, by the back end `pick`: which way an object is read.
+fn print_signed_by_object(
+    name: &str,
+    cases: &[Case],
+    pick: fn(&Case) -> &Option<Result<FitOut, PathFitError>>,
+) {
+    println!("\n{name}, ΔT_a ≥ 0.5 N·m: (k̂2,c − k2,c) in % of l2 by object");
+    println!("    object | answered | signed mean | mean |err| | max |err|");
+    for &r in &RADII {
+        let errs: Vec<f64> = cases
+            .iter()
+            .filter(|c| c.radius == r && c.dta >= 0.5)
+            .filter_map(|c| match pick(c) {
+                Some(Ok(f)) => Some(100.0 * (f.k2 - c.k2c) / L2),
+                _ => None,
+            })
+            .collect();
+        let n = errs.len().max(1) as f64;
+        println!(
+            "{:>10} | {:>8} | {:>+11.2} | {:>11.2} | {:>9.2}",
+            object_label(r),
+            errs.len(),
+            errs.iter().sum::<f64>() / n,
+            errs.iter().map(|e| e.abs()).sum::<f64>() / n,
+            errs.iter().fold(0.0f64, |m, e| m.max(e.abs()))
+        );
+    }
+}
+
 /// |k̂2,c − k2,c| / l2 of the answered cases at ΔT_a ≥ 0.5 N·m, by the back end `pick`.
 fn big_step_errors(
     cases: &[Case],
@@ -943,6 +986,9 @@ fn pathfit_grid_on_the_plant() {
             100.0 * big_real_mean,
             100.0 * big_steps(&real)
         );
+        for (plant, cases) in [("ideal", &ideal), ("realistic", &real)] {
+            print_signed_by_object(&format!("{label}, {plant} plant"), cases, pick);
+        }
         results.push((label, si, sr, big_steps(&ideal)));
     }
     assert!(
