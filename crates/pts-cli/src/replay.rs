@@ -1308,7 +1308,8 @@ fn foreign_path_fit(
     };
     // A proximal answer stands under a step at the contact: the approach's inertia, which the
     // step leaves in place, reads the contact stiffer, further from the proximal phalanx.
-    let step_refusal = step_at_contact(blocks, &seg.request, contact);
+    let step_refusal = step_at_contact(blocks, &seg.request, contact)
+        .map(|why| crate::sim::EstError::new("step_at_contact", &why));
     // A finger that settles behind the angle of its first contact has left the object (a
     // rigid object touched at θa,c holds the finger ahead of that angle), or the contact was
     // found late (a heavy drive's impact carries the finger far past it). Whatever the rows
@@ -1320,8 +1321,11 @@ fn foreign_path_fit(
              it left the object, or the contact lies earlier than the recording shows",
             contact.0
         );
+        // A step at the contact is the likelier reason, and says what to do instead.
+        let refusal =
+            step_refusal.unwrap_or_else(|| crate::sim::EstError::new("end_behind_contact", &why));
         return ForeignFit {
-            estimate: Err(crate::sim::EstError::new("end_behind_contact", &why)),
+            estimate: Err(refusal),
             drive: id.map(|i| (i, (contact.2, contact.0, contact.1))),
             reading: None,
             contact_dynamics,
@@ -1388,7 +1392,7 @@ fn foreign_path_fit(
         });
     let res = match (res, step_refusal) {
         (Ok((r, s)), _) if r.located == grasp::Located::Proximal => Ok((r, s)),
-        (_, Some(why)) => Err(crate::sim::EstError::new("step_at_contact", &why)),
+        (_, Some(refusal)) => Err(refusal),
         (res, None) => res,
     };
     let fit_sigma_m = res.as_ref().ok().and_then(|(_, sigma)| *sigma);

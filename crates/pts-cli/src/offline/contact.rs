@@ -302,6 +302,9 @@ pub fn back_date(
 /// averaged under a triangle of that half-width (`SPAN_WEIGHTS`). So the rest of the balance
 /// goes through the same triangle (the residual, and the hinge it is compared with): every
 /// term then describes one window, and the torque noise is averaged over its 7 blocks.
+/// After the detection, the hinge reads no window that holds a torque step (a rise between
+/// two blocks above a quarter of the request's ΔT_a): across a step that balance
+/// depends on where in its period a recording's torque acts, which no recording says.
 /// Returns (θa,c rad, T_a,c = T_free(θa,c) + offset N·m, trace time of θa,c s).
 ///
 /// [`identify_drive`]: super::identify_drive
@@ -323,12 +326,21 @@ pub fn refine_contact<R: pts::Real>(
     let lo = seg.knee.saturating_sub(2 * wf).max(KIN_SPAN);
     let th_top = blocks.get(seg.detect)?.theta_a_rad.max(seg.theta_a_c_rad) + 8e-3;
     let latency = cfg.confirm + SPAN_WEIGHTS.len();
+    let ta_detect = blocks.get(seg.detect)?.torque_nm;
+    let dta = f64::from(seg.request.end.torque_unm) * 1e-6 - ta_detect;
     let thc = hinge_theta(
         blocks,
         lo,
-        seg.detect,
-        latency,
-        th_top,
+        (seg.detect, latency),
+        // Without a rise to the end there is no step to stop at.
+        (
+            th_top,
+            if dta > 0.0 {
+                STEP_JUMP_FRAC * dta
+            } else {
+                f64::INFINITY
+            },
+        ),
         id,
         quantum_rad,
         &t_free,
@@ -343,17 +355,17 @@ pub fn refine_contact<R: pts::Real>(
 }
 
 /// θa,c of [`refine_contact`]: the hinge of the smoothed residual over the moving blocks from
-/// `lo` up to θa `th_top` (at most 200 blocks past `detect`), on a 0.1 mrad grid from the
-/// detection's θa back over 15 mrad or to the θa `latency` blocks before it, whichever is
-/// further. Where neighbouring grid angles tie at the least loss ([`LOSS_TIE_REL`]: no block
-/// lies between them), the middle of that run. `None` with fewer than 8 blocks.
-#[allow(clippy::too_many_arguments)]
+/// `lo` up to θa `th_top` (at most 200 blocks past `detect`, and up to the first window after
+/// it in which the torque rises between two blocks by more than `jump_nm` N·m), on a 0.1 mrad
+/// grid from the detection's θa back over 15 mrad or to the θa `latency` blocks before it,
+/// whichever is further. Where neighbouring grid angles tie at the least loss
+/// ([`LOSS_TIE_REL`]: no block lies between them), the middle of that run. `None` with fewer
+/// than 8 blocks.
 fn hinge_theta(
     blocks: &[Block],
     lo: usize,
-    detect: usize,
-    latency: usize,
-    th_top: f64,
+    (detect, latency): (usize, usize),
+    (th_top, jump_nm): (f64, f64),
     id: &DriveId,
     quantum_rad: f64,
     t_free: &dyn Fn(f64) -> Option<f64>,
@@ -364,6 +376,9 @@ fn hinge_theta(
     while k + KIN_SPAN < blocks.len() && pts.len() < 512 {
         let b = blocks.get(k)?;
         k += 1;
+        if k > detect && holds_torque_step(blocks, k - 1, jump_nm) {
+            break;
+        }
         if k > detect + 200 || b.theta_a_rad > th_top {
             if k > detect {
                 break;
@@ -411,6 +426,20 @@ fn hinge_theta(
     }
     Some(0.5 * (best.1 + best.2))
 }
+
+/// Whether the torque rises by more than `jump_nm` (N·m) between two neighbouring blocks of
+/// the window the balance of block `k` reads (±[`KIN_SPAN`] blocks).
+fn holds_torque_step(blocks: &[Block], k: usize, jump_nm: f64) -> bool {
+    let window = &blocks[k.saturating_sub(KIN_SPAN)..(k + KIN_SPAN + 1).min(blocks.len())];
+    window
+        .windows(2)
+        .any(|w| w[1].torque_nm - w[0].torque_nm > jump_nm)
+}
+
+/// The share of ΔT_a by which the torque must rise between two blocks for [`refine_contact`]
+/// to call it a step: a step's rise lands within one or two blocks, while a 0.05 s ramp
+/// rises by 8 % of it per 4 ms block and is read as before.
+const STEP_JUMP_FRAC: f64 = 0.25;
 
 /// Grid step of the hinge angle in [`hinge_theta`] (rad).
 const HINGE_STEP_RAD: f64 = 1e-4;
@@ -629,25 +658,42 @@ mod tests {
     /// past θa,c the crank swings on it, θa = θa,c + (v/ω)·sin ω(t − t_c) with ω = √(K/J),
     /// while the drive holds T_free(θa), so T_a − T_free − J θ̈a = K (θa − θa,c) exactly.
     /// `noise` is added to each row's torque. Returns the blocks and the drive as identified.
-    fn heavy_crank(v: f64, mut noise: impl FnMut() -> f64) -> (std::vec::Vec<Block>, DriveId) {
+    fn heavy_crank(v: f64, noise: impl FnMut() -> f64) -> (std::vec::Vec<Block>, DriveId) {
+        heavy_crank_stepped(v, noise, None)
+    }
+
+    /// [`heavy_crank`] with a torque step `(t_s s, ΔT N·m, lead s)`: from t_s the drive holds
+    /// T_free(θa) + ΔT and the crank swings about the spring's new rest, θa gains
+    /// (ΔT/K)(1 − cos ω(t − t_s)); the recorded torque shows the step `lead` early, as a
+    /// recording whose torque rows are not stamped where they act.
+    fn heavy_crank_stepped(
+        v: f64,
+        mut noise: impl FnMut() -> f64,
+        step: Option<(f64, f64, f64)>,
+    ) -> (std::vec::Vec<Block>, DriveId) {
         let model = pts::Model::<f64>::paper().unwrap();
         let t_free = |th: f64| model.free_from_theta_a(th).unwrap().ta;
         let (j, k, th_c, t_c): (f64, f64, f64, f64) = (5e-3, 6.0, -0.22, 0.4);
         let w = (k / j).sqrt();
+        let (t_s, dta, lead) = step.unwrap_or((f64::INFINITY, 0.0, 0.0));
         let theta = |t: f64| {
             if t < t_c {
                 th_c + v * (t - t_c)
-            } else {
+            } else if t < t_s {
                 th_c + v / w * (w * (t - t_c)).sin()
+            } else {
+                th_c + v / w * (w * (t - t_c)).sin() + dta / k * (1.0 - (w * (t - t_s)).cos())
             }
         };
         let blocks = (0..150)
             .map(|b| {
                 let (mut th, mut tq) = (0.0, 0.0);
                 for i in 0..4 {
-                    let x = theta(1e-3 * (4 * b + i) as f64);
+                    let t = 1e-3 * (4 * b + i) as f64;
+                    let x = theta(t);
                     th += x / 4.0;
-                    tq += (t_free(x) + noise()) / 4.0;
+                    let held = if t >= t_s - lead { dta } else { 0.0 };
+                    tq += (t_free(x) + held + noise()) / 4.0;
                 }
                 Block {
                     index: b as u32,
@@ -677,11 +723,31 @@ mod tests {
 
     /// θa,c from [`hinge_theta`] on `blocks` detected `after` blocks past the contact block.
     fn hinge_of(blocks: &[Block], id: &DriveId, after: usize, latency: usize) -> f64 {
+        hinge_of_with(blocks, id, after, latency, f64::INFINITY)
+    }
+
+    /// [`hinge_of`] with the torque rise between two blocks that ends the hinge's blocks.
+    fn hinge_of_with(
+        blocks: &[Block],
+        id: &DriveId,
+        after: usize,
+        latency: usize,
+        jump_nm: f64,
+    ) -> f64 {
         let model = pts::Model::<f64>::paper().unwrap();
         let t_free = |th: f64| model.free_from_theta_a(th).ok().map(|c| c.ta);
         let detect = 100 + after;
         let top = blocks[detect].theta_a_rad + 8e-3;
-        hinge_theta(blocks, detect - 40, detect, latency, top, id, 1e-9, &t_free).unwrap()
+        hinge_theta(
+            blocks,
+            detect - 40,
+            (detect, latency),
+            (top, jump_nm),
+            id,
+            1e-9,
+            &t_free,
+        )
+        .unwrap()
     }
 
     /// The heavy crank at 0.9 rad/s (3.6 mrad per block) with 5 mN·m of torque noise per row
@@ -731,6 +797,39 @@ mod tests {
         assert!(
             fixed > -0.22 + 2e-3,
             "a 15 mrad search: θa,c {fixed:.5} rad"
+        );
+    }
+
+    /// A torque step of 0.5 N·m 12, 20 or 30 ms after the contact of the heavy crank
+    /// (detected three blocks after it), its torque rows stamped where they act, one row early
+    /// or one row late. Across a step the second difference of block means is no longer the
+    /// triangle-averaged θ̈a that the residual's weights assume, so a hinge that reads the
+    /// step's windows lands up to 6.7 mrad off; one that stops at the first window holding
+    /// the step is never further off, and 20 or 30 ms after the contact it is within a third
+    /// of a block's travel.
+    #[test]
+    fn the_hinge_stops_before_a_torque_step() {
+        let block = 3.6e-3;
+        let (mut worst_read, mut worst_cut) = (0.0f64, 0.0f64);
+        for lead in [0.0, 1e-3, -1e-3] {
+            for after_s in [0.012, 0.02, 0.03] {
+                let step = Some((0.4 + after_s, 0.5, lead));
+                let (blocks, id) = heavy_crank_stepped(0.9, || 0.0, step);
+                let read = (hinge_of(&blocks, &id, 3, 12) + 0.22).abs();
+                let cut = (hinge_of_with(&blocks, &id, 3, 12, STEP_JUMP_FRAC * 0.5) + 0.22).abs();
+                assert!(
+                    cut <= read + 1e-9,
+                    "step {after_s} s after, lead {lead} s: {cut:.5} rad off, reading it {read:.5}"
+                );
+                worst_read = worst_read.max(read);
+                if after_s > 0.015 {
+                    worst_cut = worst_cut.max(cut);
+                }
+            }
+        }
+        assert!(
+            worst_cut < block / 3.0 && worst_read > 2.0 * block / 3.0,
+            "stopping at the step: worst {worst_cut:.5} rad; reading it: worst {worst_read:.5} rad"
         );
     }
 }
