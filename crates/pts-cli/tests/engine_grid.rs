@@ -287,6 +287,8 @@ struct Stats {
     within3: usize,
     sum: f64,
     max: f64,
+    /// σ(k2,c) of each answer that carries one, % of l2.
+    sigmas_pct: Vec<f64>,
 }
 
 impl Stats {
@@ -299,6 +301,21 @@ impl Stats {
             if o.within_3sigma() {
                 self.within3 += 1;
             }
+            if let Some(sigma) = o.sigma {
+                self.sigmas_pct.push(sigma / L2 * 100.0);
+            }
+        }
+    }
+    /// The median σ of the answers (% of l2): how closely the recordings determine k2,c,
+    /// whatever the error happens to be.
+    fn median_sigma_pct(&self) -> Option<f64> {
+        let mut v = self.sigmas_pct.clone();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        match n {
+            0 => None,
+            _ if n % 2 == 1 => Some(v[n / 2]),
+            _ => Some(0.5 * (v[n / 2 - 1] + v[n / 2])),
         }
     }
     fn mean(&self) -> f64 {
@@ -321,8 +338,11 @@ impl Stats {
                 format!("{:.1}", self.within3_pct()),
             )
         };
+        let sigma = self
+            .median_sigma_pct()
+            .map_or("—".to_string(), |s| format!("{s:.2}"));
         println!(
-            "| {label} | {} | {:.1} | {mean} | {max} | {within3} |",
+            "| {label} | {} | {:.1} | {mean} | {max} | {within3} | {sigma} |",
             self.n,
             self.answered_pct(),
         );
@@ -410,8 +430,10 @@ fn print_table(rows: &[Outcome]) -> Stats {
         }
     }
     println!();
-    println!("| distal positives | n | answered % | mean % l2 | max % l2 | within 3σ % |");
-    println!("|---|---|---|---|---|---|");
+    println!(
+        "| distal positives | n | answered % | mean % l2 | max % l2 | within 3σ % | median σ % l2 |"
+    );
+    println!("|---|---|---|---|---|---|---|");
     all.row("all");
     for (k, s) in &groups {
         s.row(k);
