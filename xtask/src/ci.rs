@@ -59,20 +59,25 @@ impl Stages {
         }
         eprintln!("\n==== {name} ====");
         let t = Instant::now();
-        match f() {
-            Ok(()) => {
-                eprintln!("==== {name}: ok ({:.1} s)", t.elapsed().as_secs_f64());
-                self.passed.push(name.to_string());
-            }
+        let r = f();
+        eprintln!(
+            "{}",
+            verdict_line(name, r.is_ok(), t.elapsed().as_secs_f64())
+        );
+        match r {
+            Ok(()) => self.passed.push(name.to_string()),
             Err(e) => {
-                eprintln!(
-                    "==== {name}: FAILED ({:.1} s)\n{e}",
-                    t.elapsed().as_secs_f64()
-                );
+                eprintln!("{e}");
                 self.failed.push((name.to_string(), e));
             }
         }
     }
+}
+
+/// A stage's verdict as printed (and as [`LaneLines::take`] reads it back from a lane).
+fn verdict_line(name: &str, ok: bool, seconds: f64) -> String {
+    let verdict = if ok { "ok" } else { "FAILED" };
+    format!("==== {name}: {verdict} ({seconds:.1} s)")
 }
 
 /// Makes sure the rustup targets of rust-toolchain.toml are there.
@@ -134,11 +139,7 @@ fn with_env(key: &str, value: &str, f: impl FnOnce() -> Res) -> Res {
     r
 }
 
-fn scene_check(
-    scene: &str,
-    expect_fault: bool,
-    work: &mut Vec<(String, f64, f64, f64, f64)>,
-) -> Res {
+fn scene_check(scene: &str, expect_fault: bool, work: &mut Vec<Work>) -> Res {
     scene_check_frames(scene, expect_fault, work).map(|_| ())
 }
 
@@ -211,11 +212,7 @@ fn estimate_errors(
 }
 
 /// [`scene_check`], returning the QEMU run's log.
-fn scene_check_frames(
-    scene: &str,
-    expect_fault: bool,
-    work: &mut Vec<(String, f64, f64, f64, f64)>,
-) -> Res<Vec<Frame>> {
+fn scene_check_frames(scene: &str, expect_fault: bool, work: &mut Vec<Work>) -> Res<Vec<Frame>> {
     let elf = qemu::build(scene)?;
     let run = qemu::run(&elf, &mut |f| {
         if !f.msg.starts_with("S ") {
@@ -861,33 +858,215 @@ fn watchdog_window(frames: &[Frame], per: f64) -> Res<String> {
     Ok(line)
 }
 
-/// `cargo xtask test [STAGE]`: every stage, or only those whose name contains STAGE
-/// (case-insensitive), e.g. `cargo xtask test "non-paper finger"`.
-pub fn main(args: &[String]) -> Res<i32> {
-    if args.len() > 1 {
-        return Err(format!(
-            "`test` takes at most one argument, a part of a stage name (got {args:?})"
-        ));
+/// The two halves of the stages, which `cargo xtask test` runs side by side: QEMU emulates
+/// one core and the host's stages are mostly compiling, so one after the other they leave a
+/// core of a two-core machine idle for much of the run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Lane {
+    /// Format, lint, docs, the workspace's tests, the thumb builds of `pts`, the
+    /// instruction-count gate and the figures: everything that builds only for the host or
+    /// into its own target directory.
+    Host,
+    /// Every build of the firmware (clippy, the panic call graph, the size budgets) and every
+    /// QEMU run. The firmware's ELF has one path per build profile, so these stay in one lane.
+    Firmware,
+}
+
+impl Lane {
+    fn parse(name: &str) -> Res<Lane> {
+        match name {
+            "host" => Ok(Lane::Host),
+            "firmware" => Ok(Lane::Firmware),
+            _ => Err(format!(
+                "`--lane` takes `host` or `firmware` (got {name:?})"
+            )),
+        }
     }
+
+    /// The lane's stages, in order.
+    fn run(self, st: &mut Stages, work: &mut Vec<Work>) {
+        match self {
+            Lane::Host => {
+                host_stages(st);
+                gate_stages(st);
+            }
+            Lane::Firmware => {
+                // QEMU first: its runs use one core while the host lane compiles on the other.
+                qemu_scene_stages(st, work);
+                qemu_fault_and_device_stages(st);
+                firmware_build_stages(st);
+            }
+        }
+    }
+}
+
+/// What the firmware lane's child process prints before each of its lines.
+const LANE_PREFIX: &str = "fw| ";
+
+/// A scene's work on the target ISA: (scene, sampling task max, its mean, estimate task max,
+/// state machine max), in instructions.
+type Work = (String, f64, f64, f64, f64);
+
+/// `cargo xtask test [STAGE | --lane host|firmware]`: every stage (two lanes side by side),
+/// only those whose name contains STAGE (case-insensitive), e.g. `cargo xtask test
+/// "non-paper finger"`, or one lane's; the last two one after the other.
+pub fn main(args: &[String]) -> Res<i32> {
+    let (lanes, only, side_by_side) = match args {
+        [] => (vec![Lane::Host, Lane::Firmware], None, true),
+        [flag, lane] if flag == "--lane" => (vec![Lane::parse(lane)?], None, false),
+        [stage] if !stage.starts_with('-') => {
+            (vec![Lane::Host, Lane::Firmware], Some(stage.clone()), false)
+        }
+        _ => {
+            return Err(format!(
+                "`test` takes a part of a stage name or `--lane host|firmware` (got {args:?})"
+            ))
+        }
+    };
     let start = Instant::now();
     let mut st = Stages {
         passed: Vec::new(),
         failed: Vec::new(),
-        only: args.first().cloned(),
+        only,
         skipped: Vec::new(),
     };
-    // Set-up runs whatever was selected.
+    // Set-up runs whatever was selected, before a second lane starts.
     if let Err(e) = toolchain().and_then(|()| qemu::ensure_qemu()) {
         st.failed
             .push(("toolchain targets and qemu-system-arm".into(), e));
     }
-    host_stages(&mut st);
-    firmware_build_stages(&mut st);
     let mut work = Vec::new();
-    qemu_scene_stages(&mut st, &mut work);
-    gate_stages(&mut st);
-    qemu_fault_and_device_stages(&mut st);
-    summary(st, start, &work)
+    let mut work_lines = Vec::new();
+    if side_by_side {
+        match LaneChild::spawn(Lane::Firmware) {
+            Ok(child) => {
+                Lane::Host.run(&mut st, &mut work);
+                child.finish(&mut st, &mut work_lines);
+            }
+            Err(e) => {
+                // No second process: run both lanes here, one after the other.
+                eprintln!("{e}; running the firmware lane after the host lane");
+                for lane in lanes {
+                    lane.run(&mut st, &mut work);
+                }
+            }
+        }
+    } else {
+        for lane in lanes {
+            lane.run(&mut st, &mut work);
+        }
+    }
+    work_lines.extend(work.iter().map(work_line));
+    summary(st, start, &work_lines)
+}
+
+/// The firmware lane running as `xtask test --lane firmware` in a child process; its output
+/// is passed on line by line behind [`LANE_PREFIX`], and its stage verdicts are read from the
+/// same lines.
+struct LaneChild {
+    child: std::process::Child,
+    readers: Vec<std::thread::JoinHandle<LaneLines>>,
+}
+
+/// What a reader thread took from the child's output.
+#[derive(Default)]
+struct LaneLines {
+    passed: Vec<String>,
+    failed: Vec<String>,
+    work: Vec<String>,
+}
+
+impl LaneLines {
+    /// Files one line of the child's output: a stage verdict, a work line, or nothing.
+    fn take(&mut self, line: &str) {
+        let verdict = line
+            .strip_prefix("==== ")
+            .and_then(|rest| rest.rsplit_once(" ("))
+            .map(|(head, _)| head);
+        if let Some(head) = verdict {
+            if let Some(name) = head.strip_suffix(": ok") {
+                self.passed.push(name.to_string());
+            } else if let Some(name) = head.strip_suffix(": FAILED") {
+                self.failed.push(name.to_string());
+            }
+        } else if line.starts_with("work on the target ISA") {
+            self.work.push(line.to_string());
+        }
+    }
+}
+
+impl LaneChild {
+    fn spawn(lane: Lane) -> Res<LaneChild> {
+        let exe = std::env::current_exe().map_err(|e| format!("no path to xtask itself: {e}"))?;
+        let name = match lane {
+            Lane::Host => "host",
+            Lane::Firmware => "firmware",
+        };
+        let mut child = Command::new(exe)
+            .args(["test", "--lane", name])
+            .current_dir(util::root())
+            .stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .map_err(|e| format!("cannot start the {name} lane: {e}"))?;
+        eprintln!(
+            "\n==== the {name} lane runs beside this one; its lines start with `{LANE_PREFIX}` ===="
+        );
+        let mut readers = Vec::new();
+        let out = child
+            .stdout
+            .take()
+            .map(|s| Box::new(s) as Box<dyn std::io::Read + Send>);
+        let err = child
+            .stderr
+            .take()
+            .map(|s| Box::new(s) as Box<dyn std::io::Read + Send>);
+        for stream in [out, err].into_iter().flatten() {
+            readers.push(std::thread::spawn(move || {
+                use std::io::BufRead;
+                let mut lines = LaneLines::default();
+                for line in std::io::BufReader::new(stream).split(b'\n') {
+                    let Ok(bytes) = line else { break };
+                    let line = String::from_utf8_lossy(&bytes);
+                    let line = line.trim_end_matches('\r');
+                    eprintln!("{LANE_PREFIX}{line}");
+                    lines.take(line);
+                }
+                lines
+            }));
+        }
+        Ok(LaneChild { child, readers })
+    }
+
+    /// Waits for the child and adds its verdicts and work lines to this run's.
+    fn finish(mut self, st: &mut Stages, work: &mut Vec<String>) {
+        let mut lines = LaneLines::default();
+        for r in self.readers {
+            if let Ok(l) = r.join() {
+                lines.passed.extend(l.passed);
+                lines.failed.extend(l.failed);
+                lines.work.extend(l.work);
+            }
+        }
+        let status = self.child.wait();
+        let failed_stage = !lines.failed.is_empty();
+        let any_stage = failed_stage || !lines.passed.is_empty();
+        st.passed.extend(lines.passed);
+        for name in lines.failed {
+            st.failed
+                .push((name, format!("see the `{LANE_PREFIX}` lines above")));
+        }
+        work.extend(lines.work);
+        match status {
+            // A failed stage explains a failed status.
+            Ok(s) if any_stage && (s.success() || failed_stage) => {}
+            other => st.failed.push((
+                "firmware lane (xtask test --lane firmware)".into(),
+                format!("ended with {other:?} after the stages above"),
+            )),
+        }
+    }
 }
 
 /// Format, lint and the workspace's tests on the host; the model crate for both thumb targets.
@@ -1020,7 +1199,7 @@ fn firmware_build_stages(st: &mut Stages) {
 
 /// The firmware in QEMU against the host runner: the estimate scenes, a fault scene, the
 /// two-point build, the rest check and a non-paper finger.
-fn qemu_scene_stages(st: &mut Stages, work: &mut Vec<(String, f64, f64, f64, f64)>) {
+fn qemu_scene_stages(st: &mut Stages, work: &mut Vec<Work>) {
     for s in ESTIMATE_SCENES {
         st.run(
             &format!("QEMU scene {s}: events, estimate = host within 1e-4·l2"),
@@ -1120,16 +1299,21 @@ fn qemu_fault_and_device_stages(st: &mut Stages) {
     );
 }
 
+/// A scene's line of the closing report.
+fn work_line((scene, w, m, e, sv): &Work) -> String {
+    format!(
+        "work on the target ISA ({scene}): sampling task max {w:.0} / mean {m:.0} instructions per 10 kHz tick, state machine max {sv:.0} per run, estimate task max {e:.0} instructions (±{INSTR_PER_TICK})"
+    )
+}
+
 /// The closing report: the work on the target ISA, each stage's verdict, `N passed, M failed`.
-fn summary(st: Stages, start: Instant, work: &[(String, f64, f64, f64, f64)]) -> Res<i32> {
+fn summary(st: Stages, start: Instant, work: &[String]) -> Res<i32> {
     eprintln!(
         "\n==== summary ({:.0} s) ====",
         start.elapsed().as_secs_f64()
     );
-    for (scene, w, m, e, sv) in work {
-        eprintln!(
-            "work on the target ISA ({scene}): sampling task max {w:.0} / mean {m:.0} instructions per 10 kHz tick, state machine max {sv:.0} per run, estimate task max {e:.0} instructions (±{INSTR_PER_TICK})"
-        );
+    for line in work {
+        eprintln!("{line}");
     }
     for p in &st.passed {
         eprintln!("  ok      {p}");
@@ -1158,6 +1342,26 @@ mod tests {
             level: "INFO".into(),
             msg: msg.into(),
         }
+    }
+
+    #[test]
+    fn a_lane_s_verdicts_are_read_back_from_its_lines() {
+        let name = "QEMU scene table2: events, estimate = host within 1e-4·l2";
+        let mut l = LaneLines::default();
+        l.take(&verdict_line(name, true, 72.6));
+        l.take(&verdict_line(
+            "QEMU: injected panic -> bridge safe, exit 101",
+            false,
+            6.7,
+        ));
+        l.take(&format!("==== {name} ===="));
+        l.take("==== summary (2275 s) ====");
+        l.take("table2: exit 0, 267 frames, QEMU wall 32.0 s");
+        l.take(&work_line(&("table2".into(), 1.0, 2.0, 3.0, 4.0)));
+        assert_eq!(l.passed, [name]);
+        assert_eq!(l.failed, ["QEMU: injected panic -> bridge safe, exit 101"]);
+        assert_eq!(l.work.len(), 1);
+        assert!(l.work[0].contains("(table2)"), "{:?}", l.work);
     }
 
     #[test]

@@ -83,7 +83,7 @@ off; with --scene also 101 / 102 a panic / HardFault (bridge off); 1 the demo it
     },
     Cmd {
         name: "test",
-        args: "[STAGE]",
+        args: "[STAGE | --lane host|firmware]",
         summary: "every check (the CI command); ends with `N passed, M failed`",
         help: "\
 Runs every check of the project (the command .ci/run runs): the toolchain's thumb targets,
@@ -94,11 +94,16 @@ injected panic and HardFault) and `cargo xtask bench --check`. Every stage runs 
 earlier one failed; the last line is `N passed, M failed`. Installs what it needs (targets,
 qemu-system-arm).
 
+Without arguments the stages run in two lanes side by side: the host's in this process, the
+firmware's (its builds and every QEMU run) in a child process whose lines start with `fw| `.
+
 arguments:
   STAGE                 run only the stages whose name contains STAGE (case-insensitive),
-                        e.g. `cargo xtask test 'non-paper finger'`; no match is an error
+                        one after the other, e.g. `cargo xtask test 'non-paper finger'`; no
+                        match is an error
 
 options:
+  --lane host|firmware  run one lane's stages only, one after the other
   -h, --help            print this help and exit
 
 exit status: 0 when every stage passed, 1 otherwise.
