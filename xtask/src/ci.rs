@@ -873,6 +873,13 @@ enum Lane {
 }
 
 impl Lane {
+    fn name(self) -> &'static str {
+        match self {
+            Lane::Host => "host",
+            Lane::Firmware => "firmware",
+        }
+    }
+
     fn parse(name: &str) -> Res<Lane> {
         match name {
             "host" => Ok(Lane::Host),
@@ -966,6 +973,7 @@ pub fn main(args: &[String]) -> Res<i32> {
 struct LaneChild {
     child: std::process::Child,
     readers: Vec<std::thread::JoinHandle<LaneLines>>,
+    name: &'static str,
 }
 
 /// What a reader thread took from the child's output.
@@ -996,15 +1004,19 @@ impl LaneLines {
 }
 
 impl LaneChild {
+    /// Starts `xtask test --lane NAME` for `lane`.
     fn spawn(lane: Lane) -> Res<LaneChild> {
         let exe = std::env::current_exe().map_err(|e| format!("no path to xtask itself: {e}"))?;
-        let name = match lane {
-            Lane::Host => "host",
-            Lane::Firmware => "firmware",
-        };
-        let mut child = Command::new(exe)
-            .args(["test", "--lane", name])
-            .current_dir(util::root())
+        let mut cmd = Command::new(exe);
+        cmd.args(["test", "--lane", lane.name()])
+            .current_dir(util::root());
+        LaneChild::start(cmd, lane.name())
+    }
+
+    /// Starts `cmd` as a lane: its output is passed on behind [`LANE_PREFIX`] and read for
+    /// the stage verdicts.
+    fn start(mut cmd: Command, name: &'static str) -> Res<LaneChild> {
+        let mut child = cmd
             .stdin(std::process::Stdio::null())
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::piped())
@@ -1036,7 +1048,11 @@ impl LaneChild {
                 lines
             }));
         }
-        Ok(LaneChild { child, readers })
+        Ok(LaneChild {
+            child,
+            readers,
+            name,
+        })
     }
 
     /// Waits for the child and adds its verdicts and work lines to this run's.
@@ -1062,7 +1078,7 @@ impl LaneChild {
             // A failed stage explains a failed status.
             Ok(s) if any_stage && (s.success() || failed_stage) => {}
             other => st.failed.push((
-                "firmware lane (xtask test --lane firmware)".into(),
+                format!("{} lane (xtask test --lane {})", self.name, self.name),
                 format!("ended with {other:?} after the stages above"),
             )),
         }
@@ -1362,6 +1378,67 @@ mod tests {
         assert_eq!(l.failed, ["QEMU: injected panic -> bridge safe, exit 101"]);
         assert_eq!(l.work.len(), 1);
         assert!(l.work[0].contains("(table2)"), "{:?}", l.work);
+    }
+
+    fn stages() -> Stages {
+        Stages {
+            passed: Vec::new(),
+            failed: Vec::new(),
+            only: None,
+            skipped: Vec::new(),
+        }
+    }
+
+    /// A stand-in lane: a shell that prints the given verdict lines and exits with `code`.
+    fn fake_lane(lines: &[String], code: i32) -> (Stages, Vec<String>) {
+        let script: String = lines
+            .iter()
+            .map(|l| format!("printf '%s\\n' '{l}' >&2; "))
+            .chain([format!("exit {code}")])
+            .collect();
+        let mut cmd = Command::new("sh");
+        cmd.args(["-c", &script]);
+        let child = LaneChild::start(cmd, "firmware").expect("sh starts");
+        let (mut st, mut work) = (stages(), Vec::new());
+        child.finish(&mut st, &mut work);
+        (st, work)
+    }
+
+    #[test]
+    fn a_lane_s_failed_stage_fails_the_run() {
+        let (st, _) = fake_lane(
+            &[
+                verdict_line("QEMU: a", true, 1.0),
+                verdict_line("QEMU: b", false, 2.0),
+            ],
+            1,
+        );
+        assert_eq!(st.passed, ["QEMU: a"]);
+        let failed: Vec<&str> = st.failed.iter().map(|f| f.0.as_str()).collect();
+        assert_eq!(failed, ["QEMU: b"]);
+    }
+
+    #[test]
+    fn a_lane_that_dies_or_runs_nothing_fails_the_run() {
+        // Ended without a verdict for the stage it failed in (killed, panicked).
+        let (st, _) = fake_lane(&[verdict_line("QEMU: a", true, 1.0)], 101);
+        assert_eq!(st.passed, ["QEMU: a"]);
+        assert_eq!(st.failed.len(), 1);
+        assert!(st.failed[0].0.contains("firmware lane"), "{:?}", st.failed);
+        // No stage at all, even with a clean exit.
+        let (st, _) = fake_lane(&[], 0);
+        assert!(st.passed.is_empty());
+        assert_eq!(st.failed.len(), 1, "{:?}", st.failed);
+        // A clean run adds nothing to fail.
+        let (st, work) = fake_lane(
+            &[
+                verdict_line("QEMU: a", true, 1.0),
+                work_line(&("table2".into(), 1.0, 2.0, 3.0, 4.0)),
+            ],
+            0,
+        );
+        assert!(st.failed.is_empty(), "{:?}", st.failed);
+        assert_eq!(work.len(), 1);
     }
 
     #[test]
