@@ -948,6 +948,10 @@ pub fn main(args: &[String]) -> Res<i32> {
         match LaneChild::spawn(Lane::Firmware) {
             Ok(child) => {
                 Lane::Host.run(&mut st, &mut work);
+                eprintln!(
+                    "\n==== the host lane is done ({:.0} s); waiting for the firmware lane ====",
+                    start.elapsed().as_secs_f64()
+                );
                 child.finish(&mut st, &mut work_lines);
             }
             Err(e) => {
