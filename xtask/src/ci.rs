@@ -36,6 +36,7 @@ const FW_DELTA_TA: &str = "0.8";
 /// target/finger_check.csv` without `--finger`).
 const PATH_FIT_VS_FIRST_CONTACT_TOL_REL_L2: f64 = 0.04;
 
+#[derive(Default)]
 struct Stages {
     passed: Vec<String>,
     failed: Vec<(String, String)>,
@@ -934,10 +935,8 @@ pub fn main(args: &[String]) -> Res<i32> {
     };
     let start = Instant::now();
     let mut st = Stages {
-        passed: Vec::new(),
-        failed: Vec::new(),
         only,
-        skipped: Vec::new(),
+        ..Stages::default()
     };
     // Set-up runs whatever was selected, before a second lane starts.
     if let Err(e) = toolchain().and_then(|()| qemu::ensure_qemu()) {
@@ -1390,15 +1389,6 @@ mod tests {
         assert!(l.work[0].contains("(table2)"), "{:?}", l.work);
     }
 
-    fn stages() -> Stages {
-        Stages {
-            passed: Vec::new(),
-            failed: Vec::new(),
-            only: None,
-            skipped: Vec::new(),
-        }
-    }
-
     /// A stand-in lane: a shell that prints the given verdict lines and exits with `code`.
     fn fake_lane(lines: &[String], code: i32) -> (Stages, Vec<String>) {
         let script: String = lines
@@ -1409,7 +1399,7 @@ mod tests {
         let mut cmd = Command::new("sh");
         cmd.args(["-c", &script]);
         let child = LaneChild::start(cmd, "firmware").expect("sh starts");
-        let (mut st, mut work) = (stages(), Vec::new());
+        let (mut st, mut work) = (Stages::default(), Vec::new());
         child.finish(&mut st, &mut work);
         (st, work)
     }
