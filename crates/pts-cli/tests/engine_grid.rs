@@ -309,14 +309,7 @@ impl Stats {
     /// The median σ of the answers (% of l2): how closely the recordings determine k2,c,
     /// whatever the error happens to be.
     fn median_sigma_pct(&self) -> Option<f64> {
-        let mut v = self.sigmas_pct.clone();
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        match n {
-            0 => None,
-            _ if n % 2 == 1 => Some(v[n / 2]),
-            _ => Some(0.5 * (v[n / 2 - 1] + v[n / 2])),
-        }
+        median(self.sigmas_pct.clone())
     }
     fn mean(&self) -> f64 {
         self.sum / self.answered.max(1) as f64
@@ -616,6 +609,17 @@ fn draws() -> u64 {
     }
 }
 
+/// The median of `v` (the mean of the middle pair when its length is even); `None` when empty.
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2]),
+        _ => Some(0.5 * (v[n / 2 - 1] + v[n / 2])),
+    }
+}
+
 /// How well σ(k2,c) states the error, per contact friction µ of the engine's object: over the
 /// distal answers, the median of |error|/σ, the shares within 1σ and 2σ (a Gaussian σ puts
 /// 68 % and 95 % there), and the largest |error|/σ. Run with `ENGINE_GRID_MU_MAX=0` it
@@ -639,7 +643,7 @@ fn print_sigma_calibration(rows: &[Outcome]) {
         let share = |k: f64| 100.0 * z.iter().filter(|&&v| v <= k).count() as f64 / n as f64;
         println!(
             "| {mu} | {n} | {:.2} | {:.1} % | {:.1} % | {:.2} |",
-            z[n / 2],
+            median(z.clone()).unwrap_or(f64::NAN),
             share(1.0),
             share(2.0),
             z[n - 1]
@@ -671,10 +675,6 @@ fn print_draw_spread(rows: &[Outcome]) {
     let mut dtas: Vec<f64> = by_grasp.values().map(|v| v.0).collect();
     dtas.sort_by(f64::total_cmp);
     dtas.dedup();
-    let median = |mut v: Vec<f64>| -> f64 {
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-    };
     let (mut sxy, mut sxx, mut sx, mut sy, mut syy, mut n) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
     for dta in dtas {
         let groups: Vec<&Vec<(f64, Option<f64>)>> = by_grasp
@@ -706,9 +706,9 @@ fn print_draw_spread(rows: &[Outcome]) {
             "| {dta:.1} | {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {over} ({:.1} %) |",
             groups.len(),
             all.len(),
-            median(sds),
+            median(sds).unwrap_or(f64::NAN),
             max_sd,
-            median(means),
+            median(means).unwrap_or(f64::NAN),
             max,
             100.0 * over as f64 / all.len().max(1) as f64
         );
@@ -1370,4 +1370,11 @@ fn the_finger_file_s_path_fit_priors_reach_the_estimate() {
     let seg = estimate_with(&csv, &file).expect("segmented");
     let c = seg.contacts.first().expect("a contact");
     assert!(c.estimate.is_err(), "1e-5: {:?}", c.estimate);
+}
+
+#[test]
+fn median_takes_the_middle_pair_of_an_even_count() {
+    assert_eq!(median(vec![]), None);
+    assert_eq!(median(vec![3.0, 1.0, 2.0]), Some(2.0));
+    assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
 }
