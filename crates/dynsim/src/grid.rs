@@ -17,7 +17,8 @@ pub struct Protocol {
     /// Duration of the rise (a ramp; 0 is a step), s.
     pub rise_s: f64,
     /// From the physical first contact to the start of the rise, s; `None`: 5, 10, 15 or
-    /// 20 ms by the grasp's number (the sample recordings' spread).
+    /// 20 ms (the sample recordings' spread), in turn along every axis of the grid and both
+    /// friction levels.
     pub delay_s: Option<f64>,
     /// Hold after the rise, s.
     pub hold_s: f64,
@@ -148,6 +149,7 @@ pub const PROTOCOL: Axes = Axes {
 };
 
 /// One grasp of a grid.
+#[derive(Clone, Debug)]
 pub struct Case {
     /// File stem, e.g. `rap000_vtx_k20_dT05_mu03_J5e-4__ideal`.
     pub id: String,
@@ -177,15 +179,14 @@ fn spec(
     mu: f64,
     inertia: f64,
     realistic: bool,
-    n: usize,
+    turn: usize,
     protocol: &Protocol,
 ) -> GraspSpec {
     GraspSpec {
         target,
         delta_ta_nm: delta,
         rise_s: protocol.rise_s,
-        // By default 5, 10, 15, 20 ms in turn.
-        detection_delay_s: protocol.delay_s.unwrap_or(0.005 * (1 + n % 4) as f64),
+        detection_delay_s: protocol.delay_s.unwrap_or(0.005 * (1 + turn % 4) as f64),
         hold_s: protocol.hold_s,
         ramp_nm_per_s: 0.5,
         finger: FingerParams {
@@ -246,9 +247,20 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
             })
         })
     });
+    let at = |axis: &[f64], v: f64| axis.iter().position(|&a| a == v).unwrap_or(0);
     for (r, k, d, mu, j, th, p) in cells {
+        // The sum of the cell's axis indices picks the default delay (see `spec`): it turns
+        // along every axis, so no axis value and no friction level keeps to some delays.
+        let turn = at(axes.radii_m, r)
+            + at(axes.k2_frac, k)
+            + at(axes.delta_ta_nm, d)
+            + at(axes.mu, mu)
+            + at(axes.inertia_kgm2, j)
+            + at(axes.theta1_c_rad, th)
+            + axes.protocols.iter().position(|&q| q == p).unwrap_or(0);
         for realistic in [false, true] {
             let n = out.len();
+            let turn = turn + usize::from(realistic);
             let obj = if r > 0.0 {
                 format!("R{:04.1}mm", r * 1e3).replace('.', "p")
             } else {
@@ -277,7 +289,7 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
                     j
                 ),
                 level,
-                spec: spec(target, d, mu, j, realistic, n, &p),
+                spec: spec(target, d, mu, j, realistic, turn, &p),
                 sensor: sensor(realistic, n),
             });
         }
@@ -288,14 +300,17 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
         .iter()
         .flat_map(|&j| axes.protocols.iter().map(move |p| (j, p)))
     {
+        let turn =
+            at(axes.inertia_kgm2, j) + axes.protocols.iter().position(|q| q == p).unwrap_or(0);
         let proto = protocol_name(p);
         for realistic in [false, true] {
             let n = out.len();
+            let turn = turn + usize::from(realistic);
             let level = if realistic { "default" } else { "ideal" };
             out.push(Case {
                 id: format!("rap{n:03}_neg_noobject_J{j:.0e}{proto}__{level}"),
                 level,
-                spec: spec(Target::None, 0.0, 0.3, j, realistic, n, p),
+                spec: spec(Target::None, 0.0, 0.3, j, realistic, turn, p),
                 sensor: sensor(realistic, n),
             });
             let n = out.len();
@@ -308,7 +323,7 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
             out.push(Case {
                 id: format!("rap{n:03}_neg_proximal_R07p5mm_k1_55mm_J{j:.0e}{proto}__{level}"),
                 level,
-                spec: spec(target, 0.5, 0.3, j, realistic, n, p),
+                spec: spec(target, 0.5, 0.3, j, realistic, turn, p),
                 sensor: sensor(realistic, n),
             });
         }
@@ -319,6 +334,32 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The samples' spread of delays reaches every friction level, drive inertia and contact µ
+    /// alike: each combination of the three holds each delay within a grasp of a quarter of it.
+    #[test]
+    fn default_delays_rotate_along_every_axis() {
+        let full = cases(&FULL);
+        let mut counts = std::collections::BTreeMap::new();
+        for c in full.iter().filter(|c| c.spec.delta_ta_nm > 0.0) {
+            let f = &c.spec.finger;
+            let key = (
+                c.level,
+                f.drive_inertia_kgm2.to_bits(),
+                f.contact_mu.to_bits(),
+            );
+            let ms = (c.spec.detection_delay_s * 1e3).round() as usize;
+            assert!([5, 10, 15, 20].contains(&ms), "{}: {ms} ms", c.id);
+            counts.entry(key).or_insert([0usize; 4])[ms / 5 - 1] += 1;
+        }
+        assert_eq!(counts.len(), 8);
+        for (key, n) in &counts {
+            let total: usize = n.iter().sum();
+            for &k in n {
+                assert!(4 * k + 4 >= total && 4 * k <= total + 4, "{key:?}: {n:?}");
+            }
+        }
+    }
 
     /// The protocol axis leaves every older grid's grasps and ids as they were (results and
     /// notes cite them), and names the others' protocol in the id and the spec.

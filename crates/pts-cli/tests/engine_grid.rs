@@ -873,8 +873,7 @@ fn engine_grid_default_method() {
         off.viscous_max_err
     );
     // The CI slice, measured (release): 16/16 distal positives answered, all within 3σ, mean
-    // 2.13 %, max 4.67 % of l2; the 14 graded good mean 1.95 %, max 4.67 % (10 before the
-    // path's hysteresis counted as dry friction, `path_hysteresis`); none answered as
+    // 1.80 %, max 5.04 % of l2; the 15 graded good mean 1.84 %, max 5.04 %; none answered as
     // proximal; 8/8 negatives right. With θ̈a from the ±3-block second difference instead of
     // the quartic the max was 8.99 % (k2,c 0.65 l2 on the heavy drive with friction). The
     // bounds below are what holds with a margin, so that a regression shows.
@@ -1109,6 +1108,9 @@ fn a_rough_contact_under_a_frictionless_heavy_drive_is_read_on_its_loading_path(
 /// ΔT_a 0.2 N·m the ring is a large part of the travel. Read as recorded these grasps (vertex
 /// and R 5 mm × k2,c 0.2–0.8 l2, µ 0) erred inward, mean 2.54 %, max 4.57 % of l2; read on
 /// the loading rows with the damping the contact path shows removed, mean 1.38 %, max 3.40 %.
+/// The step starts 5 ms after the contact here, as these figures were measured: starting
+/// 10–20 ms after it, while this drive rebounds off the object, is another matter
+/// (`a_step_during_the_light_drive_s_rebound_is_read_within_3_sigma`).
 #[test]
 fn a_light_frictionless_drive_ringing_at_a_small_step_is_read_without_its_damping() {
     let cs: Vec<Case> = cases(&FULL)
@@ -1116,6 +1118,10 @@ fn a_light_frictionless_drive_ringing_at_a_small_step_is_read_without_its_dampin
         .filter(|c| {
             (c.id.contains("_vtx_") || c.id.contains("_R05p0mm_"))
                 && c.id.ends_with("_dT02_mu00_J5e-4__ideal")
+        })
+        .map(|mut c| {
+            c.spec.detection_delay_s = 0.005;
+            c
         })
         .collect();
     assert_eq!(cs.len(), 10);
@@ -1129,6 +1135,41 @@ fn a_light_frictionless_drive_ringing_at_a_small_step_is_read_without_its_dampin
         all.mean(),
         all.max
     );
+}
+
+/// The light frictionless drive rebounds off an object touched near the tip (k2,c 0.8 l2):
+/// the contact is lost about 20 ms after the first touch and regained about 20 ms later at
+/// the same k2 but a few mrad further on. A step that starts during the rebound reads a path
+/// the quasi-static model does not hold, measured 4–7 % of l2 inward where a step 5 ms after
+/// the contact reads within 1 % (vertex and R 5 and 10 mm, ΔT_a 0.5 N·m, µ 0, no noise). Not
+/// solved: what holds is that σ says so, every answer within 3σ, and that a step before the
+/// rebound is read within 2 % of l2.
+#[test]
+fn a_step_during_the_light_drive_s_rebound_is_read_within_3_sigma() {
+    let cs: Vec<Case> = cases(&FULL)
+        .into_iter()
+        .filter(|c| {
+            (c.id.contains("_vtx_") || c.id.contains("_R05p0mm_") || c.id.contains("_R10p0mm_"))
+                && c.id.ends_with("_k80_dT05_mu00_J5e-4__ideal")
+        })
+        .flat_map(|c| {
+            [5u32, 15].map(|ms| {
+                let mut c = c.clone();
+                c.id = format!("{}_del{ms:02}", c.id);
+                c.spec.detection_delay_s = f64::from(ms) * 1e-3;
+                c
+            })
+        })
+        .collect();
+    assert_eq!(cs.len(), 6);
+    let rows = run_grid(&cs);
+    let all = print_table(&rows);
+    assert!(all.answered == all.n, "answered {}/{}", all.answered, all.n);
+    assert_within_3sigma(&all);
+    for o in rows.iter().filter(|o| o.id.ends_with("_del05")) {
+        let e = o.err_pct();
+        assert!(e.is_some_and(|e| e.abs() <= 2.0), "{}: error {e:?} %", o.id);
+    }
 }
 
 /// One engine grasp as its CSV and the engine's k2,c (m): light frictionless drive, R 20 mm,
