@@ -35,8 +35,13 @@ fn dir() -> PathBuf {
 }
 
 fn ids() -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir())
-        .expect("tests/data/traces")
+    ids_in(&dir())
+}
+
+/// The recordings in `dir` that have a truth file beside them, sorted.
+fn ids_in(dir: &std::path::Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
         .filter_map(|e| {
             let p = e.ok()?.path();
             let stem = p.file_stem()?.to_string_lossy().into_owned();
@@ -47,12 +52,9 @@ fn ids() -> Vec<String> {
     v
 }
 
-/// The traces of [`ids`] that are also among the committed samples (what [`rows`] reads).
+/// The committed samples (what [`rows`] reads), whatever `FOREIGN_TRACES_DIR` names.
 fn sample_ids() -> Vec<String> {
-    ids()
-        .into_iter()
-        .filter(|id| samples_dir().join(format!("{id}.csv")).exists())
-        .collect()
+    ids_in(&samples_dir())
 }
 
 /// The command's path on CSV text.
