@@ -1142,9 +1142,8 @@ fn a_light_frictionless_drive_ringing_at_a_small_step_is_read_without_its_dampin
 /// the same k2 but a few mrad further on. A step that starts during the rebound reads a path
 /// the quasi-static model does not hold: 15 ms after the contact, measured 6.4 % of l2 inward,
 /// where a step 5 ms after it reads within 0.3 % (vertex and R 5 and 10 mm, ΔT_a 0.5 N·m,
-/// µ 0, no noise). Not
-/// solved: what holds is that σ says so, every answer within 3σ, and that a step before the
-/// rebound is read within 2 % of l2.
+/// µ 0, no noise). Not solved: what holds is that σ says so, every answer within 3σ, and
+/// that a step before the rebound is read within 2 % of l2.
 #[test]
 fn a_step_during_the_light_drive_s_rebound_is_read_within_3_sigma() {
     let cs: Vec<Case> = cases(&FULL)
