@@ -231,6 +231,11 @@ fn protocol_name(p: &Protocol) -> String {
     )
 }
 
+/// Where `v` stands on `axis` (0 if it does not).
+fn index_in<T: PartialEq>(axis: &[T], v: &T) -> usize {
+    axis.iter().position(|a| a == v).unwrap_or(0)
+}
+
 /// Every grasp of a grid, distal positives first, then the negatives.
 pub fn cases(axes: &Axes) -> Vec<Case> {
     let mut out = Vec::new();
@@ -247,17 +252,16 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
             })
         })
     });
-    let at = |axis: &[f64], v: f64| axis.iter().position(|&a| a == v).unwrap_or(0);
     for (r, k, d, mu, j, th, p) in cells {
         // The sum of the cell's axis indices picks the default delay (see `spec`): it turns
         // along every axis, so no axis value and no friction level keeps to some delays.
-        let turn = at(axes.radii_m, r)
-            + at(axes.k2_frac, k)
-            + at(axes.delta_ta_nm, d)
-            + at(axes.mu, mu)
-            + at(axes.inertia_kgm2, j)
-            + at(axes.theta1_c_rad, th)
-            + axes.protocols.iter().position(|&q| q == p).unwrap_or(0);
+        let turn = index_in(axes.radii_m, &r)
+            + index_in(axes.k2_frac, &k)
+            + index_in(axes.delta_ta_nm, &d)
+            + index_in(axes.mu, &mu)
+            + index_in(axes.inertia_kgm2, &j)
+            + index_in(axes.theta1_c_rad, &th)
+            + index_in(axes.protocols, &p);
         for realistic in [false, true] {
             let n = out.len();
             let turn = turn + usize::from(realistic);
@@ -300,8 +304,7 @@ pub fn cases(axes: &Axes) -> Vec<Case> {
         .iter()
         .flat_map(|&j| axes.protocols.iter().map(move |p| (j, p)))
     {
-        let turn =
-            at(axes.inertia_kgm2, j) + axes.protocols.iter().position(|q| q == p).unwrap_or(0);
+        let turn = index_in(axes.inertia_kgm2, &j) + index_in(axes.protocols, p);
         let proto = protocol_name(p);
         for realistic in [false, true] {
             let n = out.len();
