@@ -1419,3 +1419,237 @@ fn median_takes_the_middle_pair_of_an_even_count() {
     assert_eq!(median(vec![3.0, 1.0, 2.0]), Some(2.0));
     assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), Some(2.5));
 }
+
+/// Why a step at the contact is refused, and what could read it. Under a step that comes with
+/// the contact the crank rings on the contact for the whole hold, and the fit's inertia
+/// correction, which must then carry the whole path, reads k2,c 5–9 % of l2 out. The ring
+/// itself needs no inertia: between two turning points of θa (θ̇a = 0) the kinetic energy is
+/// the same, so the motor's work ∫T_a dθa equals the quasi-static path's ∫T_s dθa up to what
+/// friction dissipates, which a swing down and the next swing up bear with opposite signs.
+/// Balanced that way, with the object's radius and the first contact's pose given (T_s from
+/// the plant's quasi-static solver, which shares no code with the engine), the engine's
+/// recordings read k2,c within 2 % of l2 here (light drive, k2,c 0.35 l2, µ 0.3: 11 of 12
+/// rings swing both ways) and within 3 % over all 96 of `ENGINE_GRID=protocol` (61 swing
+/// both ways in the 0.2 s hold; a heavy drive often does not). A recording does not give the
+/// radius, and read as a vertex or as R 20 mm the same rings move by up to 10 % of l2
+/// (R 50 mm at ΔT_a 0.8 N·m): the balance validates the engine's dynamics against the model
+/// without the inertia, it does not yet make an estimator.
+#[test]
+fn a_ring_after_a_step_at_the_contact_balances_on_the_quasi_static_path() {
+    let every = grid().0 == "protocol";
+    let cs: Vec<Case> = cases(&PROTOCOL)
+        .into_iter()
+        .filter(|c| {
+            c.id.contains("_rise000_del00_")
+                && !c.id.contains("_neg_")
+                && (every || (c.id.contains("_k35_") && c.id.contains("_mu03_J5e-4_")))
+        })
+        .collect();
+    assert!(every || cs.len() == 12, "{} cases", cs.len());
+    let rows: Vec<RingBalance> = std::thread::scope(|s| {
+        let hs: Vec<_> = cs
+            .chunks(cs.len().div_ceil(2))
+            .map(|chunk| s.spawn(move || chunk.iter().map(ring_balance).collect::<Vec<_>>()))
+            .collect();
+        hs.into_iter()
+            .flat_map(|h| h.join().expect("a balance thread"))
+            .collect()
+    });
+    let pct = |e: Option<f64>| e.map_or("—".into(), |e| format!("{e:+.2}"));
+    println!(
+        "| grasp | swing pairs | k2,c error % l2 | read as a vertex | read as R 20 mm |\n|---|---|---|---|---|"
+    );
+    for r in &rows {
+        println!(
+            "| {} | {} | {} | {} | {} |",
+            r.id,
+            r.pairs,
+            pct(r.error_pct),
+            pct(r.assumed_pct[0]),
+            pct(r.assumed_pct[1])
+        );
+    }
+    let read: Vec<f64> = rows.iter().filter_map(|r| r.error_pct).collect();
+    let max = read.iter().fold(0f64, |m, e| m.max(e.abs()));
+    let spread = rows
+        .iter()
+        .filter_map(|r| {
+            let v: Vec<f64> = [r.error_pct, r.assumed_pct[0], r.assumed_pct[1]]
+                .into_iter()
+                .collect::<Option<_>>()?;
+            let (lo, hi) = v
+                .iter()
+                .fold((f64::MAX, f64::MIN), |(l, h), &e| (l.min(e), h.max(e)));
+            Some(hi - lo)
+        })
+        .fold(0f64, f64::max);
+    println!(
+        "{} of {} rings with a swing down and up, max |error| {max:.2} % of l2; the radius \
+         (its own, 0 or 20 mm) moves a reading by up to {spread:.2} % of l2",
+        read.len(),
+        rows.len()
+    );
+    // A drive with friction can stop after one swing; most rings swing both ways.
+    assert!(
+        every || read.len() >= 10,
+        "{} of {} rings balanced",
+        read.len(),
+        rows.len()
+    );
+    let bound = if every { 3.0 } else { 2.0 };
+    assert!(max <= bound, "max |error| {max:.2} % of l2");
+}
+
+/// The energy balance of one step-at-the-contact ring ([`a_ring_after_a_step_at_the_contact_balances_on_the_quasi_static_path`]):
+/// (id, k2,c error in % of l2 from the mean of the swing pairs' balances, number of pairs).
+fn ring_balance(c: &Case) -> RingBalance {
+    let rec = engine::run(&c.spec).expect("the engine sets the grasp up");
+    let (t_c, k_c) = (
+        rec.truth.t_contact_s.expect("a contact"),
+        rec.truth.k_c_m.expect("a distal contact"),
+    );
+    let rows: Vec<[f64; 3]> = engine::to_csv(&rec, &c.sensor)
+        .lines()
+        .filter_map(|l| {
+            let v: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
+            (v.len() == 3).then(|| [v[0], v[1], v[2]])
+        })
+        .filter(|r| r[0] > t_c + 0.005)
+        .collect();
+    // θa smoothed over 5 rows (the realistic sensor's counts and noise), then its turning
+    // points: local extrema at least 15 ms and 2 mrad from the last.
+    let th: Vec<f64> = (0..rows.len())
+        .map(|i| {
+            let w = &rows[i.saturating_sub(2)..(i + 3).min(rows.len())];
+            w.iter().map(|r| r[1]).sum::<f64>() / w.len() as f64
+        })
+        .collect();
+    let mut turns: Vec<usize> = Vec::new();
+    for i in 1..th.len().saturating_sub(3) {
+        let (a, b, n) = (th[i - 1], th[i], th[i + 1]);
+        let extremum = (b >= a && b > n) || (b <= a && b < n);
+        let far = turns
+            .last()
+            .is_none_or(|&j| i - j >= 15 && (b - th[j]).abs() >= 2e-3);
+        if i >= 2 && extremum && far {
+            turns.push(i);
+        }
+    }
+    let engine::Target::Object { radius_m, .. } = c.spec.target else {
+        panic!("{}: no object", c.id);
+    };
+    // Each half-swing's balance as a function of k2,c: (∫T_s dθa − ∫T_a dθa)/Δθa (N·m),
+    // positive on a swing down and negative on a swing up by the dissipation.
+    let half_swings: Vec<(f64, f64, f64)> = turns
+        .windows(2)
+        .map(|w| {
+            let work: f64 = (w[0]..w[1])
+                .map(|i| 0.5 * (rows[i][2] + rows[i + 1][2]) * (rows[i + 1][1] - rows[i][1]))
+                .sum();
+            (th[w[0]], th[w[1]], work)
+        })
+        .collect();
+    // k2,c's error (% of l2) from the mean of the swing pairs' balances, for an object of
+    // radius `radius` (m), and the number of pairs.
+    let read = |radius: f64| {
+        let balance = |k2: f64, (a, b, work): (f64, f64, f64)| -> Option<f64> {
+            let path = quasi_static_curve(k2, radius)?;
+            Some((integral(&path, a, b)? - work) / (b - a))
+        };
+        let pairs: Vec<f64> = half_swings
+            .windows(2)
+            .filter_map(|p| {
+                let g = |k2: f64| Some(balance(k2, p[0])? + balance(k2, p[1])?);
+                root(g, 0.05 * L2, 0.95 * L2)
+            })
+            .collect();
+        let e = (!pairs.is_empty())
+            .then(|| (pairs.iter().sum::<f64>() / pairs.len() as f64 - k_c) / L2 * 100.0);
+        (e, pairs.len())
+    };
+    let (error_pct, pairs) = read(radius_m);
+    RingBalance {
+        id: c.id.clone(),
+        error_pct,
+        pairs,
+        assumed_pct: ASSUMED_RADII_M.map(|r| read(r).0),
+    }
+}
+
+/// Object radii (m) the ring balance is also read with, as a recording that does not give the
+/// radius would have to: the vertex and 20 mm.
+const ASSUMED_RADII_M: [f64; 2] = [0.0, 0.02];
+
+/// What [`ring_balance`] read on one ring.
+struct RingBalance {
+    id: String,
+    /// k2,c's error (% of l2) with the object's own radius; `None` without a swing pair.
+    error_pct: Option<f64>,
+    /// Swing pairs (a swing down and the next up, or the reverse) balanced.
+    pairs: usize,
+    /// k2,c's error (% of l2) with each of [`ASSUMED_RADII_M`] instead.
+    assumed_pct: [Option<f64>; 2],
+}
+
+/// The plant's frictionless quasi-static path from the grid's contact pose (θ1,c) for a contact
+/// at k2,c on an object of radius `radius` (m): (θa, T_a) every march step, as far as the
+/// path goes (up to 2.5 N·m above the contact's torque).
+fn quasi_static_curve(k2: f64, radius: f64) -> Option<Vec<(f64, f64)>> {
+    let spec = plant::ContactSpec {
+        theta1_c_rad: THETA1_C_RAD,
+        phalanx: plant::Phalanx::Distal,
+        k_c_m: k2,
+        radius_m: radius,
+    };
+    let mut pts = Vec::new();
+    let _ = plant::quasi_static_path_with(&plant::FingerGeom::PAPER, &spec, 2.5, &mut |s| {
+        pts.push((s.pose.theta_a_rad, s.pose.torque_nm))
+    });
+    (pts.len() >= 2).then_some(pts)
+}
+
+/// ∫ T dθa over [a, b] (either order) on a path sampled in increasing θa, by the trapezoid
+/// rule on its linear interpolation; `None` where [a, b] leaves the path.
+fn integral(path: &[(f64, f64)], a: f64, b: f64) -> Option<f64> {
+    let (lo, hi) = (a.min(b), a.max(b));
+    if lo < path.first()?.0 || hi > path.last()?.0 {
+        return None;
+    }
+    let at = |x: f64| {
+        let i = path.partition_point(|p| p.0 <= x).clamp(1, path.len() - 1);
+        let (p, q) = (path[i - 1], path[i]);
+        p.1 + (q.1 - p.1) * (x - p.0) / (q.0 - p.0)
+    };
+    let n = 200;
+    let h = (hi - lo) / n as f64;
+    let s: f64 = (0..=n)
+        .map(|i| {
+            let w = if i == 0 || i == n { 0.5 } else { 1.0 };
+            w * at(lo + h * i as f64)
+        })
+        .sum();
+    Some(s * h * (b - a).signum())
+}
+
+/// The first root of `g` in [lo, hi]: a scan over 36 steps (`g` may be undefined near either
+/// end, where the path leaves the phalanx) for a change of sign, then bisection.
+fn root(g: impl Fn(f64) -> Option<f64>, lo: f64, hi: f64) -> Option<f64> {
+    let n = 36;
+    let xs: Vec<(f64, f64)> = (0..=n)
+        .filter_map(|i| {
+            let x = lo + (hi - lo) * f64::from(i) / f64::from(n);
+            g(x).map(|v| (x, v))
+        })
+        .collect();
+    let w = xs.windows(2).find(|w| w[0].1.signum() != w[1].1.signum())?;
+    let ((mut a, mut ga), (mut b, _)) = (w[0], w[1]);
+    for _ in 0..30 {
+        let m = 0.5 * (a + b);
+        match g(m) {
+            Some(gm) if gm.signum() == ga.signum() => (a, ga) = (m, gm),
+            Some(_) => b = m,
+            None => return None,
+        }
+    }
+    Some(0.5 * (a + b))
+}
