@@ -1508,12 +1508,11 @@ fn ring_balance(c: &Case) -> RingBalance {
         rec.truth.t_contact_s.expect("a contact"),
         rec.truth.k_c_m.expect("a distal contact"),
     );
-    let rows: Vec<[f64; 3]> = engine::to_csv(&rec, &c.sensor)
-        .lines()
-        .filter_map(|l| {
-            let v: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
-            (v.len() == 3).then(|| [v[0], v[1], v[2]])
-        })
+    // Read as `pts estimate` reads it (the recording has a torque column, no current).
+    let trace = pts_cli::trace::read_csv(&engine::to_csv(&rec, &c.sensor), &|i| i)
+        .expect("the engine's recording reads");
+    let rows: Vec<[f64; 3]> = (0..trace.t_s.len())
+        .map(|i| [trace.t_s[i], trace.theta_a_rad[i], trace.torque_nm[i]])
         .filter(|r| r[0] > t_c + 0.005)
         .collect();
     // θa smoothed over 5 rows (the realistic sensor's counts and noise), then its turning
@@ -1552,14 +1551,16 @@ fn ring_balance(c: &Case) -> RingBalance {
     // k2,c's error (% of l2) from the mean of the swing pairs' balances, for an object of
     // radius `radius` (m), and the number of pairs.
     let read = |radius: f64| {
-        let balance = |k2: f64, (a, b, work): (f64, f64, f64)| -> Option<f64> {
-            let path = quasi_static_curve(k2, radius)?;
-            Some((integral(&path, a, b)? - work) / (b - a))
+        let balance = |path: &[(f64, f64)], (a, b, work): (f64, f64, f64)| -> Option<f64> {
+            Some((integral(path, a, b)? - work) / (b - a))
         };
         let pairs: Vec<f64> = half_swings
             .windows(2)
             .filter_map(|p| {
-                let g = |k2: f64| Some(balance(k2, p[0])? + balance(k2, p[1])?);
+                let g = |k2: f64| {
+                    let path = quasi_static_curve(k2, radius)?;
+                    Some(balance(&path, p[0])? + balance(&path, p[1])?)
+                };
                 root(g, 0.05 * L2, 0.95 * L2)
             })
             .collect();
