@@ -687,6 +687,25 @@ fn segment_stretch(
     // zeroed at rest moves k2 by a fifth of l2 on the paper's finger): refused first.
     let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
     crate::offline::check_rest_frame(&m64, &rows).map_err(segmenting_error)?;
+    // A torque in another unit or sign finds no contact (no free motion to arm on, or none
+    // that rises): the recording is then refused by what its approach shows instead. A
+    // recording that is answered is never judged by this.
+    let frame = crate::offline::check_torque_frame(&m64, &rows);
+    let read = segment_in_frame(&rows, finger, method);
+    match (frame, read) {
+        (Err(e), Err(_)) => Err(segmenting_error(e)),
+        (Err(e), Ok(s)) if s.contacts.is_empty() => Err(segmenting_error(e)),
+        (_, read) => read,
+    }
+}
+
+/// [`segment_stretch`] on rows in the finger's angle frame.
+fn segment_in_frame(
+    rows: &[crate::offline::TraceSample],
+    finger: &FingerFile,
+    method: crate::method::Method,
+) -> Result<Segmented, String> {
+    let rows = rows.to_vec();
     // The recording's encoder step: its smallest θa change between rows (of the rows as
     // recorded: interpolated ones below step by fractions of it).
     let quantum_rad = smallest_step(&rows);

@@ -349,6 +349,31 @@ fn a_foreign_recording_reports_which_samples_the_fit_read() {
     }
 }
 
+/// The recording `src` with every row's θa and torque mapped by `th` and `tq`, written to
+/// `name` in the test's directory.
+fn rewritten(
+    src: &std::path::Path,
+    name: &str,
+    th: impl Fn(f64) -> f64,
+    tq: impl Fn(f64) -> f64,
+) -> PathBuf {
+    let text = std::fs::read_to_string(src).unwrap();
+    let mut out = String::new();
+    for (i, l) in text.lines().enumerate() {
+        let c: Vec<&str> = l.split(',').collect();
+        if i == 0 || c.len() < 3 {
+            out += l;
+        } else {
+            let (a, t): (f64, f64) = (c[1].parse().unwrap(), c[2].parse().unwrap());
+            out += &format!("{},{:.10},{:.10}", c[0], th(a), tq(t));
+        }
+        out.push('\n');
+    }
+    let path = dir().join(name);
+    std::fs::write(&path, out).unwrap();
+    path
+}
+
 /// A recording whose θa is not the finger's model angle (here an encoder zeroed at rest)
 /// is refused, naming the rest it read, the file's, and the offset that brings one onto
 /// the other; with that `--theta-a-offset` it reads as the recording in the model's angle.
@@ -357,21 +382,8 @@ fn a_foreign_recording_reports_which_samples_the_fit_read() {
 fn a_recording_in_another_angle_frame_is_refused_and_the_offset_reads_it() {
     let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
     let path = samples.join("qs02_vtx_k58_dT06__default.csv");
-    let text = std::fs::read_to_string(&path).unwrap();
     let rest = -0.850_360_810_6;
-    let mut zeroed = String::new();
-    for (i, l) in text.lines().enumerate() {
-        let c: Vec<&str> = l.split(',').collect();
-        if i == 0 || c.len() < 3 {
-            zeroed += l;
-        } else {
-            let th: f64 = c[1].parse().unwrap();
-            zeroed += &format!("{},{:.10},{}", c[0], th - rest, c[2]);
-        }
-        zeroed.push('\n');
-    }
-    let zpath = dir().join("zeroed_at_rest.csv");
-    std::fs::write(&zpath, zeroed).unwrap();
+    let zpath = rewritten(&path, "zeroed_at_rest.csv", |th| th - rest, |t| t);
     let o = estimate(&zpath, &[]);
     assert!(!o.status.success(), "a zeroed encoder must not be answered");
     let err = String::from_utf8_lossy(&o.stderr);
@@ -405,6 +417,53 @@ fn a_recording_in_another_angle_frame_is_refused_and_the_offset_reads_it() {
     let o = estimate(sim_csv, &["--theta-a-offset", "0.1"]);
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("pts sim"));
+}
+
+/// A recording whose torque is not T_a in N·m at the crank finds no contact; it is refused
+/// as `torque_frame`, naming the torque it read over the start of the approach, the finger's
+/// free-motion torque there and what to change: negated, in mN·m, or the motor shaft's
+/// (÷ the prototype's gear ratio and efficiency, 3072 · 0.6175). θa in degrees is named as
+/// such in the angle frame's refusal. The recording as it is reads on (the other tests).
+#[test]
+fn a_recording_in_another_torque_unit_or_sign_is_refused_saying_which() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    let src = samples.join("qs02_vtx_k58_dT06__default.csv");
+    let shaft = 1.0 / (3072.0 * 0.6175);
+    for (name, scale, needles) in [
+        (
+            "negated_torque.csv",
+            -1.0,
+            &["torque_frame", "negate every row's torque"][..],
+        ),
+        (
+            "torque_in_mnm.csv",
+            1000.0,
+            &["torque_frame", "not in N·m", "mN·m"][..],
+        ),
+        (
+            "motor_shaft_torque.csv",
+            shaft,
+            &["torque_frame", "not the torque at the crank"][..],
+        ),
+    ] {
+        let path = rewritten(&src, name, |a| a, |t| scale * t);
+        let o = estimate(&path, &[]);
+        assert!(!o.status.success(), "{name} must not be answered");
+        let err = String::from_utf8_lossy(&o.stderr);
+        for needle in needles {
+            assert!(err.contains(needle), "{name}: {needle} not in: {err}");
+        }
+        // Both torques named, in N·m.
+        assert!(err.matches(" N·m").count() >= 2, "{name}: {err}");
+    }
+    let path = rewritten(&src, "degrees.csv", f64::to_degrees, |t| t);
+    let o = estimate(&path, &[]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("angle_frame") && err.contains("θa is in degrees"),
+        "{err}"
+    );
 }
 
 /// On a frictionless drive ringing on its contact, the inertia the fit removes is read on the

@@ -245,6 +245,14 @@ pub enum OfflineError {
         /// θa of the finger's free pose at zero torque, its rest (µrad).
         model_urad: i32,
     },
+    /// The torque over the start of the approach is not this finger's free-motion torque in
+    /// N·m at the crank ([`check_torque_frame`]): negated, in mN·m, or the motor shaft's.
+    TorqueFrame {
+        /// Median recorded T_a over those rows (µN·m).
+        recorded_unm: i64,
+        /// Median free-motion torque the finger needs at their θa (µN·m).
+        model_unm: i64,
+    },
     /// The model failed.
     Model(PtsError),
 }
@@ -272,6 +280,7 @@ impl OfflineError {
             OfflineError::Outlier { .. } => "outlier_sample",
             OfflineError::SampleRateTooLow { .. } => "sample_rate_too_low",
             OfflineError::AngleFrame { .. } => "angle_frame",
+            OfflineError::TorqueFrame { .. } => "torque_frame",
             OfflineError::Model(e) => e.kind(),
         }
     }
@@ -300,11 +309,18 @@ impl core::fmt::Display for OfflineError {
                 f,
                 "θa of row {row} lies more than {OUTLIER_RAD} rad off both its neighbours (a corrupted row)"
             ),
-            OfflineError::SampleRateTooLow { rate_hz } => write!(
-                f,
-                "recorded at {rate_hz} rows per second (of the median row spacing), below the \
-                 {MIN_RATE_HZ} the contact detection needs"
-            ),
+            OfflineError::SampleRateTooLow { rate_hz } => {
+                write!(
+                    f,
+                    "recorded at {rate_hz} rows per second (of the median row spacing), below \
+                     the {MIN_RATE_HZ} the contact detection needs"
+                )?;
+                // A row every millisecond written in milliseconds reads as 1 Hz.
+                if *rate_hz <= 4 {
+                    f.write_str("; t_s is in seconds: a time column in milliseconds reads so")?;
+                }
+                Ok(())
+            }
             OfflineError::AngleFrame {
                 rest_urad,
                 model_urad,
@@ -329,7 +345,40 @@ impl core::fmt::Display for OfflineError {
                          other way, negate θa (and T_a) rather than offset it",
                     )?;
                 }
+                if (rest.to_radians() - model).abs() <= REST_FRAME_TOL_RAD {
+                    write!(
+                        f,
+                        "; read as degrees it is {:.4} rad, near the rest: θa is in degrees, \
+                         and every row's must be converted to radians",
+                        rest.to_radians()
+                    )?;
+                }
                 Ok(())
+            }
+            OfflineError::TorqueFrame {
+                recorded_unm,
+                model_unm,
+            } => {
+                let (rec, need) = (*recorded_unm as f64 * 1e-6, *model_unm as f64 * 1e-6);
+                write!(
+                    f,
+                    "over the first {TORQUE_FRAME_SPAN_RAD} rad the crank closes, T_a is a median \
+                     {rec:.4} N·m where this finger's free motion needs {need:.4} N·m there \
+                     ({:.3}×; a recording's approach reads {TORQUE_FRAME_MIN_RATIO}× to \
+                     {TORQUE_FRAME_MAX_RATIO}× it, friction and acceleration included): ",
+                    rec / need
+                )?;
+                f.write_str(if rec < 0.0 {
+                    "T_a is negated (a sensor or a sign convention the other way): negate every \
+                     row's torque"
+                } else if rec > need {
+                    "T_a is not in N·m (mN·m, or a current in mA, reads 1000×), or the file is \
+                     another finger's"
+                } else {
+                    "T_a is not the torque at the crank (the motor shaft's reads the gearhead's \
+                     ratio smaller: T_a is the motor torque referred to the base link), or the \
+                     file is another finger's"
+                })
             }
             OfflineError::Model(e) => write!(f, "the model: {e}"),
         }
@@ -417,6 +466,70 @@ pub fn check_rest_frame(
     })
 }
 
+/// How far (rad) past the first moving row's θa [`check_torque_frame`] reads the approach:
+/// the start of any grasp's free motion (the paper's finger closes 0.63 rad before a Table 2
+/// contact).
+pub const TORQUE_FRAME_SPAN_RAD: f64 = 0.1;
+/// Least rows [`check_torque_frame`] reads.
+pub const TORQUE_FRAME_MIN_ROWS: usize = 20;
+/// Least ratio of the recorded to the free-motion torque over the start of an approach in
+/// [`check_torque_frame`]: a drive cannot close the finger with less than its springs hold.
+/// The motor shaft's torque is the crank's over the gearhead's ratio and efficiency (tens).
+pub const TORQUE_FRAME_MIN_RATIO: f64 = 0.2;
+/// Largest such ratio: a drive's friction and the torque that accelerates it add several times
+/// the springs' torque at the start of an approach (up to 15× on a 0.1 kg·m² drive's 0.2 s
+/// ramp); mN·m read 1000×.
+pub const TORQUE_FRAME_MAX_RATIO: f64 = 100.0;
+
+/// The recording's torque frame against the finger's: over the rows from where the crank first
+/// moves to [`TORQUE_FRAME_SPAN_RAD`] further (free motion in any grasp), the median recorded
+/// T_a must lie within [`TORQUE_FRAME_MIN_RATIO`]…[`TORQUE_FRAME_MAX_RATIO`] of the median
+/// free-motion torque at their θa. `Ok(None)` where there is nothing to compare (fewer than
+/// [`TORQUE_FRAME_MIN_ROWS`] such rows, or no free pose at their θa); `Ok(Some((recorded,
+/// model)))` (N·m) when it passed. A sensor's offset moves the ratio too, so `pts estimate`
+/// refuses by it only a recording in which no contact was found: it names why.
+pub fn check_torque_frame(
+    model: &pts::Model<f64>,
+    rows: &[TraceSample],
+) -> Result<Option<(f64, f64)>, OfflineError> {
+    let Some(m) = first_moving_row(rows) else {
+        return Ok(None);
+    };
+    let th0 = rows[m].theta_a_rad;
+    let mut rec = std::vec::Vec::new();
+    let mut need = std::vec::Vec::new();
+    for r in rows[m..]
+        .iter()
+        .take_while(|r| r.theta_a_rad - th0 <= TORQUE_FRAME_SPAN_RAD)
+    {
+        if let Ok(c) = model.free_from_theta_a(r.theta_a_rad) {
+            rec.push(r.torque_nm);
+            need.push(c.ta);
+        }
+    }
+    if rec.len() < TORQUE_FRAME_MIN_ROWS {
+        return Ok(None);
+    }
+    let median = |mut v: std::vec::Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (rec, need) = (median(rec), median(need));
+    // A finger whose springs hold nothing there gives no scale to compare with.
+    if !(need > 1e-3) {
+        return Ok(None);
+    }
+    let ratio = rec / need;
+    if (TORQUE_FRAME_MIN_RATIO..=TORQUE_FRAME_MAX_RATIO).contains(&ratio) {
+        return Ok(Some((rec, need)));
+    }
+    let unm = |x: f64| (x * 1e6).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
+    Err(OfflineError::TorqueFrame {
+        recorded_unm: unm(rec),
+        model_unm: unm(need),
+    })
+}
+
 impl From<PtsError> for OfflineError {
     fn from(e: PtsError) -> Self {
         OfflineError::Model(e)
@@ -487,17 +600,52 @@ mod tests {
                 },
                 "negate θa",
             ),
+            (
+                OfflineError::AngleFrame {
+                    rest_urad: -48_722_100,
+                    model_urad: -850_361,
+                },
+                "θa is in degrees",
+            ),
+            (
+                OfflineError::SampleRateTooLow { rate_hz: 1 },
+                "milliseconds",
+            ),
+            (
+                OfflineError::TorqueFrame {
+                    recorded_unm: -150_000,
+                    model_unm: 100_000,
+                },
+                "negate every row's torque",
+            ),
+            (
+                OfflineError::TorqueFrame {
+                    recorded_unm: 150_000_000,
+                    model_unm: 100_000,
+                },
+                "not in N·m",
+            ),
+            (
+                OfflineError::TorqueFrame {
+                    recorded_unm: 80,
+                    model_unm: 100_000,
+                },
+                "not the torque at the crank",
+            ),
         ] {
             let text = e.to_string();
             assert!(text.contains(needle), "{e:?}: {text}");
             assert!(!text.contains('{'), "{e:?}: {text}");
         }
-        // Zeroed at rest is an offset, not a negation.
+        // Zeroed at rest is an offset, not a negation nor degrees; 100 Hz is no time unit.
         let zeroed = OfflineError::AngleFrame {
             rest_urad: 0,
             model_urad: -850_361,
         };
         assert!(!zeroed.to_string().contains("negate"), "{zeroed}");
+        assert!(!zeroed.to_string().contains("degrees"), "{zeroed}");
+        let slow = OfflineError::SampleRateTooLow { rate_hz: 100 };
+        assert!(!slow.to_string().contains("milliseconds"), "{slow}");
     }
 
     /// Block means within [`SAME_ANGLE_RAD`] are the same angle: the means of one encoder
@@ -574,5 +722,76 @@ mod tests {
         let brief: std::vec::Vec<TraceSample> = rest_then_moving(0.0, 0.0)[85..].to_vec();
         assert_eq!(check_rest_frame(&m, &brief), Ok(None));
         assert_eq!(check_rest_frame(&m, &[]), Ok(None));
+    }
+
+    /// An approach from rest at 0.5 rad/s whose torque is `scale` × (the finger's free-motion
+    /// torque at each row's θa + 0.02 N·m of friction).
+    fn approach_at(scale: f64) -> std::vec::Vec<TraceSample> {
+        let m = pts::Model::<f64>::paper().unwrap();
+        let rest = m.free_from_torque(0.0).unwrap().theta_a;
+        (0..500)
+            .map(|i| {
+                let t = i as f64 * 1e-3;
+                let th = rest + 0.5 * (t - 0.1).max(0.0);
+                let free = m.free_from_theta_a(th).unwrap().ta;
+                TraceSample {
+                    t_s: t,
+                    theta_a_rad: th,
+                    torque_nm: scale * (free + 0.02),
+                }
+            })
+            .collect()
+    }
+
+    /// The torque a recording closes the finger with is held to the finger's free motion
+    /// (its springs' torque, computed here from the model the check uses, plus a drive's
+    /// friction): in N·m at the crank it is read; negated, in mN·m or at the motor shaft
+    /// (÷ the prototype's 3072 · 0.6175) it is refused with both torques and what to change;
+    /// with fewer than 20 rows over the first 0.1 rad of closing nothing is judged.
+    #[test]
+    fn the_torque_a_recording_closes_with_is_held_to_the_finger_s() {
+        let m = pts::Model::<f64>::paper().unwrap();
+        let (rec, need) = check_torque_frame(&m, &approach_at(1.0)).unwrap().unwrap();
+        assert!(rec > need && rec < need + 0.03, "{rec} vs {need}");
+        // The springs' torque rises from zero at rest: 0.028 N·m halfway through the span.
+        assert!(need > 0.01 && need < 0.06, "{need}");
+        for (scale, needle) in [
+            (-1.0, "negate every row's torque"),
+            (1000.0, "not in N·m"),
+            (1.0 / (3072.0 * 0.6175), "not the torque at the crank"),
+        ] {
+            let e = check_torque_frame(&m, &approach_at(scale)).unwrap_err();
+            assert_eq!(e.kind(), "torque_frame");
+            let OfflineError::TorqueFrame {
+                recorded_unm,
+                model_unm,
+            } = e
+            else {
+                panic!("{e:?}");
+            };
+            assert!(
+                (recorded_unm as f64 * 1e-6 - scale * rec).abs() <= 1e-6 * scale.abs().max(1.0),
+                "{scale}: {recorded_unm}"
+            );
+            assert_eq!(model_unm, (need * 1e6).round() as i64);
+            assert!(e.to_string().contains(needle), "{scale}: {e}");
+        }
+        // At the bounds of the ratio: 0.2× and 100× read, just outside them refused.
+        for (scale, ok) in [(0.21, true), (0.19, false), (99.0, true), (101.0, false)] {
+            let rows: std::vec::Vec<TraceSample> = approach_at(1.0)
+                .into_iter()
+                .map(|r| TraceSample {
+                    torque_nm: scale * need,
+                    ..r
+                })
+                .collect();
+            assert_eq!(check_torque_frame(&m, &rows).is_ok(), ok, "{scale}");
+        }
+        // Still throughout, or 19 rows of closing: nothing to judge.
+        let still: std::vec::Vec<TraceSample> = approach_at(1.0)[..100].to_vec();
+        assert_eq!(check_torque_frame(&m, &still), Ok(None));
+        let brief: std::vec::Vec<TraceSample> = approach_at(-1.0)[..121].to_vec();
+        assert_eq!(check_torque_frame(&m, &brief), Ok(None));
+        assert_eq!(check_torque_frame(&m, &[]), Ok(None));
     }
 }
