@@ -1371,8 +1371,29 @@ pub fn run(a: &Args) -> Result<(), String> {
         tip.as_ref().map(|(r, p)| (r.as_slice(), *p)),
         &nominal,
     )
-    .map_err(|e| format!("{}: {e}", a.trace.display()))?;
+    .map_err(|e| match torque_frame_error(&sweep, &nominal) {
+        Some(frame) => format!("{}: {frame} (the identification: {e})", a.trace.display()),
+        None => format!("{}: {e}", a.trace.display()),
+    })?;
     report(&cal, &a.trace, a.out.as_deref(), a.json)
+}
+
+/// Why a sweep that could not be identified may be in another torque unit or sign: its
+/// closing against the nominal finger's free motion ([`crate::offline::check_torque_frame`]),
+/// as `torque_frame (…)`. Asked only of a sweep that failed: a finger far off its nominal
+/// file moves the ratio too.
+fn torque_frame_error(sweep: &[TraceRow], nominal: &FingerFile) -> Option<String> {
+    let m = pts::Model::<f64>::new(&nominal.finger).ok()?;
+    let rows: Vec<crate::offline::TraceSample> = sweep
+        .iter()
+        .map(|r| crate::offline::TraceSample {
+            t_s: r.t_s,
+            theta_a_rad: r.theta_a_rad,
+            torque_nm: r.torque_nm,
+        })
+        .collect();
+    let e = crate::offline::check_torque_frame(&m, &rows).err()?;
+    Some(format!("{} ({e})", e.kind()))
 }
 
 /// Prints an identification (each parameter with its σ, the residual, what the recordings

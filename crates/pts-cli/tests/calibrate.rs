@@ -743,6 +743,37 @@ fn the_command_records_identifies_and_writes_a_finger_file() {
         assert!((a / b - 1.0).abs() < 0.05, "{a} vs {b}");
     }
     assert!((cal.finger.theta01 - truth.finger.theta01).abs() < 0.01);
+    // The free sweep with its torque negated or in mN·m is refused as such, not as the
+    // noise or the touched object its identification then sees.
+    let text = std::fs::read_to_string(path("free.csv")).unwrap();
+    for (name, scale, needle) in [
+        ("negated.csv", -1.0, "negate every row's torque"),
+        ("mnm.csv", 1000.0, "not in N·m"),
+    ] {
+        let mut out = String::new();
+        for l in text.lines() {
+            let mut c: Vec<String> = l.split(',').map(str::to_owned).collect();
+            if let Some(t) = c.get_mut(2).filter(|_| !l.starts_with(['#', 't'])) {
+                *t = format!("{:.10}", scale * t.parse::<f64>().unwrap());
+            }
+            out += &c.join(",");
+            out.push('\n');
+        }
+        std::fs::write(path(name), out).unwrap();
+        let e = calibrate_cmd(&Args {
+            simulate: false,
+            trace: path(name),
+            touch: None,
+            tip_touch: None,
+            out: None,
+            ..args.clone()
+        })
+        .unwrap_err();
+        assert!(
+            e.contains("torque_frame") && e.contains(needle),
+            "{name}: {e}"
+        );
+    }
     // A bad value is an error naming it, not a panic.
     let e = calibrate_cmd(&Args {
         safe_torque_nm: f64::NAN,
