@@ -61,16 +61,17 @@ pub fn identify_drive<R: pts::Real>(
     prior: &DrivePrior,
 ) -> Option<DriveId> {
     let t_free = |th: f64| free_torque(model, th);
-    let pts = approach_residuals(model, blocks, lo, hi, quantum_rad)?;
+    let step = quantum_rad.max(recording_quantum_rad);
+    let span = identification_span(blocks, lo, hi, quantum_rad, step);
+    let pts = approach_residuals(model, blocks, lo, hi, quantum_rad, span)?;
     let (amin, amax) = pts
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), p| {
             (l.min(p.2), h.max(p.2))
         });
-    let fit = huber_fit(&pts, prior)?;
+    let fit = per_block(huber_fit(&pts, prior)?, span);
     let jack = jackknife_var(&pts, prior);
     let sigma = |i: usize| <f64 as pts::Real>::sqrt(fit.var[i].max(jack[i]).max(0.0));
-    let step = quantum_rad.max(recording_quantum_rad);
     let stiction_excess_nm = breakaway(blocks, lo, hi, step, &t_free, &fit).map(|b| {
         let excess = b.residual_nm - fit.x[0];
         (
@@ -103,7 +104,8 @@ pub fn identify_drive_dynamics<R: pts::Real>(
     quantum_rad: f64,
     prior: &DrivePrior,
 ) -> Option<(f64, f64)> {
-    let pts = approach_residuals(model, blocks, lo, hi, quantum_rad)?;
+    let span = identification_span(blocks, lo, hi, quantum_rad, quantum_rad);
+    let pts = approach_residuals(model, blocks, lo, hi, quantum_rad, span)?;
     let fit = huber_fit(&pts, prior)?;
     Some((fit.x[2], fit.x[1]))
 }
@@ -116,32 +118,142 @@ fn free_torque<R: pts::Real>(model: &Model<R>, theta_a_rad: f64) -> Option<f64> 
         .map(|c| c.ta.to_f64())
 }
 
+/// A fit to residuals averaged under the triangle of ±`span` blocks ([`triangle_mean`]) with
+/// its residual scale and variances as for independent blocks. The triangle passes a slow
+/// signal whole and a block's noise shrunk to √Σw² of it, and neighbouring rows share most
+/// of their blocks: least squares would read the shrunk scale as the noise of independent
+/// rows, a variance Σw² = (2 span² + 1)/(3 span³) of the true one (a sixth at ±4 blocks).
+fn per_block(mut fit: HuberFit, span: usize) -> HuberFit {
+    if span <= KIN_SPAN {
+        return fit;
+    }
+    let s = span as f64;
+    let sum_w2 = (2.0 * s * s + 1.0) / (3.0 * s * s * s);
+    for v in fit.var.iter_mut() {
+        *v /= sum_w2;
+    }
+    fit.scale /= sum_w2.sqrt();
+    fit
+}
+
 /// (residual T_a − T_free, ω, α) of each usable approach block in `lo..hi`, at most the 1024
-/// latest; `None` with fewer than 8.
+/// latest: ω and α across ±`span` blocks, the residual averaged under the triangle α is
+/// ([`triangle_mean`]); `None` with fewer than 8.
 fn approach_residuals<R: pts::Real>(
     model: &Model<R>,
     blocks: &[Block],
     lo: usize,
     hi: usize,
     quantum_rad: f64,
+    span: usize,
 ) -> Option<Vec<(f64, f64, f64), 1024>> {
     let mut pts: Vec<(f64, f64, f64), 1024> = Vec::new();
-    let lo = lo.max(KIN_SPAN);
-    let hi = hi.min(blocks.len().saturating_sub(KIN_SPAN));
+    let lo = lo.max(span);
+    let hi = hi.min(blocks.len().saturating_sub(span));
     let start = hi.saturating_sub(1024).max(lo);
+    let resid: std::vec::Vec<f64> = blocks
+        .iter()
+        .map(|b| free_torque(model, b.theta_a_rad).map_or(f64::NAN, |tf| b.torque_nm - tf))
+        .collect();
     for k in start..hi {
-        let Some(m) = kinematics(blocks, k, quantum_rad) else {
+        let Some((w, acc)) = moving_speed_accel(blocks, k, span, quantum_rad) else {
             continue;
         };
-        let Some(tf) = free_torque(model, m.theta_a_rad) else {
-            continue;
+        // Over a widened span, seen through the second difference's triangle like θ̈a: a
+        // torque that follows the acceleration within the window then balances it term for
+        // term. Across ±KIN_SPAN the block's own, as the drives it suffices for were read.
+        let r = if span > KIN_SPAN {
+            triangle_mean(&resid, k, span)
+        } else {
+            resid.get(k).copied().unwrap_or(f64::NAN)
         };
-        let r = m.torque_nm - tf;
         if r.is_finite() {
-            let _ = pts.push((r, m.speed_rad_s, m.accel_rad_s2));
+            let _ = pts.push((r, w, acc));
         }
     }
     (pts.len() >= 8).then_some(pts)
+}
+
+/// `v` around index `k` under the triangle the second difference across ±`span` blocks
+/// averages θ̈a with: weights (span − |j|)/span² for j = −(span − 1) … span − 1. NaN where
+/// the triangle leaves `v` or meets a NaN.
+fn triangle_mean(v: &[f64], k: usize, span: usize) -> f64 {
+    let s = span as f64;
+    let Some(first) = (k + 1).checked_sub(span) else {
+        return f64::NAN;
+    };
+    (first..k + span).fold(0.0, |acc, i| {
+        let w = (s - (i as f64 - k as f64).abs()) / (s * s);
+        acc + w * v.get(i).copied().unwrap_or(f64::NAN)
+    })
+}
+
+/// Block `k`'s crank speed (rad/s) and acceleration (rad/s²) across ±`span` blocks; `None` at
+/// the ends and where the crank stood still across the span (less than half of
+/// `quantum_rad`: a stuck transmission's torque is anywhere in its stiction band).
+fn moving_speed_accel(
+    blocks: &[Block],
+    k: usize,
+    span: usize,
+    quantum_rad: f64,
+) -> Option<(f64, f64)> {
+    let a = blocks.get(k.checked_sub(span)?)?;
+    let c = blocks.get(k + span)?;
+    if (c.theta_a_rad - a.theta_a_rad).abs() <= 0.5 * quantum_rad.max(1e-9) {
+        return None;
+    }
+    speed_accel(blocks, k, span)
+}
+
+/// The spans (blocks each side) [`identification_span`] tries, in order.
+const ID_SPANS: [usize; 6] = [KIN_SPAN, 6, 8, 12, 16, 24];
+
+/// The largest share of the approach's θ̈a variance that the encoder's quantisation may make
+/// up at the span the drive is identified with: least squares shrinks the inertia by that
+/// share (noise in a regressor).
+const ID_QUANT_SHARE: f64 = 0.01;
+
+/// The span of the second difference the drive is identified with on the approach blocks
+/// `lo..hi`: [`KIN_SPAN`], widened ([`ID_SPANS`]) while the variance the encoder's step
+/// `step_rad` puts on θ̈a (a block mean off by up to half a step: step²/12 on each of the
+/// second difference's three terms, weights 1, −2, 1) exceeds [`ID_QUANT_SHARE`] of the
+/// variance of θ̈a seen over the approach at that span. A drive accelerated smoothly (a
+/// heavy drive on a torque ramp) shows θ̈a varying little; across ±4 blocks its quantisation
+/// then carries most of that variance and the inertia read was a third of the drive's. A
+/// span stops widening where fewer than 8 moving blocks remain.
+fn identification_span(
+    blocks: &[Block],
+    lo: usize,
+    hi: usize,
+    quantum_rad: f64,
+    step_rad: f64,
+) -> usize {
+    let mut chosen = KIN_SPAN;
+    for span in ID_SPANS {
+        let (lo_k, hi_k) = (lo.max(span), hi.min(blocks.len().saturating_sub(span)));
+        let accs: std::vec::Vec<f64> = (lo_k..hi_k)
+            .filter_map(|k| moving_speed_accel(blocks, k, span, quantum_rad).map(|m| m.1))
+            .filter(|a| a.is_finite())
+            .collect();
+        let (Some(first), Some(last)) = (blocks.get(lo_k), blocks.get(hi_k.saturating_sub(1)))
+        else {
+            break;
+        };
+        if accs.len() < 8 || hi_k <= lo_k + 1 {
+            break;
+        }
+        chosen = span;
+        let block_s = (last.t_s - first.t_s) / (hi_k - lo_k - 1) as f64;
+        let n = accs.len() as f64;
+        let mean = accs.iter().sum::<f64>() / n;
+        let var = accs.iter().map(|a| (a - mean) * (a - mean)).sum::<f64>() / (n - 1.0);
+        let h = span as f64 * block_s;
+        let quant_var = 6.0 * step_rad * step_rad / 12.0 / (h * h * h * h);
+        if quant_var <= ID_QUANT_SHARE * var {
+            break;
+        }
+    }
+    chosen
 }
 
 /// The crank's breakaway from rest at the start of the approach ([`breakaway`]).
@@ -370,13 +482,8 @@ pub(super) struct Kinematics {
 /// (less than half an encoder step `quantum_rad`: a stuck transmission's torque is anywhere
 /// in its stiction band), or on a time that does not advance.
 pub(super) fn kinematics(blocks: &[Block], k: usize, quantum_rad: f64) -> Option<Kinematics> {
-    let a = blocks.get(k.checked_sub(KIN_SPAN)?)?;
+    let (speed, accel) = moving_speed_accel(blocks, k, KIN_SPAN, quantum_rad)?;
     let b = blocks.get(k)?;
-    let c = blocks.get(k + KIN_SPAN)?;
-    if (c.theta_a_rad - a.theta_a_rad).abs() <= 0.5 * quantum_rad.max(1e-9) {
-        return None;
-    }
-    let (speed, accel) = speed_accel(blocks, k, KIN_SPAN)?;
     Some(Kinematics {
         theta_a_rad: b.theta_a_rad,
         torque_nm: b.torque_nm,
@@ -705,13 +812,24 @@ mod tests {
     /// the torque is the model's free torque + 0.02 N·m friction + J·θ̈a + a white noise of
     /// `noise_nm` per row (a fixed-seed LCG, uniform scaled to that σ).
     fn wobbling_approach(j: f64, noise_nm: f64) -> std::vec::Vec<Block> {
+        let w = core::f64::consts::TAU * 2.0;
+        approach(
+            j,
+            noise_nm,
+            &|t| -0.80 + 0.5 * t + 0.03 * (w * t).sin(),
+            &|t| -0.03 * w * w * (w * t).sin(),
+        )
+    }
+
+    /// [`wobbling_approach`] for any θa(t) (rad) and its θ̈a(t) (rad/s²) over 1 s.
+    fn approach(
+        j: f64,
+        noise_nm: f64,
+        theta: &dyn Fn(f64) -> f64,
+        accel: &dyn Fn(f64) -> f64,
+    ) -> std::vec::Vec<Block> {
         let model = pts::Model::<f64>::paper().unwrap();
-        let (q, w) = (
-            core::f64::consts::TAU / 16384.0,
-            core::f64::consts::TAU * 2.0,
-        );
-        let theta = |t: f64| -0.80 + 0.5 * t + 0.03 * (w * t).sin();
-        let accel = |t: f64| -0.03 * w * w * (w * t).sin();
+        let q = core::f64::consts::TAU / 16384.0;
         let mut seed = 0x2545_f491_4f6c_dd1d_u64;
         let mut noise = move || {
             seed = seed
@@ -738,6 +856,45 @@ mod tests {
                 }
             })
             .collect()
+    }
+
+    /// A heavy drive on a smooth torque ramp (0.1 kg·m², θ̈a 1 ± 0.5 rad/s² at 1 Hz, the
+    /// same encoder and noise): across ±4 blocks the encoder's steps make up most of θ̈a's
+    /// variance and least squares reads a fraction of J; the identification widens its span
+    /// until they make up at most 1 % and reads J within 3 %; the wobbling approach, whose
+    /// θ̈a varies more, is read over a narrower span.
+    #[test]
+    fn a_smoothly_accelerated_heavy_drive_is_identified_over_a_wider_span() {
+        let model = pts::Model::<f64>::paper().unwrap();
+        let q = core::f64::consts::TAU / 16384.0;
+        let none = DrivePrior {
+            inertia_kgm2: 0.0,
+            sigma_inertia_kgm2: 0.0,
+        };
+        let (j, w) = (0.1, core::f64::consts::TAU);
+        let blocks = approach(
+            j,
+            2e-3,
+            &|t| -0.85 + 0.1 * t + 0.5 * t * t + 0.5 / (w * w) * (1.0 - (w * t).cos()),
+            &|t| 1.0 + 0.5 * (w * t).cos(),
+        );
+        let narrow = approach_residuals(&model, &blocks, 0, blocks.len(), q, KIN_SPAN)
+            .and_then(|p| huber_fit(&p, &none))
+            .unwrap();
+        assert!(narrow.x[2] < 0.5 * j, "±4 blocks: Ĵ = {:.3e}", narrow.x[2]);
+        let span = identification_span(&blocks, 0, blocks.len(), q, q);
+        assert!(span > KIN_SPAN, "span {span}");
+        let id = identify_drive(&model, &blocks, 0, blocks.len(), q, q, &none).unwrap();
+        assert!(
+            (id.inertia_kgm2 / j - 1.0).abs() < 0.03,
+            "Ĵ = {:.3e} ± {:.1e} kg·m² for {j:.1e} (span {span})",
+            id.inertia_kgm2,
+            id.sigma_inertia_kgm2
+        );
+        // A drive whose θ̈a varies more needs less widening.
+        let wobble = wobbling_approach(j, 2e-3);
+        let wobble_span = identification_span(&wobble, 0, wobble.len(), q, q);
+        assert!(wobble_span < span, "wobble {wobble_span}, ramp {span}");
     }
 
     #[test]
