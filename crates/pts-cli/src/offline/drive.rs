@@ -151,9 +151,18 @@ fn approach_residuals<R: pts::Real>(
     let lo = lo.max(span);
     let hi = hi.min(blocks.len().saturating_sub(span));
     let start = hi.saturating_sub(1024).max(lo);
+    // The residual of every block a row's triangle reaches, and no further.
+    let from = start.saturating_sub(span);
     let resid: std::vec::Vec<f64> = blocks
         .iter()
-        .map(|b| free_torque(model, b.theta_a_rad).map_or(f64::NAN, |tf| b.torque_nm - tf))
+        .take(hi + span)
+        .enumerate()
+        .map(
+            |(i, b)| match (i >= from).then(|| free_torque(model, b.theta_a_rad)) {
+                Some(Some(tf)) => b.torque_nm - tf,
+                _ => f64::NAN,
+            },
+        )
         .collect();
     for k in start..hi {
         let Some((w, acc)) = moving_speed_accel(blocks, k, span, quantum_rad) else {

@@ -444,13 +444,8 @@ pub fn check_rest_frame(
     if rest_rows.len() < REST_FRAME_MIN_ROWS || !(span_s >= REST_FRAME_MIN_S) {
         return Ok(None);
     }
-    let median = |f: fn(&TraceSample) -> f64| {
-        let mut v: std::vec::Vec<f64> = rest_rows.iter().map(f).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let rest = median(|r| r.theta_a_rad);
-    let torque = median(|r| r.torque_nm);
+    let rest = upper_median(rest_rows.iter().map(|r| r.theta_a_rad).collect());
+    let torque = upper_median(rest_rows.iter().map(|r| r.torque_nm).collect());
     let pose = |t: f64| model.free_from_torque(t).map(|c| c.theta_a).ok();
     let (Some(at_zero), Some(at_rest)) = (pose(0.0), pose(torque)) else {
         return Ok(None);
@@ -510,11 +505,7 @@ pub fn check_torque_frame(
     if rec.len() < TORQUE_FRAME_MIN_ROWS {
         return Ok(None);
     }
-    let median = |mut v: std::vec::Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let (rec, need) = (median(rec), median(need));
+    let (rec, need) = (upper_median(rec), upper_median(need));
     // A finger whose springs hold nothing there gives no scale to compare with.
     if !(need > 1e-3) {
         return Ok(None);
@@ -528,6 +519,12 @@ pub fn check_torque_frame(
         recorded_unm: unm(rec),
         model_unm: unm(need),
     })
+}
+
+/// The upper of the middle values of `v` (its median for an odd count); NaN when empty.
+fn upper_median(mut v: std::vec::Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
 impl From<PtsError> for OfflineError {
