@@ -149,8 +149,42 @@ pub struct EstimateArgs<'a> {
     pub theta_a_offset_rad: Option<f64>,
 }
 
-/// Runs `pts estimate`.
+/// Why `pts estimate` gave no answer.
+enum Failure {
+    /// Nothing was read: the arguments, the file or the recording as a whole. `kind` is the
+    /// snake_case name a `--json` reader matches on.
+    Unread { kind: &'static str, message: String },
+    /// The recording was read and reported (its JSON printed); no contact was answered.
+    NoEstimate(String),
+}
+
+/// A message of a step that reads nothing, as a [`Failure::Unread`] of `kind`.
+fn unread(kind: &'static str) -> impl Fn(String) -> Failure {
+    move |message| Failure::Unread { kind, message }
+}
+
+/// Runs `pts estimate`. With `--json` a recording that cannot be read at all prints one JSON
+/// object too, `{"trace": …, "error": {"kind": …, "message": …}}`, so that a script over
+/// many files gets a line for each.
 pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
+    match run_reporting(args) {
+        Ok(()) => Ok(()),
+        Err(Failure::NoEstimate(message)) => Err(message),
+        Err(Failure::Unread { kind, message }) => {
+            if args.json {
+                let out = json!({
+                    "trace": args.trace.display().to_string(),
+                    "error": { "kind": kind, "message": message },
+                });
+                crate::outln!("{out}");
+            }
+            Err(message)
+        }
+    }
+}
+
+/// [`run`] up to the failure, which it leaves to [`run`] to report.
+fn run_reporting(args: &EstimateArgs<'_>) -> Result<(), Failure> {
     let EstimateArgs {
         trace: path,
         finger,
@@ -162,13 +196,13 @@ pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
     } = *args;
     if let Some(o) = theta_a_offset_rad {
         if !(o.is_finite() && o.abs() <= THETA_A_OFFSET_MAX_RAD) {
-            return Err(format!(
+            return Err(unread("bad_argument")(format!(
                 "--theta-a-offset {o} rad is outside [-{THETA_A_OFFSET_MAX_RAD:.4}, \
                  {THETA_A_OFFSET_MAX_RAD:.4}] rad"
-            ));
+            )));
         }
     }
-    let text = read_text(path)?;
+    let text = read_text(path).map_err(unread("unreadable_file"))?;
     // A trace written by `pts sim` (our controller in the loop): replay that controller, bit
     // for bit. Any other recorded grasp: find its contacts with crate::offline.
     if TraceMeta::find(&text).is_none() {
@@ -176,16 +210,17 @@ pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
         return run_segmented(args, &text, method);
     }
     if theta_a_offset_rad.is_some() {
-        return Err(format!(
+        return Err(unread("bad_argument")(format!(
             "{}: --theta-a-offset is for recordings; this is a `pts sim` trace, in the finger's \
              model angle already",
             path.display()
-        ));
+        )));
     }
     // The recording's own estimator unless the user names one.
     let recorded = TraceMeta::find(&text).and_then(|m| m.controller.estimator);
     let method = method.or(recorded).unwrap_or(Method::Pathfit);
-    let (tr, rep, dta) = replay_text(path, &text, finger, dta, dt_s, method)?;
+    let (tr, rep, dta) =
+        replay_text(path, &text, finger, dta, dt_s, method).map_err(unread("unreadable_trace"))?;
     let warnings: Vec<String> = tr.warnings.iter().chain(&rep.warnings).cloned().collect();
     let fault = match rep.state {
         grasp::State::Fault(r) => Some(r.kind()),
@@ -239,7 +274,7 @@ pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
             "warnings": warnings,
         });
         crate::outln!("{out}");
-        return outcome;
+        return outcome.map_err(Failure::NoEstimate);
     }
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -280,29 +315,32 @@ pub fn run(args: &EstimateArgs<'_>) -> Result<(), String> {
     if let Some(f) = fault {
         crate::outln!("  fault: {f}");
     }
-    outcome
+    outcome.map_err(Failure::NoEstimate)
 }
 
 /// `pts estimate` on a trace without the `# pts-sim` line: the offline segmenter finds each
 /// contact, its step and settled end, and the firmware's estimator runs on each request.
-fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<(), String> {
+fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<(), Failure> {
     let (path, json_out) = (args.trace, args.json);
-    let file = crate::load_finger(args.finger)?;
+    let file = crate::load_finger(args.finger).map_err(unread("finger_file"))?;
     let conv = |i: f64| file.torque_from_current(i);
-    let mut tr = trace::read_csv(text, &conv).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut tr = trace::read_csv(text, &conv)
+        .map_err(|e| unread("unreadable_trace")(format!("{}: {e}", path.display())))?;
     if let Some(o) = args.theta_a_offset_rad {
         for th in &mut tr.theta_a_rad {
             *th += o;
         }
     }
     if replay::median_dt(&tr).is_none() {
-        return Err(format!(
+        return Err(unread("too_few_rows")(format!(
             "{}: the trace needs at least two rows with increasing t_s",
             path.display()
-        ));
+        )));
     }
-    let seg =
-        replay::segment(&tr, &file, method).map_err(|e| format!("{}: {e}", path.display()))?;
+    let seg = replay::segment(&tr, &file, method).map_err(|e| Failure::Unread {
+        kind: e.kind,
+        message: format!("{}: {e}", path.display()),
+    })?;
     let mut warnings = tr.warnings.clone();
     if args.dta.is_some() || args.dt_s.is_some() {
         warnings.push(
@@ -403,7 +441,7 @@ fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<
             "warnings": warnings,
         });
         println!("{out}");
-        return outcome;
+        return outcome.map_err(Failure::NoEstimate);
     }
     for w in &warnings {
         eprintln!("warning: {w}");
@@ -498,7 +536,7 @@ fn run_segmented(args: &EstimateArgs<'_>, text: &str, method: Method) -> Result<
             }
         );
     }
-    outcome
+    outcome.map_err(Failure::NoEstimate)
 }
 
 /// Runs `pts trace --from-defmt`.

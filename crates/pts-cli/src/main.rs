@@ -69,7 +69,8 @@ enum Cmd {
         /// Control period (s); default: from the trace.
         #[arg(long)]
         dt_s: Option<f64>,
-        /// Machine-readable output (one JSON object).
+        /// Machine-readable output: one JSON object, also when the recording cannot be read
+        /// at all (`{"trace", "error": {"kind", "message"}}`).
         #[arg(long)]
         json: bool,
         /// The estimator. Default: the path fit on a recording (the two-point estimate is

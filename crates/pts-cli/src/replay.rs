@@ -606,7 +606,7 @@ pub fn segment(
     trace: &Trace,
     finger: &FingerFile,
     method: crate::method::Method,
-) -> Result<Segmented, String> {
+) -> Result<Segmented, crate::sim::EstError> {
     use crate::offline::TraceSample;
     let rows: Vec<TraceSample> = (0..trace.len())
         .map(|i| TraceSample {
@@ -653,17 +653,21 @@ pub fn segment(
                 read_any = true;
             }
             Err(e) => {
-                let e = format!("the rows from t = {t0:.4} to {t1:.4} s: {e}");
-                first_error.get_or_insert_with(|| e.clone());
-                out.errors.push(("stretch_unreadable", e));
+                let detail = format!("the rows from t = {t0:.4} to {t1:.4} s: {e}");
+                first_error.get_or_insert((e.kind, detail.clone()));
+                out.errors.push(("stretch_unreadable", detail));
             }
         }
     }
     match first_error {
-        Some(e) if !read_any => Err(format!(
-            "none of the {} stretches between gaps of more than {GAP_SPLIT_S} s could be \
-             segmented; first: {e}",
-            out.gaps_s.len() + 1
+        // The first stretch's reason is the recording's: a reader matches on its kind.
+        Some((kind, e)) if !read_any => Err(crate::sim::EstError::new(
+            kind,
+            &format!(
+                "none of the {} stretches between gaps of more than {GAP_SPLIT_S} s could be \
+                 segmented; first: {e}",
+                out.gaps_s.len() + 1
+            ),
         )),
         _ => Ok(out),
     }
@@ -674,7 +678,7 @@ fn segment_stretch(
     rows: &[crate::offline::TraceSample],
     finger: &FingerFile,
     method: crate::method::Method,
-) -> Result<Segmented, String> {
+) -> Result<Segmented, crate::sim::EstError> {
     // A long idle before the grasp (finger at rest, nothing to learn from) would lengthen
     // the blocks past the dynamics: start IDLE_KEEP_S before the crank first moves.
     const IDLE_KEEP_S: f64 = GAP_SPLIT_S;
@@ -685,7 +689,7 @@ fn segment_stretch(
     let rows = rows.get(start..).unwrap_or_default().to_vec();
     // A recording in another angle frame would be read as a confident wrong answer (an encoder
     // zeroed at rest moves k2 by a fifth of l2 on the paper's finger): refused first.
-    let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
+    let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| finger_error("finger", &e))?;
     crate::offline::check_rest_frame(&m64, &rows).map_err(segmenting_error)?;
     // A torque in another unit or sign finds no contact (no free motion to arm on, or none
     // that rises): the recording is then refused by what its approach shows instead. A
@@ -704,7 +708,7 @@ fn segment_in_frame(
     rows: &[crate::offline::TraceSample],
     finger: &FingerFile,
     method: crate::method::Method,
-) -> Result<Segmented, String> {
+) -> Result<Segmented, crate::sim::EstError> {
     let rows = rows.to_vec();
     // The recording's encoder step: its smallest θa change between rows (of the rows as
     // recorded: interpolated ones below step by fractions of it).
@@ -913,8 +917,14 @@ fn offline_config(
 }
 
 /// A recording the blocks cannot be made from, as the message `segment` returns.
-fn segmenting_error(e: crate::offline::OfflineError) -> String {
-    format!("segmenting the trace: {} ({e})", e.kind())
+fn segmenting_error(e: crate::offline::OfflineError) -> crate::sim::EstError {
+    let detail = format!("segmenting the trace: {} ({e})", e.kind());
+    crate::sim::EstError::new(e.kind(), &detail)
+}
+
+/// A finger file the model (or the firmware's back end) cannot be built from.
+fn finger_error(what: &str, e: &dyn std::fmt::Display) -> crate::sim::EstError {
+    crate::sim::EstError::new("finger_model", &format!("{what}: {e}"))
 }
 
 /// [`segment`] on rows already cut, at the block phase their first row sets; `quantum_rad` is
@@ -924,11 +934,11 @@ fn segment_rows(
     finger: &FingerFile,
     method: crate::method::Method,
     quantum_rad: f64,
-) -> Result<Segmented, String> {
+) -> Result<Segmented, crate::sim::EstError> {
     use crate::offline::{for_each_contact, make_blocks, Block};
-    let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| format!("finger: {e}"))?;
+    let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| finger_error("finger", &e))?;
     let mfw = pts::Model::<grasp::EstReal>::new(&finger.finger)
-        .map_err(|e| format!("finger on the firmware back end: {e}"))?;
+        .map_err(|e| finger_error("finger on the firmware back end", &e))?;
     let cfg = offline_config(finger, method);
     // The file's drive as the firmware's estimate sees it (the two-point method reads none of it).
     let drive_fw = grasp::DriveConfig {

@@ -577,7 +577,7 @@ fn estimate_with(
     file: &pts::config::FingerFile,
 ) -> Result<pts_cli::replay::Segmented, String> {
     pts_cli::trace::read_csv(csv, &|i| file.torque_from_current(i))
-        .and_then(|tr| segment(&tr, file, Method::Pathfit))
+        .and_then(|tr| segment(&tr, file, Method::Pathfit).map_err(|e| e.to_string()))
 }
 
 /// Every how many of the engine's 1 kHz rows the recording keeps: `ENGINE_GRID_RATE_HZ`

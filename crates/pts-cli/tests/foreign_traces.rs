@@ -61,7 +61,7 @@ fn sample_ids() -> Vec<String> {
 fn run_text(text: &str, method: Method) -> Result<Segmented, String> {
     let file = pts::config::FingerFile::paper();
     let tr = pts_cli::trace::read_csv(text, &|i| file.torque_from_current(i))?;
-    segment(&tr, &file, method)
+    segment(&tr, &file, method).map_err(|e| e.to_string())
 }
 
 fn truth(dir: &Path, id: &str) -> Value {

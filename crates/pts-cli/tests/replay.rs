@@ -204,6 +204,65 @@ fn broken_traces_give_clear_messages() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("cannot read"));
 }
 
+/// With `--json`, a recording that is not read at all still prints one JSON object, naming
+/// the kind of the refusal and the message stderr gives: a script over a folder of
+/// recordings gets a line for each file.
+#[test]
+fn a_recording_refused_as_a_whole_prints_its_reason_as_json() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    let src = samples.join("qs02_vtx_k58_dT06__default.csv");
+    let write = |name: &str, body: &[u8]| {
+        let p = dir().join(name);
+        std::fs::write(&p, body).unwrap();
+        p
+    };
+    // One θa row 0.5 rad off (a corrupted row) in the middle of the recording.
+    let text = std::fs::read_to_string(&src).unwrap();
+    let spiked: String = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| {
+            let c: Vec<&str> = l.split(',').collect();
+            if i == 700 {
+                let th: f64 = c[1].parse().unwrap();
+                format!("{},{:.10},{}\n", c[0], th + 0.5, c[2])
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    let cases = [
+        (write("json_empty.csv", b""), "unreadable_trace"),
+        (
+            write(
+                "json_one_row.csv",
+                b"t_s,theta_a_rad,torque_nm\n0,-0.85,0\n",
+            ),
+            "too_few_rows",
+        ),
+        (dir().join("json_missing.csv"), "unreadable_file"),
+        (write("json_spike.csv", spiked.as_bytes()), "outlier_sample"),
+        (
+            rewritten(&src, "json_negated.csv", |a| a, |t| -t),
+            "torque_frame",
+        ),
+    ];
+    for (path, kind) in cases {
+        let o = estimate(&path, &[]);
+        assert_eq!(o.status.code(), Some(1), "{kind}: exit 1");
+        let v: Value = serde_json::from_slice(&o.stdout)
+            .unwrap_or_else(|e| panic!("{kind}: {e}: {:?}", String::from_utf8_lossy(&o.stdout)));
+        assert_eq!(v["error"]["kind"], kind, "{v}");
+        assert_eq!(v["trace"], path.to_str().unwrap(), "{v}");
+        let msg = v["error"]["message"].as_str().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(err.trim_end(), format!("pts: {msg}"), "{kind}");
+    }
+    // The recording as it is prints no error object.
+    let v = json_of(&estimate(&src, &[]));
+    assert!(v.get("error").is_none(), "{v}");
+}
+
 #[test]
 fn truncated_trace_still_replays_what_it_has() {
     let (csv, _) = recorded();
