@@ -691,6 +691,8 @@ fn segment_stretch(
     // zeroed at rest moves k2 by a fifth of l2 on the paper's finger): refused first.
     let m64 = pts::Model::<f64>::new(&finger.finger).map_err(|e| finger_error("finger", &e))?;
     crate::offline::check_rest_frame(&m64, &rows).map_err(segmenting_error)?;
+    // A clipped step reads as a softer contact, or a proximal one: refused, with the level.
+    crate::offline::check_saturation(&rows).map_err(segmenting_error)?;
     // A torque in another unit or sign finds no contact (no free motion to arm on, or none
     // that rises): the recording is then refused by what its approach shows instead. A
     // recording that is answered is never judged by this.

@@ -253,6 +253,21 @@ pub enum OfflineError {
         /// Median free-motion torque the finger needs at their θa (µN·m).
         model_unm: i64,
     },
+    /// The torque sensor's range was exceeded ([`check_saturation`]): a run of rows holds the
+    /// recording's largest torque bit for bit, where elsewhere the torque varies from row to
+    /// row; the step's top is not known.
+    TorqueSaturated {
+        /// The torque held (µN·m).
+        level_unm: i64,
+        /// Rows in the run.
+        rows: u32,
+        /// Trace time of its first and last row (ms).
+        from_ms: i64,
+        /// See `from_ms`.
+        to_ms: i64,
+        /// σ of the torque's change from row to row over the recording (µN·m).
+        sigma_unm: i64,
+    },
     /// The model failed.
     Model(PtsError),
 }
@@ -281,6 +296,7 @@ impl OfflineError {
             OfflineError::SampleRateTooLow { .. } => "sample_rate_too_low",
             OfflineError::AngleFrame { .. } => "angle_frame",
             OfflineError::TorqueFrame { .. } => "torque_frame",
+            OfflineError::TorqueSaturated { .. } => "torque_saturated",
             OfflineError::Model(e) => e.kind(),
         }
     }
@@ -380,6 +396,23 @@ impl core::fmt::Display for OfflineError {
                      file is another finger's"
                 })
             }
+            OfflineError::TorqueSaturated {
+                level_unm,
+                rows,
+                from_ms,
+                to_ms,
+                sigma_unm,
+            } => write!(
+                f,
+                "T_a stays at exactly {:.4} N·m, the recording's largest, for {rows} rows \
+                 (t = {:.3} … {:.3} s), where elsewhere it changes from row to row by σ {:.4} N·m: \
+                 the torque sensor's range was exceeded there, so the step's top is not known \
+                 (record with a wider range, or step by less)",
+                *level_unm as f64 * 1e-6,
+                *from_ms as f64 * 1e-3,
+                *to_ms as f64 * 1e-3,
+                *sigma_unm as f64 * 1e-6,
+            ),
             OfflineError::Model(e) => write!(f, "the model: {e}"),
         }
     }
@@ -518,6 +551,87 @@ pub fn check_torque_frame(
     Err(OfflineError::TorqueFrame {
         recorded_unm: unm(rec),
         model_unm: unm(need),
+    })
+}
+
+/// Least run of rows [`check_saturation`] reads as a sensor pinned at its range's end: a
+/// sensor whose noise it resolves (σ at least [`SATURATION_MIN_NOISE_STEPS`] of its steps)
+/// repeats a value ten times in a row with a chance below 1e-6.
+pub const SATURATION_MIN_ROWS: usize = 10;
+/// How many of the torque's resolution steps (its smallest change between rows) the row-to-row
+/// σ must span before [`check_saturation`] judges a run: a coarse or noise-free sensor repeats
+/// its values on any hold.
+pub const SATURATION_MIN_NOISE_STEPS: f64 = 2.0;
+
+/// Least row-to-row σ of the torque (N·m) [`check_saturation`] takes for a sensor's noise:
+/// below it, the variation is a simulation's rounding, not a sensor's (a current sensor on a
+/// small drive reads a few mN·m of noise).
+pub const SATURATION_MIN_NOISE_NM: f64 = 5e-4;
+
+/// A torque sensor pinned at the end of its range: [`SATURATION_MIN_ROWS`] or more consecutive
+/// rows hold the recording's largest torque bit for bit, while over the recording the torque
+/// varies from row to row (robustly, off the line through each row's neighbours, away from
+/// that value) by a σ of at least [`SATURATION_MIN_NOISE_NM`] and
+/// [`SATURATION_MIN_NOISE_STEPS`] of its resolution. A noise-free recording (a simulation's
+/// hold) repeats its hold torque and passes; so does one whose noise the sensor does not
+/// resolve. Read as recorded, a clipped step's top looks like a softer contact, or a proximal
+/// one.
+pub fn check_saturation(rows: &[TraceSample]) -> Result<(), OfflineError> {
+    let step = rows
+        .windows(2)
+        .map(|w| (w[1].torque_nm - w[0].torque_nm).abs())
+        .filter(|d| *d > 0.0)
+        .fold(f64::INFINITY, f64::min);
+    let top = rows
+        .iter()
+        .map(|r| r.torque_nm)
+        .fold(f64::NEG_INFINITY, f64::max);
+    // Each row against the line through its neighbours (at their times: rows stamped
+    // unevenly on a ramp lie on it), away from the largest value (a clipped run may be most
+    // of the recording). On evenly spaced rows that is half the second difference, whose σ
+    // is √6 of the rows'.
+    let off_line: std::vec::Vec<f64> = rows
+        .windows(3)
+        .filter(|w| w.iter().all(|r| r.torque_nm != top))
+        .filter_map(|w| {
+            let span = w[2].t_s - w[0].t_s;
+            (span > 0.0).then(|| {
+                let f = (w[1].t_s - w[0].t_s) / span;
+                (w[1].torque_nm - (w[0].torque_nm + f * (w[2].torque_nm - w[0].torque_nm))).abs()
+            })
+        })
+        .collect();
+    let sigma = 1.4826 * upper_median(off_line) / 1.5f64.sqrt();
+    if !(sigma >= SATURATION_MIN_NOISE_NM && sigma >= SATURATION_MIN_NOISE_STEPS * step) {
+        return Ok(());
+    }
+    // The longest run of rows at `top`: (first row, length).
+    let (mut best, mut run) = ((0usize, 0usize), (0usize, 0usize));
+    for (i, r) in rows.iter().enumerate() {
+        if r.torque_nm == top {
+            run = if run.1 == 0 {
+                (i, 1)
+            } else {
+                (run.0, run.1 + 1)
+            };
+            if run.1 > best.1 {
+                best = run;
+            }
+        } else {
+            run = (i, 0);
+        }
+    }
+    if best.1 < SATURATION_MIN_ROWS {
+        return Ok(());
+    }
+    let ms = |t: f64| (t * 1e3).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
+    let unm = |x: f64| (x * 1e6).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
+    Err(OfflineError::TorqueSaturated {
+        level_unm: unm(top),
+        rows: u32::try_from(best.1).unwrap_or(u32::MAX),
+        from_ms: ms(rows[best.0].t_s),
+        to_ms: ms(rows[best.0 + best.1 - 1].t_s),
+        sigma_unm: unm(sigma),
     })
 }
 
@@ -790,5 +904,80 @@ mod tests {
         let brief: std::vec::Vec<TraceSample> = approach_at(-1.0)[..121].to_vec();
         assert_eq!(check_torque_frame(&m, &brief), Ok(None));
         assert_eq!(check_torque_frame(&m, &[]), Ok(None));
+    }
+
+    /// A ramp to a hold with torque noise of σ 4 mN·m from a fixed generator, sampled at
+    /// 1 kHz, its torque rounded to `step` N·m (0: not rounded) and clipped at `clip` N·m.
+    fn noisy_hold(sigma: f64, step: f64, clip: f64) -> std::vec::Vec<TraceSample> {
+        let mut state = 0x853c_49e6_748f_ea9bu64;
+        let mut uniform = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        (0..1000)
+            .map(|i| {
+                let t = i as f64 * 1e-3;
+                let (u, v) = (uniform(), uniform());
+                let noise = (-2.0 * u.ln()).sqrt() * (2.0 * core::f64::consts::PI * v).cos();
+                let mut torque = (0.3 + t).min(0.8) + sigma * noise;
+                if step > 0.0 {
+                    torque = (torque / step).round() * step;
+                }
+                TraceSample {
+                    t_s: t,
+                    theta_a_rad: -0.85 + 0.5 * t,
+                    torque_nm: torque.min(clip),
+                }
+            })
+            .collect()
+    }
+
+    /// A noisy torque held at its largest value for a run of rows is a sensor at its range's
+    /// end: refused, naming the level, the run and the noise. The same recording unclipped,
+    /// noise-free (a simulation's hold repeats its torque), or on a sensor too coarse to
+    /// resolve its noise, passes; so does a run of nine rows.
+    #[test]
+    fn a_torque_pinned_at_its_largest_value_is_a_saturated_sensor() {
+        let e = check_saturation(&noisy_hold(4e-3, 0.0, 0.7)).unwrap_err();
+        assert_eq!(e.kind(), "torque_saturated");
+        let OfflineError::TorqueSaturated {
+            level_unm,
+            rows,
+            from_ms,
+            to_ms,
+            sigma_unm,
+        } = e
+        else {
+            panic!("{e:?}");
+        };
+        assert_eq!(level_unm, 700_000);
+        // The clean ramp crosses 0.7 N·m at 0.4 s; the noise moves the run's start.
+        assert!((380..=460).contains(&from_ms), "{from_ms}");
+        assert_eq!(to_ms, 999);
+        assert!(
+            rows >= 500 && i64::from(rows) <= to_ms - from_ms + 1,
+            "{rows}"
+        );
+        assert!((3_000..=5_000).contains(&sigma_unm), "{sigma_unm}");
+        for needle in ["0.7000 N·m", "exceeded"] {
+            assert!(e.to_string().contains(needle), "{e}");
+        }
+        assert_eq!(check_saturation(&noisy_hold(4e-3, 0.0, 10.0)), Ok(()));
+        assert_eq!(check_saturation(&noisy_hold(0.0, 0.0, 0.7)), Ok(()));
+        assert_eq!(check_saturation(&noisy_hold(4e-3, 0.01, 0.7)), Ok(()));
+        // Nine rows at the largest value are a draw, not a sensor at its end.
+        let mut nine = noisy_hold(4e-3, 0.0, 10.0);
+        for r in nine.iter_mut().skip(500).take(9) {
+            r.torque_nm = 1.0;
+        }
+        assert_eq!(check_saturation(&nine), Ok(()));
+        nine[509].torque_nm = 1.0;
+        assert_eq!(
+            check_saturation(&nine).map_err(|e| e.kind()),
+            Err("torque_saturated")
+        );
+        assert_eq!(check_saturation(&[]), Ok(()));
     }
 }
