@@ -522,3 +522,115 @@ fn a_clean_recording_is_answered_whatever_the_row_timing() {
         moved * 1e6
     );
 }
+
+/// Every sample recording damaged as a logger or a sensor may damage one: a torque spike of
+/// 0.5 N·m on one row (on the contact, or on the approach), 20 ms of rows lost (on the
+/// contact, or on the approach), every 50th row logged twice, two rows swapped, the encoder
+/// chattering by one count for 100 rows, five times the torque noise (σ 0.02 N·m), the torque
+/// saturating at 0.7 N·m, the recording cut 0.1 s after the contact. Each is refused or
+/// answered within 3σ of the truth: no distal contact read as proximal, no negative read as
+/// distal, the cut recording refused, and a noisy recording whose torque went past 0.7 N·m
+/// refused as `torque_saturated` (one had read as a proximal contact). A noise-free one
+/// cannot show its saturation (a simulation's hold repeats its torque too). (A current sensor's offset drifting by 0.02 N·m over the
+/// recording, or a torque column lagging θa by 5 ms, are not covered: the engine grid's
+/// grasps so damaged read outside 3σ on a few per cent; RESULTS, "Open work".)
+#[test]
+fn a_damaged_recording_is_refused_or_answered_within_3_sigma() {
+    type Damage = fn(&mut Vec<[f64; 3]>, usize, &mut dyn FnMut() -> f64);
+    let damages: [(&str, Damage); 10] = [
+        ("torque spike on the contact", |r, c, _| r[c + 15][2] += 0.5),
+        ("torque spike on the approach", |r, c, _| {
+            r[c - 100][2] += 0.5
+        }),
+        ("20 ms lost on the contact", |r, c, _| {
+            r.drain(c + 30..c + 50);
+        }),
+        ("20 ms lost on the approach", |r, c, _| {
+            r.drain(c - 80..c - 60);
+        }),
+        ("every 50th row twice", |r, _, _| {
+            *r = r
+                .iter()
+                .enumerate()
+                .flat_map(|(i, x)| std::iter::repeat_n(*x, 1 + usize::from(i % 50 == 7)))
+                .collect();
+        }),
+        ("two rows swapped", |r, c, _| r.swap(c + 40, c + 41)),
+        ("encoder chatter", |r, c, _| {
+            let q = pts::config::FingerFile::paper().rad_per_count();
+            for x in r.iter_mut().skip(c + 50).take(100).step_by(2) {
+                x[1] += q;
+            }
+        }),
+        ("5× torque noise", |r, _, gauss| {
+            for x in r.iter_mut() {
+                x[2] += 0.02 * gauss();
+            }
+        }),
+        ("torque saturating at 0.7 N·m", |r, _, _| {
+            for x in r.iter_mut() {
+                x[2] = x[2].min(0.7);
+            }
+        }),
+        ("cut 0.1 s after the contact", |r, c, _| r.truncate(c + 100)),
+    ];
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut uniform = move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    // Box–Muller on the generator above.
+    let mut gauss = move || {
+        let (u, v) = (uniform(), uniform());
+        (-2.0 * u.ln()).sqrt() * (2.0 * core::f64::consts::PI * v).cos()
+    };
+    let (mut answered, mut refused) = (0usize, 0usize);
+    for id in sample_ids() {
+        let t = truth(&samples_dir(), &id);
+        let expected = t["expected"].as_str().unwrap().to_string();
+        let k2_true = t["truth"]["k2_c_m"].as_f64();
+        let clean = rows(&id);
+        // The row of the first contact (a negative: where a grasp's contact would be).
+        let t_c = t["truth"]["t_contact_s"].as_f64().unwrap_or(0.8);
+        let c = clean.iter().position(|x| x[0] >= t_c).unwrap();
+        for (what, damage) in damages {
+            let mut r = clean.clone();
+            damage(&mut r, c, &mut gauss);
+            let a = answer(&run_text(&to_csv(&r), Method::Pathfit), false);
+            let located = a.phalanx.as_str();
+            // A noisy sensor held at one value names its saturation.
+            let clipped = clean.iter().any(|x| x[2] > 0.7);
+            if what.starts_with("torque saturating") && id.ends_with("__default") && clipped {
+                assert!(located.contains("torque_saturated"), "{id}: {located}");
+            }
+            let read = matches!(located, "distal" | "proximal" | "proximal_or_near_o2");
+            if !read {
+                refused += 1;
+                continue;
+            }
+            answered += 1;
+            assert!(!what.starts_with("cut"), "{id}, {what}: answered {located}");
+            if expected == "distal" {
+                assert_ne!(located, "proximal", "{id}, {what}");
+                if let (Some(k2), Some(sigma)) = (a.k2, a.sigma) {
+                    let k2_true = k2_true.unwrap();
+                    assert!(
+                        (k2 - k2_true).abs() <= 3.0 * sigma,
+                        "{id}, {what}: k̂2 {k2} m against {k2_true} m (σ {sigma} m)"
+                    );
+                }
+            } else {
+                assert_ne!(
+                    located, "distal",
+                    "{id} ({expected}), {what}: k̂2 {:?} m",
+                    a.k2
+                );
+            }
+        }
+    }
+    println!("damaged samples: {answered} answered within 3σ, {refused} refused");
+    // Most damage leaves a readable grasp: refusing everything would pass the checks above.
+    assert!(answered >= 150, "answered {answered}");
+}
