@@ -205,7 +205,8 @@ pub struct EstimateResult {
     /// The paper's two-point k2 (µm) for reference, when the caller computed it beside another
     /// estimator (the estimators themselves leave it `None`).
     pub two_point_k2_um: Option<i32>,
-    /// K̂c = ΔT_a/Δθa (µN·m/rad).
+    /// K̂c = ΔT_a/Δθa (µN·m/rad); 0 where the estimator fits none (the path fit's proximal
+    /// answer).
     pub kc_hat_unm_per_rad: i32,
     /// K_c of a proximal contact at the contact configuration (µN·m/rad).
     pub kc_proximal_unm_per_rad: i32,

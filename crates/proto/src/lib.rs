@@ -644,7 +644,8 @@ pub struct Contact {
     pub r_um: Option<i32>,
     /// The two-point reference k2 (µm), when computed beside another estimator.
     pub two_point_k2_um: Option<i32>,
-    /// K̂c = ΔT_a/Δθa (µN·m/rad).
+    /// K̂c = ΔT_a/Δθa (µN·m/rad); 0 where the estimator fits none (the path fit's proximal
+    /// answer).
     pub kc_hat_unm_per_rad: i32,
     /// θa at contact (µrad).
     pub theta_a_c_urad: i32,

@@ -116,7 +116,7 @@ fn put_result(v: &mut Value, r: &EstimateResult) {
     v["ta_c"] = n(f64::from(r.ta_c_unm) / 1e6);
     v["phalanx"] = json!(located_name(r.located));
     v["k2"] = r.k2_um.map_or(Value::Null, |k| n(f64::from(k) / 1e6));
-    v["kc_hat"] = n(f64::from(r.kc_hat_unm_per_rad) / 1e6);
+    v["kc_hat"] = crate::sim::kc_hat_nm_per_rad(r).map_or(Value::Null, n);
     v["dta"] = n(f64::from(r.delta_ta_unm) / 1e6);
     v["dtheta_a"] = n(f64::from(r.delta_theta_a_urad) / 1e6);
     v["quality"] = json!(quality_name(r.quality));
@@ -618,7 +618,7 @@ pub fn plot_signals(
     // The horizontal estimated-K_c line belongs to the two-point method only: the path fit does not
     // estimate from that ratio.
     let kc_hat = match (&rep.estimate, method) {
-        (Some(Ok(r)), Method::TwoPoint) => Some(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+        (Some(Ok(r)), Method::TwoPoint) => crate::sim::kc_hat_nm_per_rad(r),
         _ => None,
     };
     let sig = crate::sim_cmd::signals(&rows, rep.contact, kc_hat);

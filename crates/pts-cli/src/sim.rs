@@ -282,6 +282,12 @@ fn ctl_event(e: &grasp::Event, dt: f64) -> TimedEvent {
     }
 }
 
+/// K̂c of an estimate (N·m/rad); `None` where the estimator computed none (the path fit's
+/// proximal answer, which leaves it 0: no contact stiffness is fitted there).
+pub fn kc_hat_nm_per_rad(r: &EstimateResult) -> Option<f64> {
+    (r.kc_hat_unm_per_rad != 0).then(|| f64::from(r.kc_hat_unm_per_rad) / 1e6)
+}
+
 /// One line about an estimate.
 pub fn describe(r: &EstimateResult) -> String {
     let mm = |um: i32| format!("{:.2} mm", f64::from(um) * 1e-3);
@@ -296,10 +302,10 @@ pub fn describe(r: &EstimateResult) -> String {
     let reference = r.two_point_k2_um.map_or(String::new(), |v| {
         format!("; two-point k2 = {} (reference)", mm(v))
     });
+    let kc = kc_hat_nm_per_rad(r).map_or(String::new(), |k| format!(", K̂c = {k:.4} N·m/rad"));
     format!(
-        "{}{k2}{radius}, K̂c = {:.4} N·m/rad, ΔT_a = {:.4} N·m, Δθa = {:.5} rad, quality {}{reference}",
+        "{}{k2}{radius}{kc}, ΔT_a = {:.4} N·m, Δθa = {:.5} rad, quality {}{reference}",
         crate::trace::located_name(r.located),
-        f64::from(r.kc_hat_unm_per_rad) / 1e6,
         f64::from(r.delta_ta_unm) / 1e6,
         f64::from(r.delta_theta_a_urad) / 1e6,
         crate::trace::quality_name(r.quality),

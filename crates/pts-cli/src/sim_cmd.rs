@@ -294,7 +294,7 @@ pub fn run(a: &Args) -> Result<(), String> {
 
 fn kc_hat(rep: &SimReport) -> Option<f64> {
     match &rep.estimate {
-        Some(Ok(r)) => Some(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+        Some(Ok(r)) => crate::sim::kc_hat_nm_per_rad(r),
         _ => None,
     }
 }
@@ -339,7 +339,7 @@ fn report_json(rep: &SimReport, dta: f64) -> Value {
             "sigma_k2": r.k2_sigma_um.map(|s| num(f64::from(s) / 1e6)),
             "radius": r.radius_um.map(|v| num(f64::from(v) / 1e6)),
             "two_point_k2": r.two_point_k2_um.map(|k| num(f64::from(k) / 1e6)),
-            "kc_hat": num(f64::from(r.kc_hat_unm_per_rad) / 1e6),
+            "kc_hat": crate::sim::kc_hat_nm_per_rad(r).map(num),
             "dta": num(f64::from(r.delta_ta_unm) / 1e6),
             "dtheta_a": num(f64::from(r.delta_theta_a_urad) / 1e6),
             "theta_a_c": num(f64::from(r.theta_a_c_urad) / 1e6),

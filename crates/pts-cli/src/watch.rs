@@ -193,11 +193,14 @@ pub fn estimate_words(c: &Contact) -> String {
     let reference = c
         .two_point_k2_um
         .map_or(String::new(), |k| format!("; two-point {} mm", mm(k)));
+    // The path fit fits no stiffness to a proximal contact and reports K̂c 0.
+    let kc = match c.kc_hat_unm_per_rad {
+        0 => String::new(),
+        k => format!(", K̂c {:.3} N·m/rad", f64::from(k) * 1e-6),
+    };
     format!(
-        "{:?}, k2 {k2}{radius}, K̂c {:.3} N·m/rad ({:?}{reference})",
-        c.phalanx,
-        f64::from(c.kc_hat_unm_per_rad) * 1e-6,
-        c.estimator
+        "{:?}, k2 {k2}{radius}{kc} ({:?}{reference})",
+        c.phalanx, c.estimator
     )
 }
 

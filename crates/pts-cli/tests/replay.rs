@@ -263,6 +263,26 @@ fn a_recording_refused_as_a_whole_prints_its_reason_as_json() {
     assert!(v.get("error").is_none(), "{v}");
 }
 
+/// A proximal contact read by the path fit (which fits no stiffness there) reports no K̂c,
+/// rather than 0 N·m/rad; the two-point reference beside it reports its own.
+#[test]
+fn a_proximal_answer_reports_no_stiffness_it_did_not_fit() {
+    let samples = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/traces");
+    let path = samples.join("qs14_neg_proximal_R07p5mm_k1_55mm_th105__default.csv");
+    let v = json_of(&estimate(&path, &[]));
+    let c = &v["contacts"][0];
+    assert_eq!(c["phalanx"], "proximal", "{c}");
+    assert!(c["kc_hat"].is_null(), "{c}");
+    assert!(f(&c["two_point"], "kc_hat") > 0.5, "{c}");
+    let o = pts(&["estimate", "--trace", path.to_str().unwrap()]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    let line = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("proximal,"));
+    let line = line.unwrap_or_else(|| panic!("{text}"));
+    assert!(!line.contains("K̂c"), "{line}");
+}
+
 #[test]
 fn truncated_trace_still_replays_what_it_has() {
     let (csv, _) = recorded();
