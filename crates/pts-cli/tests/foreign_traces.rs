@@ -439,6 +439,18 @@ fn decimated_to_100_hz_is_refused() {
     assert_eq!(kind, "distal");
 }
 
+/// A fixed generator of uniform draws in [0, 1) (a 64-bit LCG's upper bits): the disturbed
+/// recordings are the same on every run.
+fn uniform_from(seed: u64) -> impl FnMut() -> f64 {
+    let mut state = seed;
+    move || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
 /// The noise-free samples with their row times disturbed three ways, drawn by a fixed
 /// generator: stamped with ±0.2 ms of jitter by the logger (read at their grid's times, so the
 /// answer is the clean one's), sampled at times that jitter by ±0.2 ms (θa and torque
@@ -450,13 +462,7 @@ fn decimated_to_100_hz_is_refused() {
 /// and the thinned recording was refused as `not_determined`.
 #[test]
 fn a_clean_recording_is_answered_whatever_the_row_timing() {
-    let mut state = 0x2545_f491_4f6c_dd1du64;
-    let mut uniform = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (state >> 11) as f64 / (1u64 << 53) as f64
-    };
+    let mut uniform = uniform_from(0x2545_f491_4f6c_dd1d);
     let clean_ids: Vec<String> = sample_ids()
         .into_iter()
         .filter(|id| id.ends_with("__ideal"))
@@ -574,17 +580,11 @@ fn a_damaged_recording_is_refused_or_answered_within_3_sigma() {
         }),
         ("cut 0.1 s after the contact", |r, c, _| r.truncate(c + 100)),
     ];
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut uniform = move || {
-        state = state
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
-    // Box–Muller on the generator above.
+    let mut uniform = uniform_from(0x9e37_79b9_7f4a_7c15);
+    // Box–Muller on the generator above (1 − u lies in (0, 1]).
     let mut gauss = move || {
         let (u, v) = (uniform(), uniform());
-        (-2.0 * u.ln()).sqrt() * (2.0 * core::f64::consts::PI * v).cos()
+        (-2.0 * (1.0 - u).ln()).sqrt() * (2.0 * core::f64::consts::PI * v).cos()
     };
     let (mut answered, mut refused) = (0usize, 0usize);
     for id in sample_ids() {
