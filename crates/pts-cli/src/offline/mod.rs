@@ -487,10 +487,9 @@ pub fn check_rest_frame(
     if rest >= lo - REST_FRAME_TOL_RAD && rest <= hi + REST_FRAME_TOL_RAD {
         return Ok(Some((rest, at_zero)));
     }
-    let urad = |x: f64| (x * 1e6).round().clamp(i32::MIN as f64, i32::MAX as f64) as i32;
     Err(OfflineError::AngleFrame {
-        rest_urad: urad(rest),
-        model_urad: urad(at_zero),
+        rest_urad: grasp::estimate::to_micro(rest),
+        model_urad: grasp::estimate::to_micro(at_zero),
     })
 }
 
@@ -547,10 +546,9 @@ pub fn check_torque_frame(
     if (TORQUE_FRAME_MIN_RATIO..=TORQUE_FRAME_MAX_RATIO).contains(&ratio) {
         return Ok(Some((rec, need)));
     }
-    let unm = |x: f64| (x * 1e6).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
     Err(OfflineError::TorqueFrame {
-        recorded_unm: unm(rec),
-        model_unm: unm(need),
+        recorded_unm: scaled(rec, 1e6),
+        model_unm: scaled(need, 1e6),
     })
 }
 
@@ -624,15 +622,19 @@ pub fn check_saturation(rows: &[TraceSample]) -> Result<(), OfflineError> {
     if best.1 < SATURATION_MIN_ROWS {
         return Ok(());
     }
-    let ms = |t: f64| (t * 1e3).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
-    let unm = |x: f64| (x * 1e6).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64;
     Err(OfflineError::TorqueSaturated {
-        level_unm: unm(top),
+        level_unm: scaled(top, 1e6),
         rows: u32::try_from(best.1).unwrap_or(u32::MAX),
-        from_ms: ms(rows[best.0].t_s),
-        to_ms: ms(rows[best.0 + best.1 - 1].t_s),
-        sigma_unm: unm(sigma),
+        from_ms: scaled(rows[best.0].t_s, 1e3),
+        to_ms: scaled(rows[best.0 + best.1 - 1].t_s, 1e3),
+        sigma_unm: scaled(sigma, 1e6),
     })
+}
+
+/// `x` × `per` (1e6: micro-units, 1e3: milli-units) rounded to the integer a refusal names,
+/// saturated at the type's range (NaN: 0).
+fn scaled(x: f64, per: f64) -> i64 {
+    (x * per).round().clamp(i64::MIN as f64, i64::MAX as f64) as i64
 }
 
 /// The upper of the middle values of `v` (its median for an odd count); NaN when empty.
