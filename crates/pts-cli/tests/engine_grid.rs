@@ -21,6 +21,9 @@
 //! widening, as the firmware reports it); the table of σ against the error shows what it does.
 //! `ENGINE_GRID_STAMP_JITTER_MS=J` moves every row's time by a draw within ±J ms (a logger
 //! that stamps rows when they arrive; the values stay those of the regular grid).
+//! `ENGINE_GRID_TORQUE_DAMAGE=drift:X|lag:T|shift:N` damages every recording's torque column
+//! as a current sensor could: an offset drifting linearly from 0 to X N·m over the recording,
+//! a first-order lag of time constant T ms, or the column delayed by N rows against θa.
 
 use dynsim::grasp as engine;
 use dynsim::grid::{
@@ -138,6 +141,10 @@ fn record_case(
     id: String,
 ) -> Outcome {
     let csv = decimate(&engine::to_csv(rec, sensor), rate_step(), 0);
+    let csv = match torque_damage() {
+        Some(d) => damage_torque(&csv, d),
+        None => csv,
+    };
     let seg = estimate(&match stamp_jitter_s() {
         Some(j) => jitter_stamps(&csv, j, &id),
         None => csv,
@@ -721,6 +728,26 @@ fn print_draw_spread(rows: &[Outcome]) {
     );
 }
 
+/// The distal answers whose true error exceeds 3σ, one line each (nothing when none does).
+fn print_outside_3sigma(rows: &[Outcome]) {
+    let outside: Vec<&Outcome> = rows
+        .iter()
+        .filter(|o| o.expected == "distal" && o.err_pct().is_some() && !o.within_3sigma())
+        .collect();
+    if outside.is_empty() {
+        return;
+    }
+    println!("distal answers outside 3σ: {}", outside.len());
+    for o in outside {
+        println!(
+            "  {}: {:+.2} % of l2 at {:.1}σ",
+            o.id,
+            o.err_pct().unwrap_or(f64::NAN),
+            o.error_over_sigma().unwrap_or(f64::NAN)
+        );
+    }
+}
+
 /// The CSV with its header and every `step`-th row from row `offset`: the same grasp recorded
 /// at a lower rate, its rows falling `offset` engine rows later.
 fn decimate(csv: &str, step: usize, offset: usize) -> String {
@@ -762,6 +789,77 @@ fn jitter_stamps(csv: &str, j_s: f64, id: &str) -> String {
     out
 }
 
+/// How `ENGINE_GRID_TORQUE_DAMAGE` damages the torque column.
+#[derive(Clone, Copy, Debug)]
+enum TorqueDamage {
+    /// An offset growing linearly from 0 at the first row to this at the last (N·m).
+    Drift(f64),
+    /// A first-order lag of this time constant (s), started at the first row's value.
+    Lag(f64),
+    /// The column delayed by this many rows (the first rows repeat the first value).
+    Shift(usize),
+}
+
+/// `ENGINE_GRID_TORQUE_DAMAGE`: `drift:X` (X N·m, |X| ≤ 0.5), `lag:T` (T ms, 0 to 100) or
+/// `shift:N` (N rows, 0 to 50).
+fn torque_damage() -> Option<TorqueDamage> {
+    let v = std::env::var("ENGINE_GRID_TORQUE_DAMAGE").ok()?;
+    let usage = "ENGINE_GRID_TORQUE_DAMAGE: drift:X (N·m, |X| ≤ 0.5), lag:T (ms, 0 to 100) or \
+                 shift:N (rows, 0 to 50)";
+    let (kind, x) = v
+        .split_once(':')
+        .unwrap_or_else(|| panic!("{usage}; got {v:?}"));
+    let num = |range: std::ops::RangeInclusive<f64>| -> f64 {
+        let n: f64 = x.parse().unwrap_or_else(|_| panic!("{usage}; got {v:?}"));
+        assert!(range.contains(&n), "{usage}; got {v:?}");
+        n
+    };
+    Some(match kind {
+        "drift" => TorqueDamage::Drift(num(-0.5..=0.5)),
+        "lag" => TorqueDamage::Lag(num(0.0..=100.0) * 1e-3),
+        "shift" => TorqueDamage::Shift(num(0.0..=50.0) as usize),
+        _ => panic!("{usage}; got {v:?}"),
+    })
+}
+
+/// The CSV (`t_s,theta_a_rad,torque_nm` rows) with its torque column damaged by `d`.
+fn damage_torque(csv: &str, d: TorqueDamage) -> String {
+    let mut lines = csv.lines();
+    let header = lines.next().unwrap_or_default();
+    let rows: Vec<[f64; 3]> = lines
+        .map(|l| {
+            let mut f = l.split(',').map(|x| x.parse::<f64>().expect("a number"));
+            [(); 3].map(|()| f.next().expect("three columns"))
+        })
+        .collect();
+    let (Some(first), Some(last)) = (rows.first(), rows.last()) else {
+        return csv.to_string();
+    };
+    let span_s = last[0] - first[0];
+    let mut lagged = first[2];
+    let mut out = format!("{header}\n");
+    for (i, r) in rows.iter().enumerate() {
+        let torque = match d {
+            TorqueDamage::Drift(x) if span_s > 0.0 => r[2] + x * (r[0] - first[0]) / span_s,
+            TorqueDamage::Drift(_) => r[2],
+            TorqueDamage::Lag(tau) => {
+                let dt = if i == 0 { 0.0 } else { r[0] - rows[i - 1][0] };
+                // Exact for a torque held over the row's interval; no lag at T = 0.
+                let gain = if tau > 0.0 {
+                    1.0 - (-dt / tau).exp()
+                } else {
+                    1.0
+                };
+                lagged += (r[2] - lagged) * gain;
+                lagged
+            }
+            TorqueDamage::Shift(n) => rows[i.saturating_sub(n)][2],
+        };
+        out += &format!("{:.3},{:.9},{:.7}\n", r[0], r[1], torque);
+    }
+    out
+}
+
 /// The grid the environment asks for: `ENGINE_GRID=small|full|inertia|pose|protocol`, else the
 /// CI slice.
 fn grid() -> (&'static str, &'static Axes) {
@@ -785,13 +883,14 @@ fn engine_grid_default_method() {
     let rows = run_grid(&cs);
     let grasps = rows.iter().filter(|o| o.id == o.grasp).count();
     println!(
-        "engine grid `{name}` recorded at {} Hz{}: {grasps} grasps ({} skipped by the engine), {} \
+        "engine grid `{name}` recorded at {} Hz{}{}: {grasps} grasps ({} skipped by the engine), {} \
          recordings with {} more sensor draws of each noisy grasp, in {:.1} s",
         1000 / rate_step(),
         stamp_jitter_s().map_or(String::new(), |j| format!(
             ", row times stamped with ±{} ms of jitter",
             j * 1e3
         )),
+        torque_damage().map_or(String::new(), |d| format!(", torque damaged: {d:?}")),
         cs.len() - grasps,
         rows.len(),
         draws(),
@@ -799,6 +898,7 @@ fn engine_grid_default_method() {
     );
     let all = print_table(&rows);
     print_sigma_calibration(&rows);
+    print_outside_3sigma(&rows);
     if draws() > 0 {
         print_draw_spread(&rows);
     }
@@ -820,7 +920,7 @@ fn engine_grid_default_method() {
     let [off, realistic] = print_drive_table(&rows);
     // The bounds below hold the CI slice as the engine records it; other grids and rates are
     // measurements.
-    if name != "ci" || rate_step() != 1 || stamp_jitter_s().is_some() {
+    if name != "ci" || rate_step() != 1 || stamp_jitter_s().is_some() || torque_damage().is_some() {
         return;
     }
     // The drive from the approach. With noise (the realistic level), σ covers the error: the
