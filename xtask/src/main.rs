@@ -168,6 +168,26 @@ exit status: 0 within both budgets, 1 over either or when the build fails.
         run: |args| size::main(args).map(|()| 0),
     },
     Cmd {
+        name: "board",
+        args: "[CARGO OPTIONS]",
+        summary: "build the board firmware as `size` measures it, flash it, stream its log",
+        help: "\
+Builds the release firmware for the board (STM32F411, thumbv7em-none-eabihf) the way
+`cargo xtask size` measures it (registry paths remapped, so the flash is the same on every
+machine), then flashes it and streams its defmt log with the runner of .cargo/config.toml
+(`probe-rs run --chip STM32F411CEUx`; needs probe-rs-tools and a probe). `cargo board` is
+this command. Options go to `cargo run`, e.g. `cargo board --features device`.
+
+options:
+  -h, --help            print this help and exit
+
+environment: FINGER_TOML, FINGER_FW_ESTIMATOR and FINGER_FW_DELTA_TA_NM as for `demo`.
+
+exit status: the runner's (probe-rs's); 127 when probe-rs is missing; 1 when the build fails.
+",
+        run: size::board,
+    },
+    Cmd {
         name: "bench",
         args: "[--check] [--quick] [--no-criterion]",
         summary: "instructions per estimate (unicorn) and error of each solver variant",

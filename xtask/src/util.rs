@@ -23,7 +23,42 @@ pub fn cargo() -> Command {
             c.env(key, abs);
         }
     }
+    if std::env::var_os(THUMB_RUSTFLAGS).is_none() {
+        if let Some(flags) = cargo_home().and_then(|h| thumb_rustflags(&h)) {
+            c.env(THUMB_RUSTFLAGS, flags);
+        }
+    }
     c
+}
+
+/// The firmware target's rustflags, as cargo reads them from the environment.
+pub const THUMB_RUSTFLAGS: &str = "CARGO_TARGET_THUMBV7EM_NONE_EABIHF_RUSTFLAGS";
+
+/// Cargo's home: `CARGO_HOME`, else `~/.cargo`.
+fn cargo_home() -> Option<PathBuf> {
+    std::env::var_os("CARGO_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cargo")))
+}
+
+/// Flags that strip `cargo_home`'s registry directories from the source paths rustc embeds:
+/// the panic locations of registry crates in the firmware's flash then read
+/// `usb-device-0.3.2/src/bus.rs`, and the board build's size is the same on every machine
+/// (unremapped, each such path is as long as cargo's home, about 1 KB in all). `None` when
+/// there is no registry yet, or a path holds whitespace (the variable is split on it).
+pub fn thumb_rustflags(cargo_home: &Path) -> Option<String> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(cargo_home.join("registry").join("src"))
+        .ok()?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_dir())
+        .collect();
+    dirs.sort();
+    let flags: Vec<String> = dirs
+        .iter()
+        .map(|d| format!("--remap-path-prefix={}/=", d.display()))
+        .collect();
+    (!flags.is_empty() && !flags.iter().any(|f| f.contains(char::is_whitespace)))
+        .then(|| flags.join(" "))
 }
 
 /// Cargo profile of the host tools xtask builds and runs (Cargo.toml's `[profile.host]`).
@@ -59,6 +94,10 @@ fn absolute_file(value: &std::ffi::OsStr) -> Option<PathBuf> {
 pub fn show(cmd: &Command) -> String {
     let mut s = String::new();
     for (k, v) in cmd.get_envs() {
+        // Every command carries the firmware's path remapping; it says nothing about this one.
+        if k == THUMB_RUSTFLAGS {
+            continue;
+        }
         if let Some(v) = v {
             s.push_str(&format!("{}={} ", k.to_string_lossy(), v.to_string_lossy()));
         }
@@ -117,4 +156,34 @@ pub fn on_path(prog: &str) -> bool {
     std::env::var_os("PATH")
         .map(|p| std::env::split_paths(&p).any(|d| d.join(prog).is_file()))
         .unwrap_or(false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_firmware_s_paths_are_remapped_from_each_registry_directory() {
+        let home = std::env::temp_dir().join(format!("xtask-cargo-home-{}", std::process::id()));
+        let src = home.join("registry").join("src");
+        assert_eq!(thumb_rustflags(&home), None, "no registry yet");
+        for d in ["index.crates.io-1949cf8c6b5b557f", "other-registry-0123"] {
+            std::fs::create_dir_all(src.join(d)).unwrap();
+        }
+        std::fs::write(src.join("not-a-directory"), "").unwrap();
+        let flags = thumb_rustflags(&home).expect("flags");
+        assert_eq!(
+            flags,
+            format!(
+                "--remap-path-prefix={0}/index.crates.io-1949cf8c6b5b557f/= \
+                 --remap-path-prefix={0}/other-registry-0123/=",
+                src.display()
+            )
+        );
+        // A home with a space cannot be passed through the whitespace-split variable.
+        let spaced = home.join("a b");
+        std::fs::create_dir_all(spaced.join("registry").join("src").join("x")).unwrap();
+        assert_eq!(thumb_rustflags(&spaced), None);
+        std::fs::remove_dir_all(&home).unwrap();
+    }
 }
