@@ -794,7 +794,8 @@ fn jitter_stamps(csv: &str, j_s: f64, id: &str) -> String {
 enum TorqueDamage {
     /// An offset growing linearly from 0 at the first row to this at the last (N·m).
     Drift(f64),
-    /// A first-order lag of this time constant (s), started at the first row's value.
+    /// A first-order lag of this time constant (s), started at the first row's value, each
+    /// row's torque held over the interval that ends at it.
     Lag(f64),
     /// The column delayed by this many rows (the first rows repeat the first value).
     Shift(usize),
@@ -844,7 +845,7 @@ fn damage_torque(csv: &str, d: TorqueDamage) -> String {
             TorqueDamage::Drift(_) => r[2],
             TorqueDamage::Lag(tau) => {
                 let dt = if i == 0 { 0.0 } else { r[0] - rows[i - 1][0] };
-                // Exact for a torque held over the row's interval; no lag at T = 0.
+                // Exact for the torque held over the interval ending at this row; no lag at T = 0.
                 let gain = if tau > 0.0 {
                     1.0 - (-dt / tau).exp()
                 } else {
@@ -1769,4 +1770,56 @@ fn root(g: impl Fn(f64) -> Option<f64>, lo: f64, hi: f64) -> Option<f64> {
         }
     }
     Some(0.5 * (a + b))
+}
+
+/// The torque damages of `ENGINE_GRID_TORQUE_DAMAGE` against their closed forms, on a torque
+/// step of 1 N·m at t = 10 ms in rows 1 ms apart; θa and the times stay as they were.
+#[test]
+fn a_damaged_torque_column_is_the_sensor_fault_it_names() {
+    let mut csv = String::from("t_s,theta_a_rad,torque_nm\n");
+    for i in 0..=100 {
+        let t = f64::from(i) * 1e-3;
+        let torque = if i >= 10 { 1.0 } else { 0.0 };
+        csv += &format!("{t:.3},{:.9},{torque:.7}\n", -0.85 + 1e-4 * f64::from(i));
+    }
+    let column = |d: TorqueDamage| -> Vec<[f64; 3]> {
+        damage_torque(&csv, d)
+            .lines()
+            .skip(1)
+            .map(|l| {
+                let mut f = l.split(',').map(|x| x.parse::<f64>().unwrap());
+                [(); 3].map(|()| f.next().unwrap())
+            })
+            .collect()
+    };
+    let undamaged = column(TorqueDamage::Shift(0));
+    assert_eq!(undamaged.len(), 101);
+    for d in [
+        TorqueDamage::Drift(0.02),
+        TorqueDamage::Lag(5e-3),
+        TorqueDamage::Shift(2),
+    ] {
+        let rows = column(d);
+        for (i, (r, u)) in rows.iter().zip(&undamaged).enumerate() {
+            assert_eq!((r[0], r[1]), (u[0], u[1]), "{d:?}: row {i} moved");
+            let (t, step) = (u[0], u[2]);
+            let want = match d {
+                // 0 at the first row, 0.02 N·m at the last (t = 0.1 s).
+                TorqueDamage::Drift(x) => step + x * t / 0.1,
+                // The step's value held from the row before it (9 ms): 1 − e^{−(t − 9 ms)/τ}.
+                TorqueDamage::Lag(tau) if i >= 10 => 1.0 - (-(t - 0.009) / tau).exp(),
+                TorqueDamage::Lag(_) => 0.0,
+                TorqueDamage::Shift(n) => undamaged[i.saturating_sub(n)][2],
+            };
+            assert!(
+                (r[2] - want).abs() <= 1e-6,
+                "{d:?}: row {i} torque {} N·m, expected {want}",
+                r[2]
+            );
+        }
+    }
+    // The lag reaches 63 % of the step one time constant after the interval it starts in.
+    let lag = column(TorqueDamage::Lag(5e-3));
+    assert!((lag[14][2] - (1.0 - (-1.0f64).exp())).abs() <= 1e-6);
+    assert_eq!(column(TorqueDamage::Shift(2))[11][2], 0.0);
 }
