@@ -48,9 +48,13 @@ pub fn measure(elf: &std::path::Path) -> Res<Sizes> {
             ".rodata" => {
                 s.flash += sec.size();
                 let data = sec.data().unwrap_or(&[]);
-                let marker = b"/registry/src/";
-                s.registry_paths =
-                    data.windows(marker.len()).filter(|w| w == marker).count() as u64;
+                if let Some(home) = util::cargo_home() {
+                    let marker = home.join("registry").join("src");
+                    let marker = marker.to_string_lossy();
+                    let marker = marker.as_bytes();
+                    s.registry_paths =
+                        data.windows(marker.len()).filter(|w| w == &marker).count() as u64;
+                }
             }
             ".data" => {
                 s.flash += sec.size();

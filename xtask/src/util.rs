@@ -35,17 +35,17 @@ pub fn cargo() -> Command {
 pub const THUMB_RUSTFLAGS: &str = "CARGO_TARGET_THUMBV7EM_NONE_EABIHF_RUSTFLAGS";
 
 /// Cargo's home: `CARGO_HOME`, else `~/.cargo`.
-fn cargo_home() -> Option<PathBuf> {
+pub fn cargo_home() -> Option<PathBuf> {
     std::env::var_os("CARGO_HOME")
         .map(PathBuf::from)
         .or_else(|| std::env::var_os("HOME").map(|h| Path::new(&h).join(".cargo")))
 }
 
-/// Flags that strip `cargo_home`'s registry directories from the source paths rustc embeds:
-/// the panic locations of registry crates in the firmware's flash then read
-/// `usb-device-0.3.2/src/bus.rs`, and the board build's size is the same on every machine
-/// (unremapped, each such path is as long as cargo's home, about 1 KB in all). `None` when
-/// there is no registry yet, or a path holds whitespace (the variable is split on it).
+/// Flags that take `cargo_home` out of the source paths rustc embeds: each registry directory
+/// `<home>/registry/src/index.crates.io-<hash>` reads `/registry/src/index.crates.io`, so the
+/// panic locations of registry crates in the firmware's flash are the same on every machine
+/// (unremapped, each is as long as cargo's home), and shorter. `None` when there is no
+/// registry yet, or a path holds whitespace (the variable is split on it).
 pub fn thumb_rustflags(cargo_home: &Path) -> Option<String> {
     let mut dirs: Vec<PathBuf> = std::fs::read_dir(cargo_home.join("registry").join("src"))
         .ok()?
@@ -55,7 +55,14 @@ pub fn thumb_rustflags(cargo_home: &Path) -> Option<String> {
     dirs.sort();
     let flags: Vec<String> = dirs
         .iter()
-        .map(|d| format!("--remap-path-prefix={}/=", d.display()))
+        .filter_map(|d| {
+            let name = d.file_name()?.to_str()?;
+            let short = name.rsplit_once('-').map_or(name, |(index, _hash)| index);
+            Some(format!(
+                "--remap-path-prefix={}=/registry/src/{short}",
+                d.display()
+            ))
+        })
         .collect();
     (!flags.is_empty() && !flags.iter().any(|f| f.contains(char::is_whitespace)))
         .then(|| flags.join(" "))
@@ -175,8 +182,8 @@ mod tests {
         assert_eq!(
             flags,
             format!(
-                "--remap-path-prefix={0}/index.crates.io-1949cf8c6b5b557f/= \
-                 --remap-path-prefix={0}/other-registry-0123/=",
+                "--remap-path-prefix={0}/index.crates.io-1949cf8c6b5b557f=/registry/src/index.crates.io \
+                 --remap-path-prefix={0}/other-registry-0123=/registry/src/other-registry",
                 src.display()
             )
         );
