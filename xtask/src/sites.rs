@@ -255,6 +255,49 @@ fn bytes_at<'a>(obj: &'a object::File<'a>, addr: u64, size: u64) -> Option<&'a [
 mod tests {
     use super::*;
 
+    /// A registry crate's frame is told from the workspace's whether or not xtask remapped
+    /// cargo's home out of its path (`util::thumb_rustflags`).
+    #[test]
+    fn a_registry_crate_s_call_is_its_crate_s_remapped_or_not() {
+        let root = Path::new("/work/main");
+        let site = |file: &str| Site {
+            caller: "c".into(),
+            callee: "p".into(),
+            addr: 0,
+            frames: vec![Frame {
+                function: Some("f".into()),
+                file: Some(file.into()),
+                line: Some(706),
+            }],
+        };
+        // The path as xtask's remap (util::thumb_rustflags) rewrites it, for a home made here.
+        let home = std::env::temp_dir().join(format!("xtask-sites-home-{}", std::process::id()));
+        let index = home.join("registry/src/index.crates.io-1949cf8c6b5b557f");
+        std::fs::create_dir_all(&index).unwrap();
+        let flags = crate::util::thumb_rustflags(&home).expect("remap flags");
+        std::fs::remove_dir_all(&home).unwrap();
+        let (from, to) = flags
+            .strip_prefix("--remap-path-prefix=")
+            .and_then(|f| f.split_once('='))
+            .expect("one FROM=TO");
+        assert_eq!(Path::new(from), index);
+        let remapped = format!("{to}/synopsys-usb-otg-0.4.0/src/bus.rs");
+        for file in [
+            remapped.as_str(),
+            "/root/.cargo/registry/src/index.crates.io-1949cf8c6b5b557f/synopsys-usb-otg-0.4.0/src/bus.rs",
+        ] {
+            let owner = site(file).owner(root);
+            assert!(
+                matches!(&owner, Owner::Crate(k, _) if k == "synopsys-usb-otg-0.4.0"),
+                "{file}: {owner:?}"
+            );
+            assert_eq!(owner.place(root), "synopsys-usb-otg-0.4.0 src/bus.rs:706");
+        }
+        let own = site("/work/main/src/app_device.rs").owner(root);
+        assert!(matches!(own, Owner::Own(_)), "{own:?}");
+        assert_eq!(own.place(root), "src/app_device.rs:706");
+    }
+
     #[test]
     fn branch_encodings_decode_to_their_targets() {
         // From arm-none-eabi-objdump of a firmware build.
