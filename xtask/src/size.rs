@@ -86,7 +86,7 @@ pub fn board(args: &[String]) -> Res<i32> {
         crate::qemu::TARGET,
     ])
     .args(args);
-    eprintln!("{}", util::show(&cmd));
+    eprintln!("$ {}", util::show(&cmd));
     let status = cmd
         .status()
         .map_err(|e| format!("{}: {e}", util::show(&cmd)))?;
@@ -231,6 +231,9 @@ pub fn documented(label: &str, s: Sizes) -> Res {
         &format!("the static RAM of the {label} build"),
         s.ram,
     ));
+    if !errs.is_empty() {
+        errs.push("update the size rows".to_string());
+    }
     if s.registry_paths > 0 {
         errs.push(format!(
             "the {label} build holds {} panic-location paths under cargo's home, so its flash \
@@ -243,7 +246,7 @@ pub fn documented(label: &str, s: Sizes) -> Res {
     if errs.is_empty() {
         Ok(())
     } else {
-        Err(format!("{}; update the size rows", errs.join("; ")))
+        Err(errs.join("; "))
     }
 }
 
