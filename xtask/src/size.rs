@@ -72,20 +72,21 @@ pub fn build_board() -> Res<std::path::PathBuf> {
     build_board_with(&[], None)
 }
 
+/// What `cargo build` / `cargo run` take for the release board firmware.
+const BOARD_ARGS: [&str; 5] = [
+    "--release",
+    "-p",
+    "finger-fw",
+    "--target",
+    crate::qemu::TARGET,
+];
+
 /// `cargo xtask board` (`cargo board`): `cargo run` of the release board firmware with the
 /// same flags as [`build_board`], so what is flashed is what the size budgets measured; the
 /// runner's exit status.
 pub fn board(args: &[String]) -> Res<i32> {
     let mut cmd = util::cargo();
-    cmd.args([
-        "run",
-        "--release",
-        "-p",
-        "finger-fw",
-        "--target",
-        crate::qemu::TARGET,
-    ])
-    .args(args);
+    cmd.arg("run").args(BOARD_ARGS).args(args);
     eprintln!("$ {}", util::show(&cmd));
     let status = cmd
         .status()
@@ -122,15 +123,7 @@ pub fn build_board_device(features: &str) -> Res<std::path::PathBuf> {
 /// `estimator`: `FINGER_FW_ESTIMATOR` for the build; `None` keeps the caller's environment.
 fn build_board_with(extra: &[&str], estimator: Option<&str>) -> Res<std::path::PathBuf> {
     let mut cmd = util::cargo();
-    cmd.args([
-        "build",
-        "--release",
-        "-p",
-        "finger-fw",
-        "--target",
-        crate::qemu::TARGET,
-    ])
-    .args(extra);
+    cmd.arg("build").args(BOARD_ARGS).args(extra);
     if let Some(e) = estimator {
         cmd.env("FINGER_FW_ESTIMATOR", e);
     }
